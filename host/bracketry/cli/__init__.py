@@ -1,0 +1,134 @@
+"""The ``bracketry`` command line: one entry point, subcommand groups loaded lazily.
+
+Each subcommand lives in its own module and exposes a click object named ``command``. The table below is the only
+place that lists them; a module that is not (yet) in the tree is simply not offered. Loading is lazy so that
+``bracketry --help`` stays fast and a rig without the ``emulator`` extra still runs its own commands.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.util
+import os
+import sys
+from typing import Any
+
+import click
+
+from bracketry import __version__
+from bracketry.errors import BracketryError
+
+#: name -> (module path, attribute, one-line help, extra needed)
+COMMANDS: dict[str, tuple[str, str, str, str | None]] = {
+    "doctor": ("bracketry.cli.doctor", "command", "Check the components the rig and tests need.", None),
+    "wire": ("bracketry.cli.wire", "command", "Encode and decode frames of the serial wire protocol.", None),
+    "trigger": ("bracketry.cli.trigger", "command", "STM32 trigger: talk to it, run it in QEMU, or simulate it.", None),
+    "panel": ("bracketry.cli.panel", "command", "ESP32 status panel: simulate it or deploy its firmware.", None),
+    "cameras": ("bracketry.cli.cameras", "command", "GigE cameras through Aravis: probe, configure, grab.", "host"),
+    "record": ("bracketry.cli.record", "command", "Record for a fixed duration (no buttons).", "host"),
+    "verify": ("bracketry.cli.verify", "command", "Check recordings: drops, pairing, bracket order, repair.", None),
+    "export": ("bracketry.cli.export", "command", "Export a recording as a BorealHDR tree or a ROS 1 bag.", None),
+    "daemon": ("bracketry.cli.daemon", "command", "Run the rig daemon (buttons, panel, cameras, recording).", "host"),
+    "status": ("bracketry.cli.status", "command", "Ask the running daemon for its state.", None),
+    "simulate": ("bracketry.cli.simulate", "command", "Run the whole rig here on simulated devices.", "host"),
+    "devices": ("bracketry.cli.devices", "command", "List the rig's USB serial devices and write udev rules.", "host"),
+    "hw": ("bracketry.cli.hw", "command", "Hardware calculators: power budget and GigE bandwidth.", None),
+    "synth": ("bracketry_emulator.cli.synth", "command", "Render synthetic bracketed HDR stereo data.", "emulator"),
+    "calibrate-crf": ("bracketry_emulator.cli.crf", "command", "Calibrate the camera response from a static stack.",
+                      "emulator"),
+    "emulate": ("bracketry_emulator.cli.emulate", "command", "Emulate images at chosen exposures, run AE methods.",
+                "emulator"),
+    "accuracy": ("bracketry_emulator.cli.accuracy", "command", "Measure the emulator's accuracy.", "emulator"),
+    "benchmark": ("bracketry_emulator.cli.benchmark", "command", "Benchmark AE methods: VO, metrics, statistics.",
+                  "emulator"),
+    "demo": ("bracketry.cli.demo", "command", "Run the whole pipeline on the embedded default.", None),
+}
+
+
+def _available(module: str) -> bool:
+    try:
+        return importlib.util.find_spec(module) is not None
+    except ModuleNotFoundError:
+        return False
+
+
+class LazyGroup(click.Group):
+    """A click group whose subcommands are imported only when used."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return [name for name, (mod, *_rest) in COMMANDS.items() if _available(mod)]
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        entry = COMMANDS.get(cmd_name)
+        if entry is None or not _available(entry[0]):
+            return None
+        mod_name, attr, help_text, extra = entry
+        try:
+            module = importlib.import_module(mod_name)
+        except ImportError as exc:
+            hint = f" (install the extra: pip install -e '.[{extra}]')" if extra else ""
+            missing = getattr(exc, "name", None) or str(exc)
+            return _broken_command(cmd_name, help_text, f"'{cmd_name}' needs the Python module {missing}{hint}")
+        cmd = getattr(module, attr)
+        return cmd
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, COMMANDS[name][2]) for name in self.list_commands(ctx)]
+        if rows:
+            with formatter.section("Commands"):
+                formatter.write_dl(rows)
+
+
+def _broken_command(name: str, help_text: str, message: str) -> click.Command:
+    def run(**_kwargs: Any) -> None:
+        raise BracketryError(message)
+
+    return click.Command(name, callback=run, help=help_text + "\n\nUnavailable: " + message,
+                         context_settings={"ignore_unknown_options": True, "allow_extra_args": True})
+
+
+@click.group(cls=LazyGroup, context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, "--version", "-V", prog_name="bracketry")
+def cli() -> None:
+    """bracketry: record exposure-bracketed stereo images and benchmark auto-exposure methods on them.
+
+    The rig side (firmware, host daemon) records; the offline side emulates any exposure from the brackets and
+    compares AE methods in closed loop. Run `bracketry doctor` to check this machine.
+    """
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point: run the CLI, turning BracketryError (and any other failure) into one line on stderr."""
+    debug = os.environ.get("BRACKETRY_DEBUG") == "1"
+    try:
+        rv = cli.main(args=argv, prog_name="bracketry", standalone_mode=False)
+    except click.exceptions.Abort:
+        click.echo("aborted", err=True)
+        return 130
+    except click.ClickException as exc:
+        exc.show()
+        return exc.exit_code
+    except click.exceptions.Exit as exc:
+        return int(exc.exit_code or 0)
+    except KeyboardInterrupt:
+        click.echo("interrupted", err=True)
+        return 130
+    except BracketryError as exc:
+        if debug:
+            raise
+        click.echo(f"error: {exc}", err=True)
+        return exc.exit_code
+    except BrokenPipeError:
+        return 0
+    except Exception as exc:  # last resort: one line, never a traceback unless BRACKETRY_DEBUG=1
+        if debug:
+            raise
+        click.echo(f"error: unexpected {type(exc).__name__}: {exc} (BRACKETRY_DEBUG=1 shows the traceback)",
+                   err=True)
+        return 1
+    # A command may return an int exit code (e.g. verify: 0 clean, 1 problems, 2 unreadable).
+    return rv if isinstance(rv, int) else 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

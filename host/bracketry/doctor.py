@@ -1,0 +1,127 @@
+"""Checks of every component the rig software and the test-suite need, each with its version or a one-line fix."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from dataclasses import dataclass
+
+from bracketry import paths
+
+
+@dataclass(frozen=True)
+class Check:
+    """One component: ``ok`` with a ``version`` (or detail), or not ok with a ``fix`` (one line)."""
+
+    name: str
+    ok: bool
+    version: str
+    fix: str
+
+
+def _run(cmd: list[str], timeout_s: float = 20.0) -> str | None:
+    try:
+        out = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return None
+    return (out.stdout + out.stderr).strip()
+
+
+def check_pygobject() -> Check:
+    fix = "run ./setup.sh (pip install 'PyGObject<3.51' needs libgirepository1.0-dev libcairo2-dev pkg-config)"
+    try:
+        import gi  # type: ignore[import-untyped]
+    except ImportError:
+        return Check("PyGObject", False, "", fix)
+    return Check("PyGObject", True, getattr(gi, "__version__", "?"), "")
+
+
+def check_aravis_typelib() -> Check:
+    fix = "apt-get install gir1.2-aravis-0.8 libaravis-0.8-0 (or run ./setup.sh)"
+    try:
+        import gi  # type: ignore[import-untyped]
+
+        gi.require_version("Aravis", "0.8")
+        from gi.repository import Aravis  # type: ignore[import-untyped]  # noqa: F401
+    except (ImportError, ValueError):
+        return Check("Aravis typelib 0.8", False, "", fix)
+    ver = "0.8"
+    try:
+        out = subprocess.run(["dpkg-query", "-W", "-f=${Version}", "libaravis-0.8-0"], capture_output=True,
+                             text=True, timeout=10, check=False)
+        ver = out.stdout.strip() or ver
+    except (OSError, subprocess.TimeoutExpired):
+        pass
+    return Check("Aravis typelib 0.8", True, ver, "")
+
+
+def check_binary(name: str, exe: str, version_args: list[str], fix: str, pattern: str = r"(\d+\.\d+(\.\d+)?)",
+                 ) -> Check:
+    path = shutil.which(exe)
+    if path is None:
+        return Check(name, False, "", fix)
+    out = _run([path, *version_args]) or ""
+    m = re.search(pattern, out)
+    return Check(name, True, m.group(1) if m else path, "")
+
+
+def check_fake_camera() -> Check:
+    fix = "apt-get install aravis-tools (or run ./setup.sh)"
+    path = shutil.which("arv-fake-gv-camera-0.8")
+    if path is None:
+        return Check("arv-fake-gv-camera-0.8", False, "", fix)
+    return Check("arv-fake-gv-camera-0.8", True, path, "")
+
+
+def check_qemu_machine() -> Check:
+    fix = "apt-get install qemu-system-arm (or run ./setup.sh)"
+    exe = shutil.which("qemu-system-arm")
+    if exe is None:
+        return Check("qemu-system-arm netduinoplus2", False, "", fix)
+    ver = _run([exe, "--version"]) or ""
+    machines = _run([exe, "-M", "help"]) or ""
+    m = re.search(r"version (\d+\.\d+\.\d+)", ver)
+    if "netduinoplus2" not in machines:
+        return Check("qemu-system-arm netduinoplus2", False, m.group(1) if m else "",
+                     "this QEMU lacks the netduinoplus2 machine: install Debian's qemu-system-arm >= 5.2")
+    return Check("qemu-system-arm netduinoplus2", True, m.group(1) if m else "?", "")
+
+
+def check_micropython() -> Check:
+    fix = "run ./setup.sh (npm install @micropython/micropython-webassembly-pyscript into .venv/micropython-wasm)"
+    mjs = paths.micropython_module_path()
+    if not mjs.is_file():
+        return Check("MicroPython WebAssembly", False, "", fix)
+    pkg = mjs.parent / "package.json"
+    ver = "?"
+    if pkg.is_file():
+        m = re.search(r'"version"\s*:\s*"([^"]+)"', pkg.read_text())
+        ver = m.group(1) if m else "?"
+    return Check("MicroPython WebAssembly", True, ver, "")
+
+
+def check_sample_data() -> Check:
+    root = paths.sample_data_dir()
+    if root is None:
+        return Check("BorealHDR sample data", False, "",
+                     f"put the sample at ../shared/data/borealhdr_sample or set ${paths.SAMPLE_ENV}")
+    return Check("BorealHDR sample data", True, str(root), "")
+
+
+def run_all() -> list[Check]:
+    """Run every check; never raises."""
+    return [
+        check_aravis_typelib(),
+        check_fake_camera(),
+        check_pygobject(),
+        check_binary("arm-none-eabi-gcc", "arm-none-eabi-gcc", ["--version"],
+                     "apt-get install gcc-arm-none-eabi libnewlib-arm-none-eabi (or run ./setup.sh)",
+                     r"(\d+\.\d+\.\d+)"),
+        check_qemu_machine(),
+        check_binary("socat", "socat", ["-V"], "apt-get install socat (or run ./setup.sh)", r"socat version (\S+)"),
+        check_binary("Node.js", "node", ["--version"], "apt-get install nodejs npm (or run ./setup.sh)",
+                     r"v?(\d+\.\d+\.\d+)"),
+        check_micropython(),
+        check_sample_data(),
+    ]

@@ -1,0 +1,60 @@
+#!/usr/bin/env bash
+# One-command, idempotent set-up of a fresh Debian 12 machine for bracketry (rig software, emulator, tests).
+# Installs the Debian packages, creates .venv with the project (editable, all extras) and the MicroPython
+# WebAssembly runtime (npm) under .venv/micropython-wasm. Prints each step; fails loudly naming the failing step.
+set -Eeuo pipefail
+cd "$(dirname "$0")"
+ROOT=$(pwd)
+STEP="start"
+trap 'echo "setup.sh: FAILED at step: $STEP" >&2' ERR
+step() { STEP="$1"; echo "==> $1"; }
+SUDO=""; if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
+
+APT_PACKAGES=(libaravis-0.8-0 gir1.2-aravis-0.8 aravis-tools aravis-tools-cli libgirepository1.0-dev
+  libcairo2-dev pkg-config gcc make socat gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm
+  iproute2 util-linux)
+command -v node >/dev/null 2>&1 || APT_PACKAGES+=(nodejs)
+command -v npm >/dev/null 2>&1 || APT_PACKAGES+=(npm)
+
+step "Debian packages"
+missing=()
+for p in "${APT_PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -gt 0 ]; then
+  echo "    installing: ${missing[*]}"
+  $SUDO apt-get update -q
+  DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
+else
+  echo "    all present"
+fi
+
+step "Python virtual environment (.venv)"
+PY=${PYTHON:-python3}
+"$PY" -c 'import sys; assert sys.version_info >= (3, 11), "Python >= 3.11 needed"'
+[ -x .venv/bin/python ] || "$PY" -m venv .venv
+.venv/bin/python -m pip install -q --upgrade pip 'setuptools>=68' wheel
+
+step "Python packages (editable install with all extras)"
+stamp=.venv/.bracketry-installed
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+  .venv/bin/python -m pip install -q -e '.[all]'
+  touch "$stamp"
+else
+  echo "    up to date"
+fi
+
+step "MicroPython WebAssembly runtime (npm, .venv/micropython-wasm)"
+MPY_DIR=.venv/micropython-wasm
+if [ ! -f "$MPY_DIR/node_modules/@micropython/micropython-webassembly-pyscript/micropython.mjs" ]; then
+  mkdir -p "$MPY_DIR"
+  (cd "$MPY_DIR" && { [ -f package.json ] || npm init -y >/dev/null; } \
+     && npm install --no-audit --no-fund '@micropython/micropython-webassembly-pyscript@^1.27.0' >/dev/null)
+else
+  echo "    present"
+fi
+
+step "bracketry doctor"
+.venv/bin/bracketry doctor || echo "    (doctor reported missing components; see above)"
+STEP="done"
+echo "==> setup complete in ${SECONDS}s (activate with: source $ROOT/.venv/bin/activate)"

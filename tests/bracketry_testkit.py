@@ -1,0 +1,77 @@
+"""Shared test helpers: component checks, strict mode, free loopback ports, process cleanup.
+
+Strict mode (``BRACKETRY_STRICT=1``, set by CI) turns every "required component missing" skip into a failure, so a
+green CI proves that the real Aravis, QEMU, MicroPython runtime and sample data were exercised.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+import socket
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from bracketry import doctor, paths
+
+STRICT = os.environ.get("BRACKETRY_STRICT") == "1"
+
+
+def missing_component(reason: str) -> None:
+    """Skip the current test because a component is absent, or fail it in strict mode."""
+    if STRICT:
+        pytest.fail(f"required component missing (BRACKETRY_STRICT=1): {reason}", pytrace=False)
+    pytest.skip(reason)
+
+
+@functools.cache
+def _checks() -> dict[str, doctor.Check]:
+    return {c.name: c for c in doctor.run_all()}
+
+
+#: pytest marker -> doctor check names it needs
+MARKER_NEEDS: dict[str, tuple[str, ...]] = {
+    "aravis": ("Aravis typelib 0.8", "arv-fake-gv-camera-0.8", "PyGObject"),
+    "qemu": ("arm-none-eabi-gcc", "qemu-system-arm netduinoplus2"),
+    "micropython": ("Node.js", "MicroPython WebAssembly"),
+    "realdata": ("BorealHDR sample data",),
+    "socat": ("socat",),
+}
+
+
+def require_marker_components(marker: str) -> None:
+    """Skip (or fail in strict mode) unless every component of ``marker`` is present."""
+    for name in MARKER_NEEDS.get(marker, ()):
+        check = _checks()[name]
+        if not check.ok:
+            missing_component(f"{name} not found; fix: {check.fix}")
+
+
+def sample_dir() -> Path:
+    """The real BorealHDR sample folder (holding ``calibration/``), or skip/fail with the reason."""
+    root = paths.sample_data_dir()
+    if root is None:
+        missing_component(f"BorealHDR sample not found at ../shared/data/borealhdr_sample or ${paths.SAMPLE_ENV}")
+        raise AssertionError("unreachable")
+    return root
+
+
+def free_tcp_port() -> int:
+    """A free TCP port on 127.0.0.1 (bound then released)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
+    """End a process this test started (by its PID only): SIGTERM, then SIGKILL after ``timeout_s``."""
+    if proc.poll() is not None:
+        return
+    proc.terminate()
+    try:
+        proc.wait(timeout=timeout_s)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(timeout=timeout_s)
