@@ -1,0 +1,1 @@
+"""The rig daemon: configuration, per-sensor states, buttons, faults, status socket, USB device naming."""
