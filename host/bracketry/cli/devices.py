@@ -34,7 +34,7 @@ def command(as_json: bool, rules_path: Path | None, roles: tuple[str, ...], reco
         click.echo("no trigger or panel USB device found")
     else:
         for d in found:
-            role = role_map.get(d.serial or "", d.role)
+            role = role_map.get(d.serial or "", d.role) or "-"
             click.echo(f"{role:<8} {d.usb_id}  {d.bridge:<40} serial={d.serial or '-':<24} port={d.port or '-'}")
     if rules_path is not None:
         text = dev.udev_rules(found, role_map)

@@ -202,7 +202,7 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
     if cams_raw is None:
         c.fail("cameras", "missing: declare two [[cameras]] tables (side = \"left\" and \"right\")")
     if not isinstance(cams_raw, list):
-        c.fail("cameras", "must be an array of tables [[cameras]]")
+        raise ConfigError(f"{source}: cameras: must be an array of tables [[cameras]]")
     cameras = []
     for i, raw in enumerate(cams_raw):
         where = f"cameras[{i}]"
