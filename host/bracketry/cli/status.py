@@ -1,0 +1,39 @@
+"""``bracketry status``: ask the running daemon for its state over its local UNIX socket."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+from bracketry.daemon.status import query
+
+DEFAULT_SOCKET = Path("/run/bracketry/status.sock")
+
+
+@click.command("status")
+@click.option("--socket", "socket_path", type=click.Path(path_type=Path), default=DEFAULT_SOCKET, show_default=True,
+              help="The daemon's status socket (rig.status_socket in the config).")
+@click.option("--json", "as_json", is_flag=True, help="Print the raw JSON state.")
+def command(socket_path: Path, as_json: bool) -> int:
+    """Ask the running daemon for every sensor's state, FPS, free disk and recording."""
+    reply = query(socket_path, {"cmd": "status"})
+    if as_json:
+        click.echo(json.dumps(reply, indent=2))
+        return 0
+    state = reply.get("state", {})
+    states = state.get("states", {})
+    click.echo("  ".join(f"{k}={v}" for k, v in states.items()))
+    fps = state.get("fps", {})
+    click.echo(f"fps left={fps.get('left', 0):.1f} right={fps.get('right', 0):.1f}  "
+               f"free disk={state.get('free_disk_mb', 0) / 1024:.1f} GB  rec={state.get('rec_seconds', 0)} s")
+    if state.get("recording"):
+        click.echo(f"recording: {state['recording']}")
+    for sensor, err in state.get("errors", {}).items():
+        click.echo(f"error {sensor}: {err}")
+    counters = state.get("counters", {})
+    if counters:
+        click.echo("counters: " + " ".join(f"{k}={v}" for k, v in sorted(counters.items())))
+    click.echo(f"message: {state.get('message', '')}")
+    return 0
