@@ -1,0 +1,86 @@
+"""Reader of the BorealHDR tree (and of synthetic worlds, which use the same tree plus ``groundtruth.txt``).
+
+Layout: ``<root>/camera_left|camera_right/<exposure_ms as float, e.g. 1.0>/<timestamp_ns>.png`` (16-bit PNG,
+raw RGGB Bayer 12-bit codes). The calibration folder is ``<root>/calibration`` or, as in the BorealHDR sample,
+``<root>/../calibration``.
+"""
+
+from __future__ import annotations
+
+import functools
+from pathlib import Path
+
+from .grouping import group_sequences
+from .imageio import read_png12
+from .model import Dataset, DatasetError, Frame
+
+SIDE_FOLDERS = {"left": "camera_left", "right": "camera_right"}
+
+
+def is_borealhdr_tree(path: Path) -> bool:
+    """True when ``path`` holds camera_left/ or camera_right/."""
+    return any((path / folder).is_dir() for folder in SIDE_FOLDERS.values())
+
+
+def exposure_us_from_folder(name: str) -> int:
+    """Bracket folder name in milliseconds ("1.0", "16.0", "0.25") -> exposure in microseconds (int)."""
+    try:
+        ms = float(name)
+    except ValueError as exc:
+        raise DatasetError(f"bracket folder name is not an exposure in ms: {name!r}") from exc
+    if not ms > 0:
+        raise DatasetError(f"bracket folder exposure must be > 0 ms: {name!r}")
+    return round(ms * 1000)
+
+
+def scan_side(side_dir: Path, side: str, problems: list[str]) -> list[Frame]:
+    """All frames of one ``camera_<side>`` folder; non-PNG files and badly named PNGs go to ``problems``."""
+    frames: list[Frame] = []
+    for bracket_dir in sorted(p for p in side_dir.iterdir() if p.is_dir()):
+        exposure_us = exposure_us_from_folder(bracket_dir.name)
+        for png in sorted(bracket_dir.iterdir()):
+            if png.suffix.lower() != ".png":
+                continue
+            try:
+                t_ns = int(png.stem)
+            except ValueError:
+                problems.append(f"{side}: skipped {png} (name is not a timestamp in ns)")
+                continue
+            if png.stat().st_size == 0:
+                problems.append(f"{side}: skipped empty file {png}")
+                continue
+            frames.append(Frame(side, exposure_us, t_ns, str(png), functools.partial(read_png12, png)))
+    return frames
+
+
+def find_calibration_dir(root: Path) -> Path | None:
+    """``root/calibration`` or ``root/../calibration`` when it exists."""
+    for cand in (root / "calibration", root.parent / "calibration"):
+        if cand.is_dir():
+            return cand
+    return None
+
+
+def open_tree(root: Path, sides: tuple[str, ...] | None = None, *, tolerance_ns: int = 2_000_000) -> Dataset:
+    """Open a BorealHDR tree or synthetic world folder (``root`` holds camera_left/ and/or camera_right/)."""
+    wanted = sides or tuple(s for s, folder in SIDE_FOLDERS.items() if (root / folder).is_dir())
+    problems: list[str] = []
+    frames_by_side: dict[str, list[Frame]] = {}
+    for side in wanted:
+        if side not in SIDE_FOLDERS:
+            raise DatasetError(f"unknown camera side {side!r} (use left or right)")
+        side_dir = root / SIDE_FOLDERS[side]
+        if not side_dir.is_dir():
+            raise DatasetError(f"missing folder {side_dir}")
+        frames_by_side[side] = scan_side(side_dir, side, problems)
+        if not frames_by_side[side]:
+            raise DatasetError(f"no PNG frames under {side_dir}")
+    sequences, group_problems = group_sequences(frames_by_side, tolerance_ns=tolerance_ns)
+    problems.extend(group_problems)
+    if not sequences:
+        detail = f" ({problems[0]})" if problems else ""
+        raise DatasetError(f"no complete bracket sequence in {root}{detail}")
+    gt = root / "groundtruth.txt"
+    return Dataset(path=root, kind="synthetic" if gt.is_file() else "borealhdr", sides=tuple(wanted),
+                   calibration_dir=find_calibration_dir(root), groundtruth_path=gt if gt.is_file() else None,
+                   _sequences=sequences, problems=problems)

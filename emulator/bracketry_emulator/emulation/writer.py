@@ -1,0 +1,92 @@
+"""RunWriter: the emulation output layout (as the authors' TFR2024 code writes it, plus steps.csv).
+
+``out_dir/<method>/images_left|images_right/<timestamp_ns>.png`` (12-bit codes in a 16-bit PNG, or 8-bit codes
+code >> 4 at depth 8; the name is the timestamp of the source bracket frame), ``times_images_left|right.txt``
+(``<name> <timestamp_ns> <target_ms>`` per step) and ``steps.csv`` (step, timestamp_ns, target_exposure_ms,
+source_exposure_ms, factor, selection; one row per step, for the first side).
+"""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+from types import TracebackType
+from typing import IO
+
+import cv2
+
+from bracketry.errors import BracketryError
+
+from ..dataset.model import BracketSequence
+from .emulator import EmulatedImage
+
+STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_ms", "factor", "selection")
+
+
+class RunWriter:
+    """Writes one method's emulated run. Use as a context manager or call :meth:`close`.
+
+    Refuses to write into a method folder that already holds files unless ``overwrite=True`` (then only the files
+    of this layout are replaced), so nothing recorded is lost by accident.
+    """
+
+    def __init__(self, out_dir: str | Path, method: str, sides: tuple[str, ...] | list[str] = ("left", "right"),
+                 depth: int = 12, overwrite: bool = False) -> None:
+        if depth not in (8, 12):
+            raise BracketryError(f"depth must be 12 or 8, got {depth}")
+        if not method or "/" in method or method in (".", ".."):
+            raise BracketryError(f"bad method name for a folder: {method!r}")
+        self.root = Path(out_dir) / method
+        self.sides = tuple(sides)
+        self.depth = depth
+        if self.root.exists() and any(self.root.iterdir()) and not overwrite:
+            raise BracketryError(f"output folder already holds a run: {self.root} (choose another --out)")
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._times: dict[str, IO[str]] = {}
+        for side in self.sides:
+            (self.root / f"images_{side}").mkdir(exist_ok=True)
+            self._times[side] = open(self.root / f"times_images_{side}.txt", "w")  # noqa: SIM115
+        self._steps_file = open(self.root / "steps.csv", "w", newline="")  # noqa: SIM115
+        self._steps = csv.writer(self._steps_file)
+        self._steps.writerow(STEPS_HEADER)
+        self.n_steps = 0
+
+    def image_path(self, side: str, timestamp_ns: int) -> Path:
+        """Where the image of ``side`` named by ``timestamp_ns`` goes."""
+        return self.root / f"images_{side}" / f"{timestamp_ns}.png"
+
+    def write_step(self, step: int, seq: BracketSequence, side_images: dict[str, EmulatedImage],
+                   target_us: float) -> None:
+        """Write one step: an image per side, a times line per side and one steps.csv row."""
+        first: tuple[int, EmulatedImage] | None = None
+        for side in self.sides:
+            if side not in side_images:
+                raise BracketryError(f"step {step}: no emulated image for side {side}")
+            em = side_images[side]
+            ts = seq.timestamps_ns[side][em.source_exposure_us]
+            path = self.image_path(side, ts)
+            if not cv2.imwrite(str(path), em.to_depth(self.depth), [cv2.IMWRITE_PNG_COMPRESSION, 1]):
+                raise BracketryError(f"cannot write {path}")
+            self._times[side].write(f"{ts} {ts} {target_us / 1000.0:.6f}\n")
+            if first is None:
+                first = (ts, em)
+        assert first is not None
+        ts, em = first
+        self._steps.writerow([step, ts, f"{target_us / 1000.0:.6f}", f"{em.source_exposure_us / 1000.0:.6f}",
+                              f"{em.factor:.6f}", em.selection])
+        self.n_steps += 1
+        for f in (*self._times.values(), self._steps_file):
+            f.flush()
+
+    def close(self) -> None:
+        """Close the text files (idempotent)."""
+        for f in (*self._times.values(), self._steps_file):
+            if not f.closed:
+                f.close()
+
+    def __enter__(self) -> RunWriter:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
