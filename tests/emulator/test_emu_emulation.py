@@ -17,6 +17,7 @@ from bracketry_emulator.emulation import (
     EmulatorConfig,
     RunWriter,
     apply_lut,
+    kernel,
     select_highernosat,
     select_upstream,
 )
@@ -63,6 +64,14 @@ def test_emu_apply_lut_matches_fancy_indexing() -> None:
     lut = rng.integers(0, 4096, size=4096, dtype=np.uint16)
     np.testing.assert_array_equal(apply_lut(lut, img), lut[img])
     np.testing.assert_array_equal(apply_lut(lut, img[:5, :7], threads=False), lut[img[:5, :7]])
+    assert kernel.c_kernel() is not None  # a C compiler is part of the set-up
+    saved = kernel._CKERNEL
+    try:
+        kernel._CKERNEL = None  # the numpy fallback gives the same result
+        np.testing.assert_array_equal(apply_lut(lut, img), lut[img])
+        np.testing.assert_array_equal(apply_lut(lut, img[::3, ::2]), lut[img[::3, ::2]])
+    finally:
+        kernel._CKERNEL = saved
 
 
 def test_emu_highernosat_rule() -> None:
