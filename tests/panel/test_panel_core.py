@@ -1,0 +1,66 @@
+"""The panel firmware's core modules (layout, debounce, link, app) under CPython and the real MicroPython runtime.
+
+Both runs execute tests/panel/panel_core_checks.py against the actual firmware files and the wire codec bproto.py.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bracketry import paths
+
+HERE = Path(__file__).resolve().parent
+FIRMWARE = paths.firmware_dir() / "esp32_panel"
+BPROTO = paths.repo_root() / "host" / "bracketry" / "wire" / "bproto.py"
+CHECKS = HERE / "panel_core_checks.py"
+RUNNER = HERE / "panel_mpy_run.mjs"
+
+
+def _expected_checks() -> list[str]:
+    return re.findall(r"^def (check_\w+)\(", CHECKS.read_text(), flags=re.M)
+
+
+def _passed(stdout: str) -> list[str]:
+    return [line[5:].strip() for line in stdout.splitlines() if line.startswith("PASS ")]
+
+
+def test_panel_core_checks_cpython() -> None:
+    env_path = f"{FIRMWARE}:{BPROTO.parent}"
+    proc = subprocess.run([sys.executable, str(CHECKS)], capture_output=True, text=True, timeout=120,
+                          env={"PYTHONPATH": env_path, "PATH": "/usr/bin:/bin"})
+    assert proc.returncode == 0, proc.stderr
+    assert _passed(proc.stdout) == _expected_checks()
+
+
+def run_micropython(script: Path, files: list[Path], timeout_s: float = 240) -> subprocess.CompletedProcess[str]:
+    """Run ``script`` under the MicroPython WebAssembly runtime with ``files`` copied to its root folder."""
+    return subprocess.run(["node", str(RUNNER), str(paths.micropython_module_path()), str(script),
+                           *[str(f) for f in files]], capture_output=True, text=True, timeout=timeout_s)
+
+
+def firmware_core_files() -> list[Path]:
+    """The hardware-independent firmware modules plus the codec (what the checks import)."""
+    return [BPROTO, *sorted(FIRMWARE.glob("panel_*.py"))]
+
+
+@pytest.mark.micropython
+def test_panel_core_checks_micropython() -> None:
+    proc = run_micropython(CHECKS, firmware_core_files())
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    assert "MicroPython" not in proc.stderr
+    assert _passed(proc.stdout) == _expected_checks()
+
+
+@pytest.mark.micropython
+def test_panel_runs_on_micropython_implementation(tmp_path: Path) -> None:
+    """The checks really ran on MicroPython (not a CPython fallback): sys.implementation is micropython."""
+    script = tmp_path / "impl.py"
+    script.write_text("import sys, panel_app\nprint('IMPL', sys.implementation.name, panel_app.FW_VERSION)\n")
+    proc = run_micropython(script, firmware_core_files(), timeout_s=60)
+    assert proc.returncode == 0, proc.stderr
+    assert "IMPL micropython (1, 0, 0)" in proc.stdout
