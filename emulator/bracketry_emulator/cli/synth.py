@@ -1,0 +1,155 @@
+"""``bracketry synth``: render synthetic bracketed HDR stereo data (a walk, or the static protocol)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from bracketry.errors import BracketryError
+
+
+def _parse_ms_list(text: str, what: str) -> tuple[float, ...]:
+    try:
+        values = tuple(float(x) for x in text.split(",") if x.strip())
+    except ValueError:
+        raise BracketryError(f"{what} must be comma-separated milliseconds, e.g. 1,2,4,8 (got {text!r})") from None
+    if not values or any(v <= 0 for v in values):
+        raise BracketryError(f"{what} must be positive milliseconds (got {text!r})")
+    return values
+
+
+def _make_world(preset: str, seed: int, resolution: str, response: str, calibration: Path | None,
+                speed_kmh: float):
+    from bracketry_emulator.synth import CameraModel, LoopTrajectory, World, parse_resolution
+    from bracketry_emulator.synth.calibration import load_calibration
+
+    size = parse_resolution(resolution)
+    if response in ("srgb", "linear"):
+        camera = CameraModel(response=response)
+    else:
+        path = Path(response)
+        if not path.is_file():
+            raise BracketryError(f"--response must be srgb, linear or a TUM pcalib file (not found: {response})")
+        camera = CameraModel.with_pcalib_file(path)
+    calib = load_calibration(calibration, *size) if calibration is not None else None
+    if speed_kmh <= 0 or speed_kmh > 20:
+        raise BracketryError("--speed-kmh must be in (0, 20]")
+    return World(preset, seed, size, calibration=calib, camera=camera, trajectory=LoopTrajectory(speed_kmh=speed_kmh))
+
+
+def _out_dir(out: Path, force: bool) -> Path:
+    if out.exists() and any(out.iterdir()) and not force:
+        raise BracketryError(f"{out} exists and is not empty (use --force to write into it)")
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def _progress(desc: str, quiet: bool):
+    from tqdm import tqdm
+
+    bar = tqdm(total=0, desc=desc, unit="img", disable=quiet, leave=False)
+
+    def update(done: int, total: int) -> None:
+        if bar.total != total:
+            bar.total = total
+            bar.refresh()
+        bar.update(done - bar.n)
+
+    return bar, update
+
+
+_common = [
+    click.option("--out", "out", type=click.Path(path_type=Path, file_okay=False), required=True,
+                 help="Output folder."),
+    click.option("--preset", type=click.Choice(["forest-winter", "campus-summer"]), default="forest-winter",
+                 show_default=True, help="World preset."),
+    click.option("--seed", type=int, default=0, show_default=True, help="Seed of the world and of the noise."),
+    click.option("--response", default="srgb", show_default=True,
+                 help="Camera response: srgb (like the real sample), linear, or a TUM pcalib.txt file."),
+    click.option("--calibration", type=click.Path(path_type=Path, file_okay=False, exists=True), default=None,
+                 help="Folder with left.yaml/right.yaml to take the intrinsics from (default: the real sample's)."),
+    click.option("--force", is_flag=True, help="Write into a non-empty output folder."),
+    click.option("--quiet", "-q", is_flag=True, help="No progress bar."),
+]
+
+
+def _with_common(f):
+    for opt in reversed(_common):
+        f = opt(f)
+    return f
+
+
+@click.group("synth")
+def command() -> None:
+    """Render synthetic bracketed HDR stereo data with exact ground truth."""
+
+
+@command.command("trajectory")
+@_with_common
+@click.option("--seconds", type=float, default=10.0, show_default=True, help="Duration (whole bracket cycles).")
+@click.option("--resolution", default="960x600", show_default=True, help="WxH (even).")
+@click.option("--brackets-ms", default="1,2,4,8,16,32", show_default=True, help="Bracket exposures, ms.")
+@click.option("--fps", type=float, default=22.0, show_default=True, help="Frame rate (one bracket per frame).")
+@click.option("--speed-kmh", type=float, default=2.0, show_default=True, help="Walking speed.")
+@click.option("--start-s", type=float, default=0.0, show_default=True, help="Start time along the walk.")
+def trajectory_cmd(out: Path, preset: str, seed: int, response: str, calibration: Path | None, force: bool,
+                   quiet: bool, seconds: float, resolution: str, brackets_ms: str, fps: float, speed_kmh: float,
+                   start_s: float) -> int:
+    """A stereo walk along a loop: BorealHDR tree + groundtruth.txt + calibration/ + camera_model.json."""
+    from bracketry_emulator.synth import write_trajectory
+
+    brackets = _parse_ms_list(brackets_ms, "--brackets-ms")
+    if seconds <= 0 or seconds > 3600:
+        raise BracketryError("--seconds must be in (0, 3600]")
+    if fps <= 0 or fps > 200:
+        raise BracketryError("--fps must be in (0, 200]")
+    world = _make_world(preset, seed, resolution, response, calibration, speed_kmh)
+    out = _out_dir(out, force)
+    bar, update = _progress("synth trajectory", quiet)
+    try:
+        summary = write_trajectory(world, out, seconds=seconds, brackets_ms=brackets, fps=fps, start_s=start_s,
+                                   progress=update)
+    finally:
+        bar.close()
+    click.echo(f"wrote {summary['frames']} frames x {len(summary['sides'])} cameras ({summary['cycles']} bracket "
+               f"cycles, {summary['duration_s']:.2f} s, radiance range {summary['radiance_range_db']:.0f} dB) "
+               f"to {out}")
+    return 0
+
+
+@command.command("static")
+@_with_common
+@click.option("--resolution", default="640x400", show_default=True, help="WxH (even).")
+@click.option("--n-exposures", type=int, default=1000, show_default=True, help="Sweep length (log-spaced).")
+@click.option("--min-us", type=float, default=20.0, show_default=True, help="Shortest sweep exposure.")
+@click.option("--max-us", type=float, default=50000.0, show_default=True, help="Longest sweep exposure.")
+@click.option("--repeats", type=int, default=25, show_default=True, help="Frames per repeat exposure.")
+@click.option("--repeat-ms", default="0.1,0.5,1,2,4,8,16,32", show_default=True,
+              help="Exposures with repeated frames (noise estimation), ms.")
+@click.option("--brackets-ms", default="1,2,4,8,16,32", show_default=True, help="Bracket set, ms.")
+@click.option("--side", type=click.Choice(["left", "right"]), default="left", show_default=True)
+@click.option("--t-s", "t_s", type=float, default=0.0, show_default=True, help="Time of the static view.")
+def static_cmd(out: Path, preset: str, seed: int, response: str, calibration: Path | None, force: bool,
+               quiet: bool, resolution: str, n_exposures: int, min_us: float, max_us: float, repeats: int,
+               repeat_ms: str, brackets_ms: str, side: str, t_s: float) -> int:
+    """The emulator-validation protocol: sweep, repeats, brackets and the exact noise-free truth of one view."""
+    from bracketry_emulator.synth import write_static
+
+    if n_exposures < 2 or n_exposures > 100000:
+        raise BracketryError("--n-exposures must be in [2, 100000]")
+    if repeats < 1 or repeats > 1000:
+        raise BracketryError("--repeats must be in [1, 1000]")
+    reps = _parse_ms_list(repeat_ms, "--repeat-ms")
+    brackets = _parse_ms_list(brackets_ms, "--brackets-ms")
+    world = _make_world(preset, seed, resolution, response, calibration, 2.0)
+    out = _out_dir(out, force)
+    bar, update = _progress("synth static", quiet)
+    try:
+        index = write_static(world, out, n_exposures=n_exposures, min_us=min_us, max_us=max_us, repeats=repeats,
+                             repeat_exposures_ms=reps, brackets_ms=brackets, side=side, t_s=t_s, progress=update)
+    finally:
+        bar.close()
+    click.echo(f"wrote static protocol: {index['sweep']['n']} sweep exposures, {len(reps)} x {repeats} repeats, "
+               f"{len(brackets)} brackets ({side}) to {out}")
+    return 0

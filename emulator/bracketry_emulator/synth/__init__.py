@@ -1,0 +1,20 @@
+"""Synthetic HDR stereo world: bracketed walks with ground-truth poses, and static calibration stacks.
+
+    from bracketry_emulator.synth import World
+    world = World("forest-winter", seed=0, resolution=(960, 600))
+    raw = world.render("left", t_s=1.0, exposure_us=8000)   # uint16 (600, 960) RGGB 12-bit codes
+    T = world.pose(1.0)                                       # 4x4 left camera pose, ground-truth frame
+
+Writers: :func:`write_trajectory` (``bracketry synth trajectory``) and :func:`write_static`
+(``bracketry synth static``); layouts in :mod:`bracketry_emulator.synth.writer`.
+"""
+
+from bracketry_emulator.synth.calibration import CameraIntrinsics, StereoCalibration, default_calibration
+from bracketry_emulator.synth.camera_model import CameraModel, srgb_lut
+from bracketry_emulator.synth.scene import PRESETS
+from bracketry_emulator.synth.trajectory import LoopTrajectory
+from bracketry_emulator.synth.world import World, parse_resolution
+from bracketry_emulator.synth.writer import write_static, write_trajectory
+
+__all__ = ["PRESETS", "CameraIntrinsics", "CameraModel", "LoopTrajectory", "StereoCalibration", "World",
+           "default_calibration", "parse_resolution", "srgb_lut", "write_static", "write_trajectory"]

@@ -1,0 +1,287 @@
+"""Content of a synthetic world: lighting, sky, primitives and the pre-lit ground textures.
+
+Radiance unit: photo-electrons per microsecond on a green pixel at the image centre (see ``camera_model``).
+Surfaces are Lambertian: ``L_c = albedo_c * (sun_c * max(n . s, 0) * lit + sky_c * (0.5 + 0.5 n_z))``.
+The ground (plane z = 0) is pre-lit into textures (with the cast shadows of every primitive); primitives are shaded
+per pixel. All content is drawn from one ``numpy.random.Generator`` seeded by the world seed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.synth.noise import ValueNoise, smoothstep
+from bracketry_emulator.synth.trajectory import LoopTrajectory
+
+PRESETS = ("forest-winter", "campus-summer")
+
+
+@dataclass(frozen=True)
+class Lighting:
+    """Sun and sky.
+
+    Attributes:
+        sun_dir: unit vector towards the sun (world), float64 (3,).
+        sun_rgb: radiance of an albedo-1 surface facing the sun (direct part), per channel.
+        sky_rgb: radiance of an albedo-1 horizontal surface lit by the sky only, per channel.
+        zenith_rgb, horizon_rgb: sky radiance at the zenith / the horizon.
+        halo_rgb: extra sky radiance next to the sun (decays as exp(-angle / halo_rad)).
+        disk_radiance: radiance of the solar disk (all channels).
+        disk_rad: angular radius of the solar disk.
+    """
+
+    sun_dir: np.ndarray
+    sun_rgb: tuple[float, float, float]
+    sky_rgb: tuple[float, float, float]
+    zenith_rgb: tuple[float, float, float]
+    horizon_rgb: tuple[float, float, float]
+    halo_rgb: tuple[float, float, float]
+    halo_rad: float = 0.12
+    disk_radiance: float = 2.0e4
+    disk_rad: float = 0.00465
+
+
+@dataclass
+class Primitives:
+    """Analytic objects. Albedos are float32 (N, 3) RGB; ``kind`` selects the texture.
+
+    cylinders: vertical, columns (x, y, radius, height) metres; kind 0 dark bark, 1 birch.
+    spheres: columns (x, y, z, radius) metres; kind 0 rock (snow cap if ``snow_caps``), 1 foliage.
+    boxes: axis-aligned, columns (x0, y0, z0, x1, y1, z1) metres; kind 0 plain, 1 facade with windows.
+    """
+
+    cylinders: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    cyl_albedo: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    cyl_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    spheres: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    sph_albedo: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    sph_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+    boxes: np.ndarray = field(default_factory=lambda: np.zeros((0, 6)))
+    box_albedo: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), np.float32))
+    box_kind: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int32))
+
+
+@dataclass
+class GroundTexture:
+    """A pre-lit ground radiance texture over a square: three channel planes stacked vertically.
+
+    Attributes:
+        origin_m: world (x, y) of the texture's corner (texel (0, 0) starts there).
+        texel_m: texel size in metres.
+        size: texels per side (N).
+        stacked: float32 (3 * (N + pad), N): plane c occupies rows c * (N + pad) .. + N (rows = y, cols = x).
+    """
+
+    origin_m: tuple[float, float]
+    texel_m: float
+    size: int
+    pad: int
+    stacked: np.ndarray
+
+
+@dataclass
+class Scene:
+    """Everything the renderer needs besides the camera."""
+
+    preset: str
+    lighting: Lighting
+    prims: Primitives
+    ground_levels: list[GroundTexture]
+    treeline_radius_m: float
+    treeline_height_m: np.ndarray  # float32 (n_az,): height of the far treeline per azimuth bin
+    treeline_albedo: tuple[float, float, float]
+    bark: np.ndarray  # float32 (64, 256): bark modulation texture (rows = height, cols = angle)
+    snow_caps: bool
+
+
+def _sun_dir(elev_deg: float, az_deg: float) -> np.ndarray:
+    e, a = np.radians(elev_deg), np.radians(az_deg)
+    return np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
+
+
+def _lighting(preset: str) -> Lighting:
+    if preset == "forest-winter":
+        return Lighting(sun_dir=_sun_dir(17.0, 35.0), sun_rgb=(3.6, 3.3, 2.8), sky_rgb=(0.30, 0.38, 0.52),
+                        zenith_rgb=(0.9, 1.6, 3.2), horizon_rgb=(3.0, 3.4, 3.9), halo_rgb=(60.0, 55.0, 45.0))
+    return Lighting(sun_dir=_sun_dir(52.0, 200.0), sun_rgb=(3.0, 2.9, 2.7), sky_rgb=(0.45, 0.55, 0.75),
+                    zenith_rgb=(1.2, 2.2, 4.5), horizon_rgb=(4.0, 4.5, 5.2), halo_rgb=(40.0, 38.0, 34.0))
+
+
+def _place_away_from_path(rng: np.random.Generator, n: int, half_m: float, path_xy: np.ndarray,
+                          clearance_m: np.ndarray | float, min_r_m: float = 0.0) -> np.ndarray:
+    """Uniform points in [-half, half]^2 whose distance to the path exceeds ``clearance`` (and to the origin
+    ``min_r_m``); returns float64 (M, 2), M <= n."""
+    pts = rng.uniform(-half_m, half_m, (n, 2))
+    clear = np.broadcast_to(np.asarray(clearance_m, dtype=np.float64), (n,))
+    keep = np.hypot(pts[:, 0], pts[:, 1]) >= min_r_m
+    for i in range(0, n, 256):
+        d = np.min(np.linalg.norm(pts[i:i + 256, None, :] - path_xy[None, ::4, :], axis=2), axis=1)
+        keep[i:i + 256] &= d > clear[i:i + 256]
+    return pts[keep]
+
+
+def _forest_prims(rng: np.random.Generator, path_xy: np.ndarray) -> Primitives:
+    n = 520
+    radius = rng.uniform(0.07, 0.32, n)
+    xy = rng.uniform(-48.0, 48.0, (n, 2))
+    d = np.min(np.linalg.norm(xy[:, None, :] - path_xy[None, ::4, :], axis=2), axis=1)
+    keep = d > 1.6 + radius
+    xy, radius = xy[keep], radius[keep]
+    m = len(xy)
+    height = rng.uniform(6.0, 16.0, m)
+    birch = rng.random(m) < 0.22
+    dark = np.stack([rng.uniform(0.07, 0.13, m), rng.uniform(0.06, 0.10, m), rng.uniform(0.05, 0.08, m)], 1)
+    white = np.stack([rng.uniform(0.55, 0.7, m)] * 3, 1) * np.array([1.0, 0.98, 0.93])
+    albedo = np.where(birch[:, None], white, dark).astype(np.float32)
+    cylinders = np.column_stack([xy, radius, height])
+    rocks = _place_away_from_path(rng, 40, 40.0, path_xy, 3.0)
+    rr = rng.uniform(0.3, 1.1, len(rocks))
+    spheres = np.column_stack([rocks, rr * 0.25, rr])
+    sph_albedo = (np.stack([rng.uniform(0.18, 0.3, len(rocks))] * 3, 1) * np.array([1.0, 0.97, 0.95]))
+    return Primitives(cylinders=cylinders, cyl_albedo=albedo, cyl_kind=birch.astype(np.int32), spheres=spheres,
+                      sph_albedo=sph_albedo.astype(np.float32), sph_kind=np.zeros(len(rocks), np.int32))
+
+
+def _campus_prims(rng: np.random.Generator, path_xy: np.ndarray) -> Primitives:
+    boxes, box_albedo = [], []
+    n_b = 9
+    for i in range(n_b):
+        az = 2 * np.pi * (i + rng.uniform(-0.25, 0.25)) / n_b
+        dist = rng.uniform(26.0, 38.0)
+        w, dpt, h = rng.uniform(10.0, 22.0), rng.uniform(8.0, 14.0), rng.uniform(7.0, 22.0)
+        cx, cy = dist * np.cos(az), dist * np.sin(az)
+        boxes.append([cx - w / 2, cy - dpt / 2, 0.0, cx + w / 2, cy + dpt / 2, h])
+        tone = rng.uniform(0.25, 0.55)
+        box_albedo.append(np.array([tone, tone * rng.uniform(0.9, 1.0), tone * rng.uniform(0.8, 0.95)]))
+    trees = _place_away_from_path(rng, 160, 24.0, path_xy, 2.5)
+    trees = trees[:45]
+    m = len(trees)
+    radius = rng.uniform(0.12, 0.3, m)
+    height = rng.uniform(3.0, 5.0, m)
+    crown = rng.uniform(1.6, 2.8, m)
+    cylinders = np.column_stack([trees, radius, height])
+    cyl_albedo = np.stack([rng.uniform(0.09, 0.14, m), rng.uniform(0.08, 0.11, m), rng.uniform(0.06, 0.08, m)], 1)
+    spheres = np.column_stack([trees, height + crown * 0.6, crown])
+    sph_albedo = np.stack([rng.uniform(0.05, 0.09, m), rng.uniform(0.10, 0.16, m), rng.uniform(0.03, 0.05, m)], 1)
+    return Primitives(cylinders=cylinders, cyl_albedo=cyl_albedo.astype(np.float32), cyl_kind=np.zeros(m, np.int32),
+                      spheres=spheres, sph_albedo=sph_albedo.astype(np.float32), sph_kind=np.ones(m, np.int32),
+                      boxes=np.array(boxes), box_albedo=np.array(box_albedo, np.float32),
+                      box_kind=np.ones(n_b, np.int32))
+
+
+def _shadow_mask(prims: Primitives, sun_dir: np.ndarray, origin_m: tuple[float, float], texel_m: float,
+                 size: int) -> np.ndarray:
+    """Cast shadows of all primitives on the ground: float32 (N, N) in [0, 1] (1 = full shadow)."""
+    mask = np.zeros((size, size), np.uint8)
+    shift = -sun_dir[:2] / sun_dir[2]  # ground offset per metre of height
+
+    def fill(points3: np.ndarray) -> None:
+        ground = points3[:, :2] + points3[:, 2:3] * shift
+        px = (ground - np.asarray(origin_m)) / texel_m
+        if px.max() < -1 or px.min() > size + 1 or np.ptp(px[:, 0]) > 4 * size:
+            return
+        hull = cv2.convexHull(np.round(px * 16).astype(np.int32))
+        cv2.fillConvexPoly(mask, hull, 255, lineType=cv2.LINE_AA, shift=4)
+
+    ang = np.linspace(0, 2 * np.pi, 16, endpoint=False)
+    ring = np.stack([np.cos(ang), np.sin(ang)], 1)
+    for x, y, r, h in prims.cylinders:
+        base = np.column_stack([x + r * ring[:, 0], y + r * ring[:, 1], np.zeros(16)])
+        top = base.copy()
+        top[:, 2] = h
+        fill(np.vstack([base, top]))
+    sph = np.array([[np.cos(a) * np.cos(b), np.sin(a) * np.cos(b), np.sin(b)]
+                    for a in ang for b in np.linspace(-1.4, 1.4, 7)])
+    for x, y, z, r in prims.spheres:
+        pts = np.array([x, y, z]) + r * sph
+        pts[:, 2] = np.maximum(pts[:, 2], 0.0)
+        fill(pts)
+    for x0, y0, z0, x1, y1, z1 in prims.boxes:
+        corners = np.array([[a, b, c] for a in (x0, x1) for b in (y0, y1) for c in (z0, z1)])
+        fill(corners)
+    soft = cv2.GaussianBlur(mask.astype(np.float32) / 255.0, (0, 0), sigmaX=max(0.6, 0.05 / texel_m))
+    return soft
+
+
+def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.ndarray, X: np.ndarray,
+                   Y: np.ndarray) -> list[np.ndarray]:
+    """Per-channel ground albedo (three float32 arrays shaped like X)."""
+    fine = noises["fine"](X, Y)
+    big = noises["big"](X, Y)
+    if preset == "forest-winter":
+        snow = np.float32(0.86) + np.float32(0.05) * fine
+        bare = smoothstep(0.32, 0.40, big)  # bare patches: litter and earth
+        trail = 1.0 - smoothstep(0.55, 0.95, path_dist_m + 0.25 * fine)
+        out = []
+        for snow_c, litter_c, trail_c in ((1.0, 0.15, 0.46), (1.02, 0.115, 0.43), (1.07, 0.085, 0.39)):
+            a = snow * np.float32(snow_c)
+            a = a * (1 - bare) + bare * np.float32(litter_c) * (1 + 0.4 * fine)
+            a = a * (1 - trail) + trail * np.float32(trail_c) * (1 + 0.25 * noises["mid"](X, Y))
+            out.append(a.astype(np.float32))
+        return out
+    grass = 1 + 0.35 * fine
+    path = 1.0 - smoothstep(1.0, 1.3, path_dist_m)
+    plaza = smoothstep(0.30, 0.36, big)
+    out = []
+    for grass_c, asphalt_c, plaza_c in ((0.10, 0.11, 0.36), (0.16, 0.11, 0.35), (0.06, 0.12, 0.32)):
+        a = np.float32(grass_c) * grass
+        a = a * (1 - plaza) + plaza * np.float32(plaza_c) * (1 + 0.08 * fine)
+        a = a * (1 - path) + path * np.float32(asphalt_c) * (1 + 0.3 * noises["mid"](X, Y))
+        out.append(a.astype(np.float32))
+    return out
+
+
+def _ground_level(preset: str, lighting: Lighting, prims: Primitives, noises: dict[str, ValueNoise],
+                  path_xy: np.ndarray, half_m: float, size: int, pad: int = 4) -> GroundTexture:
+    texel = 2 * half_m / size
+    origin = (-half_m, -half_m)
+    c = (np.arange(size, dtype=np.float32) + 0.5) * np.float32(texel) - np.float32(half_m)
+    X, Y = np.meshgrid(c, c)
+    canvas = np.full((size, size), 255, np.uint8)
+    pts = np.round((path_xy - np.asarray(origin)) / texel * 16).astype(np.int32)
+    cv2.polylines(canvas, [pts], True, 0, thickness=1, lineType=cv2.LINE_8, shift=4)
+    path_dist = cv2.distanceTransform(canvas, cv2.DIST_L2, 5).astype(np.float32) * np.float32(texel)
+    albedo = _ground_albedo(preset, noises, path_dist, X, Y)
+    shadow = _shadow_mask(prims, lighting.sun_dir, origin, texel, size)
+    direct = np.float32(max(lighting.sun_dir[2], 0.0)) * (1.0 - shadow)
+    stacked = np.zeros((3 * (size + pad), size), np.float32)
+    for ch in range(3):
+        light = np.float32(lighting.sun_rgb[ch]) * direct + np.float32(lighting.sky_rgb[ch])
+        r0 = ch * (size + pad)
+        stacked[r0:r0 + size] = albedo[ch] * light
+        stacked[r0 + size:r0 + size + pad] = stacked[r0 + size - 1]
+    return GroundTexture(origin, texel, size, pad, stacked)
+
+
+def build_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: float = 1.0) -> Scene:
+    """Draw the world of ``preset`` from ``seed``. ``detail`` scales the texture resolutions (1.0: 4 cm near)."""
+    if preset not in PRESETS:
+        raise BracketryError(f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+    rng = np.random.default_rng(np.random.SeedSequence([seed, PRESETS.index(preset)]))
+    lighting = _lighting(preset)
+    path_xy = trajectory.centreline()
+    prims = _forest_prims(rng, path_xy) if preset == "forest-winter" else _campus_prims(rng, path_xy)
+    noises = {"fine": ValueNoise(rng, 0.6, octaves=5), "mid": ValueNoise(rng, 0.25, octaves=3),
+              "big": ValueNoise(rng, 9.0, octaves=4)}
+    n0 = round(2048 * detail / 64) * 64
+    levels = [
+        _ground_level(preset, lighting, prims, noises, path_xy, 40.96, n0),
+        _ground_level(preset, lighting, prims, noises, path_xy, 40.96, n0 // 4),
+        _ground_level(preset, lighting, prims, noises, path_xy, 128.0, 512),
+    ]
+    n_az = 1440
+    tl = ValueNoise(rng, 0.05, octaves=4, lattice=64)
+    az = np.linspace(0.0, 1.0, n_az, endpoint=False, dtype=np.float32)[None, :]
+    hnoise = tl(az * 3.2, np.zeros_like(az))[0]
+    base = 17.0 if preset == "forest-winter" else 11.0
+    heights = (base + 6.0 * hnoise + 2.0 * rng.standard_normal(n_az) * 0.3).astype(np.float32)
+    bark = (1.0 + 0.35 * ValueNoise(rng, 1.0, octaves=4, lattice=64)(
+        *np.meshgrid(np.arange(256, dtype=np.float32) / 5.0, np.arange(64, dtype=np.float32) / 40.0))).astype(
+        np.float32)
+    treeline_albedo = (0.05, 0.06, 0.045) if preset == "forest-winter" else (0.06, 0.09, 0.04)
+    return Scene(preset, lighting, prims, levels, 120.0, heights, treeline_albedo, bark,
+                 snow_caps=preset == "forest-winter")

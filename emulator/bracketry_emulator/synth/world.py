@@ -1,0 +1,173 @@
+"""The synthetic world as a frame source: ``World(preset, seed, resolution)``, ``render``, ``pose``.
+
+Frames of the simulated stereo rig: :meth:`World.render` gives the raw RGGB 12-bit codes a camera side would record
+at time ``t_s`` with exposure ``exposure_us``; :meth:`World.pose` gives the ground-truth pose of a camera at ``t_s``
+in the ground-truth frame (the left camera's optical frame at t = 0; x right, y down, z forward), the frame of
+``groundtruth.txt``.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.synth.calibration import SIDES, StereoCalibration, default_calibration, load_calibration
+from bracketry_emulator.synth.camera_model import CameraModel
+from bracketry_emulator.synth.render import RenderResult, SideRenderer
+from bracketry_emulator.synth.scene import PRESETS, Scene, build_scene
+from bracketry_emulator.synth.trajectory import LoopTrajectory
+
+DEFAULT_RESOLUTION = (960, 600)
+
+
+def parse_resolution(text: str) -> tuple[int, int]:
+    """``"WxH"`` -> (W, H); both even, 16..8192 (raises BracketryError otherwise)."""
+    try:
+        w_s, h_s = text.lower().split("x")
+        w, h = int(w_s), int(h_s)
+    except ValueError:
+        raise BracketryError(f"resolution must look like 960x600 (got {text!r})") from None
+    if not (16 <= w <= 8192 and 16 <= h <= 8192) or w % 2 or h % 2:
+        raise BracketryError(f"resolution {w}x{h}: width and height must be even and within 16..8192")
+    return w, h
+
+
+class World:
+    """A procedural HDR world seen by the synthetic stereo rig.
+
+    Args:
+        preset: "forest-winter" or "campus-summer".
+        seed: integer; the world content, the path and every noise draw follow from it.
+        resolution: (width, height) in pixels, both even.
+        calibration: the stereo rig; default: the real sample's intrinsics scaled to ``resolution``, baseline 0.18 m.
+        camera: the camera model (default :class:`CameraModel`: sRGB-encoded 12-bit codes like the real sample).
+        trajectory: the walk (default :class:`LoopTrajectory`, 2 km/h).
+        detail: ground texture resolution factor (1.0: 4 cm texels near the path).
+    """
+
+    def __init__(self, preset: str = "forest-winter", seed: int = 0,
+                 resolution: tuple[int, int] = DEFAULT_RESOLUTION, calibration: StereoCalibration | None = None,
+                 camera: CameraModel | None = None, trajectory: LoopTrajectory | None = None,
+                 detail: float = 1.0, cache_size: int = 4) -> None:
+        if preset not in PRESETS:
+            raise BracketryError(f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+        w, h = int(resolution[0]), int(resolution[1])
+        if w % 2 or h % 2 or w < 16 or h < 16:
+            raise BracketryError(f"resolution {w}x{h}: width and height must be even and >= 16")
+        self.preset = preset
+        self.seed = int(seed)
+        self.resolution = (w, h)
+        self.calibration = calibration if calibration is not None else default_calibration(w, h)
+        if self.calibration.size != (w, h):
+            self.calibration = self.calibration.scaled(w, h)
+        self.camera = camera if camera is not None else CameraModel()
+        self.trajectory = trajectory if trajectory is not None else LoopTrajectory()
+        self.scene: Scene = build_scene(preset, self.seed, self.trajectory, detail)
+        self._renderers: dict[str, SideRenderer] = {}
+        self._gain: dict[str, np.ndarray] = {}
+        self._cache: OrderedDict[tuple[str, float], RenderResult] = OrderedDict()
+        self._cache_size = cache_size
+        R0, p0 = self.trajectory.pose(0.0)
+        self._R_gw = R0.T  # world -> ground-truth frame rotation
+        self._p0 = p0
+
+    @classmethod
+    def from_calibration_dir(cls, calibration_dir: Path, preset: str = "forest-winter", seed: int = 0,
+                             resolution: tuple[int, int] = DEFAULT_RESOLUTION, **kwargs: object) -> World:
+        """A world whose rig uses the intrinsics of ``calibration_dir/left.yaml`` and ``right.yaml``."""
+        calib = load_calibration(calibration_dir, resolution[0], resolution[1])
+        return cls(preset, seed, resolution, calibration=calib, **kwargs)  # type: ignore[arg-type]
+
+    # ------------------------------------------------------------------ geometry
+    def _check_side(self, side: str) -> None:
+        if side not in SIDES:
+            raise BracketryError(f"unknown camera side {side!r} (expected left or right)")
+
+    def world_pose(self, t_s: float, side: str = "left") -> tuple[np.ndarray, np.ndarray]:
+        """Pose of a camera in the scene frame (z up): (R_wc float64 (3, 3), optical centre p_w float64 (3,) m)."""
+        self._check_side(side)
+        R, p = self.trajectory.pose(float(t_s))
+        return R, p + R @ self.calibration.offset_m(side)
+
+    def pose(self, t_s: float, side: str = "left") -> np.ndarray:
+        """Ground-truth pose: camera-to-frame transform, float64 (4, 4), in the ground-truth frame (the left camera's
+        optical frame at t = 0), i.e. what ``groundtruth.txt`` holds for the left camera."""
+        R, p = self.world_pose(t_s, side)
+        T = np.eye(4)
+        T[:3, :3] = self._R_gw @ R
+        T[:3, 3] = self._R_gw @ (p - self._p0)
+        return T
+
+    def gt_from_world(self, points_w: np.ndarray) -> np.ndarray:
+        """Scene-frame points (N, 3) -> ground-truth-frame points (N, 3)."""
+        return (np.asarray(points_w, dtype=np.float64) - self._p0) @ self._R_gw.T
+
+    # ------------------------------------------------------------------ rendering
+    def _renderer(self, side: str) -> SideRenderer:
+        self._check_side(side)
+        if side not in self._renderers:
+            intr = self.calibration.side(side)
+            self._renderers[side] = SideRenderer(self.scene, intr)
+            w, h = self.resolution
+            self._gain[side] = (self.camera.qe_map(w, h) *
+                                self.camera.vignetting_map(w, h, intr.cx, intr.cy)).astype(np.float32)
+        return self._renderers[side]
+
+    def radiance(self, side: str, t_s: float) -> RenderResult:
+        """Scene radiance and range seen by ``side`` at ``t_s`` (cached for the last few calls)."""
+        key = (side, float(t_s))
+        hit = self._cache.get(key)
+        if hit is not None:
+            self._cache.move_to_end(key)
+            return hit
+        renderer = self._renderer(side)
+        R, p = self.world_pose(t_s, side)
+        res = renderer.render(R, p)
+        self._cache[key] = res
+        while len(self._cache) > self._cache_size:
+            self._cache.popitem(last=False)
+        return res
+
+    def rate_e_per_us(self, side: str, t_s: float) -> np.ndarray:
+        """Expected photo-electrons per microsecond of every pixel (radiance x QE x vignetting), float32 (H, W)."""
+        res = self.radiance(side, t_s)
+        return res.radiance * self._gain[side]
+
+    def frame_rng(self, side: str, t_s: float, exposure_us: float) -> np.random.Generator:
+        """The deterministic noise generator of one frame (from the seed, the side, the time and the exposure)."""
+        key = [self.seed, SIDES.index(side), round(t_s * 1e9), round(exposure_us * 1e3)]
+        return np.random.default_rng(np.random.SeedSequence(key))
+
+    def render(self, side: str, t_s: float, exposure_us: float, rng: np.random.Generator | None = None,
+               noise: bool = True) -> np.ndarray:
+        """One raw frame: uint16 (H, W) RGGB Bayer 12-bit codes (0..4094) of ``side`` at ``t_s`` (seconds since the
+        start of the walk) exposed ``exposure_us`` microseconds.
+
+        ``rng`` draws the noise; None uses :meth:`frame_rng` (so the same call gives the same frame).
+        ``noise=False`` gives the exact noise-free image."""
+        rate = self.rate_e_per_us(side, t_s)
+        if not noise:
+            return self.camera.expose(rate, exposure_us, None)
+        return self.camera.expose(rate, exposure_us, rng if rng is not None else self.frame_rng(side, t_s,
+                                                                                                exposure_us))
+
+    def describe(self) -> dict:
+        """World parameters for ``camera_model.json``."""
+        tr = self.trajectory
+        lt = self.scene.lighting
+        return {
+            "preset": self.preset,
+            "seed": self.seed,
+            "resolution": list(self.resolution),
+            "baseline_m": self.calibration.baseline_m,
+            "trajectory": {"kind": "loop", "length_m": tr.length_m, "speed_kmh": tr.speed_kmh,
+                           "height_m": tr.height_m, "pitch_deg": tr.pitch_deg, "step_hz": tr.step_hz,
+                           "bounce_m": tr.bounce_m, "roll_deg": tr.roll_deg, "sway_m": tr.sway_m},
+            "sun": {"direction_world": [float(x) for x in lt.sun_dir],
+                    "elevation_deg": float(np.degrees(np.arcsin(lt.sun_dir[2]))),
+                    "disk_radiance": lt.disk_radiance},
+            "groundtruth_frame": "left camera optical frame (x right, y down, z forward) at t = 0",
+        }
