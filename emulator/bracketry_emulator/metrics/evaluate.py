@@ -1,0 +1,60 @@
+"""All metrics of one (trajectory, method) run: features, robustness, RTE/RRE per window."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from bracketry_emulator.metrics.failures import robustness
+from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M, relative_errors, trajectory_rte_rre
+from bracketry_emulator.vo.runner import read_frames_csv
+from bracketry_emulator.vo.tum import read_tum
+
+
+def read_segments(trajectory_dir: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The ``CameraTrajectory*.txt`` segments of a folder (ours or ORB-SLAM2's), ordered by their number."""
+    files = list(Path(trajectory_dir).glob("CameraTrajectory*.txt"))
+
+    def key(p: Path) -> int:
+        m = re.search(r"(\d+)$", p.stem)
+        return int(m.group(1)) if m else -1
+
+    return [read_tum(p) for p in sorted(files, key=key)]
+
+
+def evaluate_run(vo_dir: str | Path, groundtruth: str | Path | None,
+                 windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M) -> dict:
+    """Metrics of a VO output folder (``frames.csv`` + ``CameraTrajectory<n>.txt``) against a TUM reference.
+
+    Returns a JSON-ready dict: n_frames, success, time_before_failure_s, duration_s, tracked_fraction,
+    n_segments, coverage_mean (fraction, all frames), matches_mean (matches to map, all frames),
+    keypoints_mean, rte_pct, rre_deg_per_m (NaN without reference), windows: list of
+    {window_m, n_pairs, rte_pct, rre_deg_per_m}, and per-frame lists coverage, matches.
+    """
+    frames = read_frames_csv(Path(vo_dir) / "frames.csv")
+    rob = robustness(frames)
+    out: dict = {
+        "n_frames": len(frames),
+        "success": rob.success,
+        "time_before_failure_s": rob.time_before_failure_s,
+        "duration_s": rob.duration_s,
+        "tracked_fraction": rob.tracked_fraction,
+        "n_failures": rob.n_failures,
+        "n_segments": rob.n_segments,
+        "coverage_mean": float(np.mean([f["coverage"] for f in frames])) if frames else float("nan"),
+        "matches_mean": float(np.mean([f["n_map_matches"] for f in frames])) if frames else float("nan"),
+        "keypoints_mean": float(np.mean([f["n_keypoints"] for f in frames])) if frames else float("nan"),
+        "coverage": [f["coverage"] for f in frames],
+        "matches": [f["n_map_matches"] for f in frames],
+        "rte_pct": float("nan"),
+        "rre_deg_per_m": float("nan"),
+        "windows": [],
+    }
+    if groundtruth is not None and Path(groundtruth).is_file():
+        gt_t, gt_p = read_tum(groundtruth)
+        errs = relative_errors(gt_t, gt_p, read_segments(vo_dir), windows_m)
+        out["rte_pct"], out["rre_deg_per_m"] = trajectory_rte_rre(errs)
+        out["windows"] = [e.__dict__ for e in errs]
+    return out

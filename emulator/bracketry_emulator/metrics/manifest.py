@@ -1,0 +1,81 @@
+"""Dataset manifests: the trajectories of a benchmark and the subset (deployment) each belongs to.
+
+A manifest is a YAML (or JSON) file::
+
+    trajectories:
+      - path: forest/backpack_2023-09-25-15-05-03   # relative to the manifest's folder
+        subset: Forest
+        name: forest_01                               # optional, default: the folder name
+      - path: campus/run2
+        subset: Campus2
+
+A dataset path that is a folder (not a manifest) is one trajectory of subset ``all``.
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from dataclasses import dataclass
+from pathlib import Path
+
+import yaml
+
+from bracketry.errors import BracketryError
+
+
+@dataclass(frozen=True)
+class TrajectorySpec:
+    """One trajectory: unique ``name``, dataset ``path``, ``subset`` label."""
+
+    name: str
+    path: Path
+    subset: str = "all"
+
+
+def load_manifest(path: str | Path) -> list[TrajectorySpec]:
+    """Read a manifest file into trajectory specs (paths resolved against the manifest's folder)."""
+    p = Path(path)
+    try:
+        doc = yaml.safe_load(p.read_text())
+        entries = doc["trajectories"]
+        out = []
+        for e in entries:
+            tp = (p.parent / e["path"]).resolve()
+            out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all"))))
+    except (OSError, KeyError, TypeError, yaml.YAMLError) as exc:
+        raise BracketryError(f"bad dataset manifest {p}: {exc}") from exc
+    return out
+
+
+def expand_datasets(paths: list[str | Path]) -> list[TrajectorySpec]:
+    """Trajectory specs of command-line dataset arguments (folders or manifest files); names made unique."""
+    specs: list[TrajectorySpec] = []
+    for raw in paths:
+        p = Path(raw)
+        if p.is_file() and p.suffix.lower() in (".yaml", ".yml", ".json"):
+            specs.extend(load_manifest(p))
+        elif p.is_dir():
+            specs.append(TrajectorySpec(p.resolve().name, p.resolve(), "all"))
+        else:
+            raise BracketryError(f"dataset not found (need a folder or a manifest .yaml): {p}")
+    seen: dict[str, int] = defaultdict(int)
+    unique = []
+    for s in specs:
+        seen[s.name] += 1
+        name = s.name if seen[s.name] == 1 else f"{s.name}_{seen[s.name]}"
+        unique.append(TrajectorySpec(name, s.path, s.subset))
+    return unique
+
+
+def success_counts(rows: list[dict]) -> dict[str, dict[str, tuple[int, int]]]:
+    """{subset: {method: (successful trajectories, trajectories)}} from rows with subset, method, success.
+
+    A ``Total`` subset sums all rows.
+    """
+    out: dict[str, dict[str, list[int]]] = defaultdict(lambda: defaultdict(lambda: [0, 0]))
+    for r in rows:
+        for subset in (r["subset"], "Total"):
+            cell = out[subset][r["method"]]
+            cell[0] += int(bool(r["success"]))
+            cell[1] += 1
+    return {s: {m: (c[0], c[1]) for m, c in d.items()} for s, d in out.items()}

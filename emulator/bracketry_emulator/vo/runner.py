@@ -1,0 +1,109 @@
+"""Run the stereo VO over an emulated run folder and write its per-frame log and trajectory segments.
+
+Input: a run folder ``<run>/<method>/`` holding ``images_left/<t_ns>.png`` and ``images_right/<t_ns>.png`` (RGGB
+Bayer mosaics, 12-bit codes in 16-bit PNGs or 8-bit), listed in time order by ``times_images_left|right.txt`` (first
+column, ns; or by the file names when those are absent); the k-th left image is paired with the k-th right image.
+Output (``out_dir``): ``frames.csv`` (t_ns, state, segment, n_keypoints, coverage, n_stereo, n_ref_matches,
+n_map_matches) and ``CameraTrajectory<n>.txt`` (TUM, one per segment, n from 0 as the ORB-SLAM2 fork numbers maps).
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.features.demosaic import to_gray8
+from bracketry_emulator.vo.calibration import StereoRectifier
+from bracketry_emulator.vo.tracker import FrameResult, StereoVO, VOSettings
+from bracketry_emulator.vo.tum import write_tum
+
+FRAME_FIELDS = ("t_ns", "state", "segment", "n_keypoints", "coverage", "n_stereo", "n_ref_matches", "n_map_matches")
+
+
+def list_side_images(run_dir: str | Path, side: str) -> list[tuple[int, Path]]:
+    """(t_ns, path) of one side of a run, in time order."""
+    run = Path(run_dir)
+    folder = run / f"images_{side}"
+    if not folder.is_dir():
+        raise BracketryError(f"{run} has no images_{side}/ folder")
+    times_file = run / f"times_images_{side}.txt"
+    if times_file.is_file():
+        out = []
+        for line in times_file.read_text().splitlines():
+            tokens = line.split()
+            if not tokens or tokens[0].startswith("#"):
+                continue
+            tok = tokens[0]  # RunWriter lines: "<t_ns> <t_ns> <target_exposure_ms>"; ORB-SLAM: "<t_ns>"
+            t_ns = int(tok) if "." not in tok else round(float(tok) * 1e9)
+            out.append((t_ns, folder / f"{t_ns}.png"))
+        return out
+    return sorted((int(p.stem), p) for p in folder.glob("*.png") if p.stem.isdigit())
+
+
+def read_gray8(path: Path, bayer: bool = True) -> np.ndarray:
+    """An image of a run as uint8 gray HxW (16-bit images are RGGB mosaics of 12-bit codes when ``bayer``)."""
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise BracketryError(f"cannot read image {path}")
+    return to_gray8(img, bayer=bayer)
+
+
+@dataclass
+class VORun:
+    """Per-frame results of one run and the folder they were written to."""
+
+    frames: list[FrameResult]
+    out_dir: Path
+
+    @property
+    def n_segments(self) -> int:
+        return len({f.segment for f in self.frames if f.tracked})
+
+
+def run_vo(run_dir: str | Path, calibration_dir: str | Path, out_dir: str | Path,
+           settings: VOSettings | None = None, bayer: bool = True, max_frames: int | None = None) -> VORun:
+    """Track a whole run; write ``frames.csv`` and ``CameraTrajectory<n>.txt`` to ``out_dir``."""
+    left = list_side_images(run_dir, "left")
+    right = list_side_images(run_dir, "right")
+    if not left or len(left) != len(right):
+        raise BracketryError(f"{run_dir}: {len(left)} left and {len(right)} right images (need equal, > 0)")
+    if max_frames is not None:
+        left, right = left[:max_frames], right[:max_frames]
+    first = read_gray8(left[0][1], bayer)
+    rect = StereoRectifier.from_dir(calibration_dir, first.shape[1], first.shape[0])
+    vo = StereoVO(rect, settings)
+    frames = [vo.track(tl, read_gray8(pl, bayer), read_gray8(pr, bayer)) for (tl, pl), (_tr, pr) in zip(left, right)]
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    write_frames_csv(out / "frames.csv", frames)
+    for seg in sorted({f.segment for f in frames if f.tracked}):
+        seg_frames = [f for f in frames if f.tracked and f.segment == seg]
+        write_tum(out / f"CameraTrajectory{seg}.txt", [f.t_ns * 1e-9 for f in seg_frames],
+                  [f.pose_wc for f in seg_frames if f.pose_wc is not None])
+    return VORun(frames, out)
+
+
+def write_frames_csv(path: Path, frames: list[FrameResult]) -> None:
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(FRAME_FIELDS)
+        for f in frames:
+            w.writerow([f.t_ns, f.state, f.segment, f.n_keypoints, f"{f.coverage:.6f}", f.n_stereo, f.n_ref_matches,
+                        f.n_map_matches])
+
+
+def read_frames_csv(path: str | Path) -> list[dict]:
+    """Rows of a ``frames.csv`` with numeric fields converted."""
+    rows = []
+    with Path(path).open(newline="") as fh:
+        for r in csv.DictReader(fh):
+            rows.append({"t_ns": int(r["t_ns"]), "state": r["state"], "segment": int(r["segment"]),
+                         "n_keypoints": int(r["n_keypoints"]), "coverage": float(r["coverage"]),
+                         "n_stereo": int(r["n_stereo"]), "n_ref_matches": int(r["n_ref_matches"]),
+                         "n_map_matches": int(r["n_map_matches"])})
+    return rows

@@ -1,0 +1,74 @@
+"""Features: RGGB demosaicing, ORB-SLAM2-like ORB extractor, 20x20 grid coverage."""
+
+from __future__ import annotations
+
+import itertools
+
+import cv2
+import numpy as np
+import pytest
+
+from bracketry_emulator.features import OrbExtractor, OrbSettings, bayer12_to_gray8, grid_coverage, hamming_distance
+from bracketry_emulator.features.orb import _ic_angle_deg
+
+
+def test_bench_demosaic_rggb_red_is_red() -> None:
+    raw = np.zeros((16, 16), np.uint16)
+    raw[0::2, 0::2] = 4000  # red sites of an RGGB mosaic
+    gray = bayer12_to_gray8(raw)
+    assert gray.dtype == np.uint8 and gray.shape == raw.shape
+    assert abs(int(gray[8, 8]) - round(0.299 * 4000 / 16)) <= 1  # BT.601 weight of red, 12 -> 8 bit
+    raw[:] = 0
+    raw[1::2, 1::2] = 4000  # blue sites
+    assert abs(int(bayer12_to_gray8(raw)[8, 8]) - round(0.114 * 4000 / 16)) <= 1
+
+
+def test_bench_orb_settings_levels() -> None:
+    s = OrbSettings()
+    per_level = s.features_per_level()
+    assert (s.n_features, s.scale_factor, s.n_levels, s.ini_th_fast, s.min_th_fast) == (3000, 1.2, 13, 15, 5)
+    assert len(per_level) == 13 and sum(per_level) == 3000
+    assert all(a > b for a, b in itertools.pairwise(per_level))
+
+
+def test_bench_orb_extractor_budget_and_spread() -> None:
+    rng = np.random.default_rng(3)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (480, 640), dtype=np.uint8), (7, 7), 2.0)
+    ex = OrbExtractor(OrbSettings(n_features=1000))
+    f = ex.detect_and_compute(img)
+    assert 700 <= len(f) <= 1000  # small top levels cannot fill their quotas (as in ORB-SLAM)
+    assert f.descriptors.shape == (len(f), 32) and f.descriptors.dtype == np.uint8
+    assert f.octave.max() >= 5  # the pyramid is used
+    assert grid_coverage(f.xy_px, 640, 480, 20) > 0.65  # the 19 px edge margin empties part of the outer ring
+    # same image -> same features (deterministic)
+    g = ex.detect_and_compute(img)
+    assert np.array_equal(f.xy_px, g.xy_px) and np.array_equal(f.descriptors, g.descriptors)
+    assert np.all(hamming_distance(f.descriptors, g.descriptors) == 0)
+
+
+def test_bench_orientation_matches_opencv() -> None:
+    rng = np.random.default_rng(5)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (240, 320), dtype=np.uint8), (5, 5), 1.5)
+    kps = cv2.ORB_create(200, nlevels=1).detect(img, None)
+    x = np.array([round(k.pt[0]) for k in kps])
+    y = np.array([round(k.pt[1]) for k in kps])
+    diff = (_ic_angle_deg(img, x, y) - np.array([k.angle for k in kps]) + 180) % 360 - 180
+    assert np.median(np.abs(diff)) < 0.5
+
+
+def test_bench_grid_coverage() -> None:
+    assert grid_coverage(np.zeros((0, 2)), 100, 100) == 0.0
+    xy = np.array([[2.0, 2.0], [3.0, 3.0], [99.0, 99.0]])
+    assert grid_coverage(xy, 100, 100, 20) == pytest.approx(2 / 400)
+    centres = (np.stack(np.meshgrid(np.arange(20), np.arange(20)), -1).reshape(-1, 2) + 0.5) * 5
+    assert grid_coverage(centres, 100, 100, 20) == 1.0
+
+
+@pytest.mark.realdata
+def test_bench_orb_on_real_sample(borealhdr_sequence) -> None:
+    png = sorted((borealhdr_sequence / "camera_left" / "4.0").glob("*.png"))[0]
+    raw = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+    gray = bayer12_to_gray8(raw)
+    f = OrbExtractor().detect_and_compute(gray)
+    assert len(f) >= 2900  # the 3000 budget is met on a textured forest image
+    assert grid_coverage(f.xy_px, gray.shape[1], gray.shape[0]) > 0.9

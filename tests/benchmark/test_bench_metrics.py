@@ -1,0 +1,110 @@
+"""Metrics: evo wiring of RTE/RRE (paper equations), per-segment evaluation, robustness, manifests."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bracketry_emulator.metrics import (
+    DEFAULT_WINDOWS_M,
+    expand_datasets,
+    relative_errors,
+    robustness,
+    success_counts,
+    trajectory_rte_rre,
+)
+from bracketry_emulator.metrics.evaluate import read_segments
+from bracketry_emulator.vo.tum import read_tum, write_tum
+
+
+def _line(n: int = 1001, step_m: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+    t = np.arange(n) * 0.1
+    poses = np.tile(np.eye(4), (n, 1, 1))
+    poses[:, 0, 3] = np.arange(n) * step_m
+    return t, poses
+
+
+def test_bench_scale_error_gives_one_percent_at_every_window() -> None:
+    t, gt = _line()  # 100 m straight line
+    est = gt.copy()
+    est[:, :3, 3] *= 1.01
+    errs = relative_errors(t, gt, [(t, est)], DEFAULT_WINDOWS_M)
+    assert [e.window_m for e in errs] == list(range(5, 51))
+    for e in errs:
+        assert e.n_pairs > 0
+        assert round(e.rte_pct, 1) == 1.0  # evo pairs within 10 % of w at the end of the path: 0.9955..1.0
+        assert abs(e.rte_pct - 1.0) < 0.005
+        assert e.rre_deg_per_m == pytest.approx(0.0, abs=1e-9)
+    rte, rre = trajectory_rte_rre(errs)
+    assert rte == pytest.approx(1.0, abs=0.005) and rre == pytest.approx(0.0, abs=1e-9)
+
+
+def test_bench_rotation_error_per_metre() -> None:
+    t, gt = _line(501)
+    est = gt.copy()
+    # a constant yaw drift of 0.1 deg per metre travelled (rotations about the travel axis keep positions)
+    for i in range(len(est)):
+        a = np.radians(0.1 * gt[i, 0, 3])
+        est[i, :3, :3] = np.array([[1, 0, 0], [0, np.cos(a), -np.sin(a)], [0, np.sin(a), np.cos(a)]])
+    errs = relative_errors(t, gt, [(t, est)], (5.0, 10.0))
+    for e in errs:
+        assert e.rre_deg_per_m == pytest.approx(0.1, rel=0.01)
+        assert e.rte_pct == pytest.approx(0.0, abs=1e-6)
+
+
+def test_bench_segments_never_span_a_loss() -> None:
+    t, gt = _line(401)
+    # two segments, each in its own arbitrary frame (re-initialised at identity); a jump between them
+    seg_a = (t[:200], gt[:200].copy())
+    seg_b_poses = gt[220:].copy()
+    seg_b_poses[:, 0, 3] -= seg_b_poses[0, 0, 3]
+    seg_b = (t[220:], seg_b_poses)
+    errs = relative_errors(t, gt, [seg_a, seg_b], (5.0, 10.0))
+    assert all(e.n_pairs > 0 and e.rte_pct == pytest.approx(0.0, abs=1e-6) for e in errs)
+    # the same poses as ONE trajectory would carry the jump into the pairs that straddle the gap
+    joined = (np.r_[seg_a[0], seg_b[0]], np.concatenate([seg_a[1], seg_b[1]]))
+    assert relative_errors(t, gt, [joined], (5.0,))[0].rte_pct > 10.0
+
+
+def test_bench_too_short_gives_nan() -> None:
+    t, gt = _line(21)  # 2 m
+    errs = relative_errors(t, gt, [(t, gt)], (5.0,))
+    assert errs[0].n_pairs == 0 and np.isnan(errs[0].rte_pct)
+    assert np.isnan(trajectory_rte_rre(errs)[0])
+
+
+def test_bench_tum_roundtrip_and_segment_order(tmp_path: Path) -> None:
+    t, gt = _line(12)
+    for n in (10, 2, 0):
+        write_tum(tmp_path / f"CameraTrajectory{n}.txt", t + n, gt)
+    times, poses = read_tum(tmp_path / "CameraTrajectory2.txt")
+    assert np.allclose(times, t + 2) and np.allclose(poses, gt)
+    assert [s[0][0] for s in read_segments(tmp_path)] == pytest.approx([0.0, 2.0, 10.0])
+
+
+def test_bench_robustness() -> None:
+    frames = [{"t_ns": k * 250_000_000, "state": s, "segment": g}
+              for k, (s, g) in enumerate([("INIT", 0), ("OK", 0), ("OK", 0), ("LOST", -1), ("INIT", 1), ("OK", 1)])]
+    r = robustness(frames)
+    assert not r.success and r.time_before_failure_s == pytest.approx(0.75)
+    assert r.duration_s == pytest.approx(1.25) and r.n_segments == 2 and r.n_failures == 1
+    ok = robustness([dict(f, state="OK", segment=0) for f in frames])
+    assert ok.success and ok.time_before_failure_s == pytest.approx(1.25) and ok.tracked_fraction == 1.0
+
+
+def test_bench_manifest_and_success_counts(tmp_path: Path) -> None:
+    for name in ("f1", "f2", "c1"):
+        (tmp_path / name).mkdir()
+    (tmp_path / "m.yaml").write_text(
+        "trajectories:\n  - {path: f1, subset: Forest}\n  - {path: f2, subset: Forest}\n"
+        "  - {path: c1, subset: Campus1, name: campus}\n")
+    specs = expand_datasets([tmp_path / "m.yaml", tmp_path / "f1"])
+    assert [(s.name, s.subset) for s in specs] == [("f1", "Forest"), ("f2", "Forest"), ("campus", "Campus1"),
+                                                   ("f1_2", "all")]
+    rows = [{"subset": "Forest", "method": "ae50", "success": True}, {"subset": "Forest", "method": "ae50",
+            "success": False}, {"subset": "Campus1", "method": "ae50", "success": False}]
+    counts = success_counts(rows)
+    assert counts["Forest"]["ae50"] == (1, 2) and counts["Campus1"]["ae50"] == (0, 1)
+    assert counts["Total"]["ae50"] == (1, 3)
