@@ -1,0 +1,48 @@
+"""GVSP frame ids (16-bit block ids) unwrapped to a monotonic 64-bit frame index.
+
+GigE Vision 1.x block ids count 1..65535 and wrap to 1: the value 0 is never used (the Aravis fake camera starts at
+65401). The unwrapper turns them into a monotonic counter and tells how many ids were skipped between two frames.
+"""
+
+from __future__ import annotations
+
+#: number of distinct ids in a cycle (1..65535; 0 is skipped)
+ID_CYCLE = 65535
+
+
+def id_delta(previous_id: int, frame_id: int) -> int:
+    """Forward distance from ``previous_id`` to ``frame_id`` (both 1..65535), in frames (1 = consecutive)."""
+    if not (1 <= previous_id <= ID_CYCLE and 1 <= frame_id <= ID_CYCLE):
+        raise ValueError(f"GVSP frame ids are 1..65535, got {previous_id}, {frame_id}")
+    return (frame_id - previous_id) % ID_CYCLE
+
+
+class FrameIdUnwrapper:
+    """Turns 16-bit block ids into a frame index counted from the first frame seen (index 0).
+
+    ``update(frame_id) -> (index, skipped)``: ``skipped`` is the number of ids missing since the previous frame
+    (0 normally). A repeated or backwards id (delta 0 or more than half a cycle) is reported with ``skipped = -1``
+    and keeps the previous index + 1, so a camera reset cannot produce a huge fake gap.
+    """
+
+    def __init__(self) -> None:
+        self._last_id: int | None = None
+        self._index = -1
+
+    @property
+    def last_index(self) -> int:
+        """Index of the last frame seen (-1 before the first)."""
+        return self._index
+
+    def update(self, frame_id: int) -> tuple[int, int]:
+        if self._last_id is None or frame_id == 0:
+            self._last_id = frame_id if frame_id else self._last_id
+            self._index += 1
+            return self._index, 0
+        delta = id_delta(self._last_id, frame_id)
+        self._last_id = frame_id
+        if delta == 0 or delta > ID_CYCLE // 2:
+            self._index += 1
+            return self._index, -1
+        self._index += delta
+        return self._index, delta - 1

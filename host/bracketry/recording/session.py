@@ -1,0 +1,144 @@
+"""A recording session: cameras -> pairing -> recorder, plus the 1 Hz rig status.
+
+Threads: each camera's popping thread hands frames to a bounded inbox (overflow counted); one pairing thread feeds
+the ``Pairer`` (frames and TRIGGER events) and queues complete or timed-out sets to the ``Recorder``. Trigger events
+come from the trigger link's listener (``on_trigger_event``), or from a simulator that also fires the cameras
+(``SoftwareTrigger``).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import queue
+import shutil
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+from bracketry.events import TriggerEvent
+from bracketry.pairing.pairer import PairedSet, Pairer
+from bracketry.recording.recorder import Recorder
+
+log = logging.getLogger(__name__)
+
+
+class SoftwareTrigger:
+    """Stands for the STM32 with fake cameras: per event, set each camera's exposure then fire TriggerSoftware."""
+
+    def __init__(self, cameras: dict[str, Any]) -> None:
+        self.cameras = cameras
+
+    def fire(self, event: TriggerEvent) -> None:
+        for cam in self.cameras.values():
+            cam.set_exposure_us(event.exposure_us)
+        for cam in self.cameras.values():
+            cam.software_trigger()
+
+
+class RecordingSession:
+    """Record ``cameras`` (side -> ``GigECamera``, already configured) through ``recorder``.
+
+    Args:
+        window: pairing window in pulses (see ``Pairer``).
+        status_period_s: rig status period.
+        disk_path: folder whose free space goes into the status.
+    """
+
+    def __init__(self, cameras: dict[str, Any], recorder: Recorder, *, window: int = 16,
+                 status_period_s: float = 1.0, disk_path: str | Path | None = None, inbox_max_items: int = 256) -> None:
+        self.cameras = cameras
+        self.recorder = recorder
+        self.pairer = Pairer(tuple(cameras), self._on_set, window=window)
+        self.status_period_s = status_period_s
+        self.disk_path = Path(disk_path) if disk_path else recorder.out_dir
+        self.inbox_overflows = 0
+        self._inbox: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=inbox_max_items)
+        self._thread: threading.Thread | None = None
+        self._fps_marks: dict[str, tuple[float, int]] = {}
+        self._lock = threading.Lock()
+
+    def start(self) -> RecordingSession:
+        self._thread = threading.Thread(target=self._run, name="pairing", daemon=True)
+        self._thread.start()
+        for cam in self.cameras.values():
+            cam.start(self._on_frame)
+        return self
+
+    def _on_frame(self, frame: Any) -> None:
+        try:
+            self._inbox.put_nowait(("frame", frame))
+        except queue.Full:
+            with self._lock:
+                self.inbox_overflows += 1
+            log.error("pairing inbox full: frame id %d of camera %s dropped", frame.frame_id, frame.side)
+
+    def on_trigger_event(self, event: TriggerEvent) -> None:
+        """A TRIGGER event from the trigger device (any thread)."""
+        self.recorder.put_event(event)
+        try:
+            self._inbox.put_nowait(("event", event))
+        except queue.Full:
+            with self._lock:
+                self.inbox_overflows += 1
+            log.error("pairing inbox full: trigger event %d dropped", event.trigger_seq)
+
+    def _on_set(self, pset: PairedSet) -> None:
+        self.recorder.put_set(pset)
+
+    def _run(self) -> None:
+        next_status = time.monotonic() + self.status_period_s
+        while True:
+            try:
+                kind, item = self._inbox.get(timeout=0.05)
+            except queue.Empty:
+                kind, item = "idle", None
+            if kind == "frame":
+                self.pairer.add_frame(item)
+            elif kind == "event":
+                self.pairer.add_event(item)
+            elif kind == "stop":
+                self.pairer.flush()
+                return
+            if time.monotonic() >= next_status:
+                next_status += self.status_period_s
+                self.recorder.put_status(self.status())
+
+    def status(self) -> dict[str, Any]:
+        """The rig status (RigStatus fields)."""
+        now = time.monotonic()
+        out: dict[str, Any] = {"t_ns": time.time_ns()}
+        unpaired = 0
+        for side, cam in self.cameras.items():
+            c = self.pairer.counters[side]
+            t0, n0 = self._fps_marks.get(side, (now, c.frames))
+            out[f"fps_{side}"] = (c.frames - n0) / (now - t0) if now > t0 else math.nan
+            self._fps_marks[side] = (now, c.frames)
+            out[f"frames_{side}"] = c.frames
+            out[f"drops_{side}"] = c.drops
+            out[f"incomplete_{side}"] = c.incomplete
+            out[f"missing_packets_{side}"] = c.missing_packets
+            temperature = cam.read_temperature_c() if hasattr(cam, "read_temperature_c") else None
+            out[f"temperature_{side}_c"] = math.nan if temperature is None else temperature
+            unpaired += c.unpaired
+        out["unpaired"] = unpaired
+        try:
+            out["free_disk_mb"] = shutil.disk_usage(self.disk_path).free // (1 << 20)
+        except OSError:
+            out["free_disk_mb"] = 0
+        return out
+
+    def stop(self, drain_s: float = 0.5) -> dict[str, Any]:
+        """Let in-flight frames arrive (``drain_s``), stop cameras, flush pairing, finish the recording."""
+        time.sleep(drain_s)
+        for cam in self.cameras.values():
+            cam.stop()
+        if self._thread is not None:
+            self._inbox.put(("stop", None))
+            self._thread.join(timeout=30)
+            self._thread = None
+        self.recorder.put_status(self.status())
+        summary = self.recorder.stop()
+        return {"pairing": self.pairer.summary(), "inbox_overflows": self.inbox_overflows,
+                "recorder": vars(summary), "streams": {s: c.stats().as_dict() for s, c in self.cameras.items()}}

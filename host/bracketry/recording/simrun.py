@@ -1,0 +1,118 @@
+"""Record from two in-process fake cameras software-triggered at a bracket cycle (tests, benchmarks, demos).
+
+Run as ``python -m bracketry.recording.simrun --out DIR ...`` (inside ``bracketry.cameras.netns.netns_argv`` when
+the cameras need 127.0.0.2/.3). It starts one ``FakeCameraServer`` per side serving ``sim_pixels`` (pixels are a
+known function of side and exposure, so tests can check every exported image exactly), opens them by IP with the
+``aravis_fake`` profile, generates TRIGGER events at ``fps`` cycling the brackets, fires the cameras at each event,
+records, and writes a JSON summary (``--summary``) with what was fired, dropped and served. ``--progress FILE`` gets
+one line ``<trigger_seq> <host_ns>`` per fired trigger (flushed), for kill -9 tests.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bracketry.cameras.camera import GigECamera
+from bracketry.cameras.fake import FakeCameraServer
+from bracketry.cameras.profiles import CameraSettings
+from bracketry.events import TriggerEvent
+from bracketry.recording.recorder import Recorder, RecorderConfig
+from bracketry.recording.session import RecordingSession, SoftwareTrigger
+
+SIDE_OFFSET = {"left": 0, "right": 1000}
+
+
+def sim_pixels(side: str, exposure_us: int, width: int, height: int) -> np.ndarray:
+    """Deterministic 12-bit test image of one side at one exposure: uint16 ``(height, width)``, codes 0..4095."""
+    y, x = np.mgrid[0:height, 0:width].astype(np.int64)
+    value = (x * 7 + y * 13 + SIDE_OFFSET.get(side, 0) + exposure_us // 100) % 4096
+    return value.astype(np.uint16)
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--out", required=True, type=Path)
+    ap.add_argument("--name", default="rec")
+    ap.add_argument("--seconds", type=float, default=10.0)
+    ap.add_argument("--fps", type=float, default=22.0)
+    ap.add_argument("--width", type=int, default=320)
+    ap.add_argument("--height", type=int, default=200)
+    ap.add_argument("--brackets-us", default="1000,2000,4000,8000,16000,32000")
+    ap.add_argument("--addresses", default="127.0.0.2,127.0.0.3", help="left,right camera IPs")
+    ap.add_argument("--lost-ratio", type=float, default=0.0, help="GVSP packet loss ratio of both fakes")
+    ap.add_argument("--drop-events", default="", help="trigger_seqs whose TRIGGER event is not delivered")
+    ap.add_argument("--skip-trigger", default="", help="side:seq,... pulses a camera does not see (missed trigger)")
+    ap.add_argument("--packet-size", type=int, default=1500)
+    ap.add_argument("--chunk-max-age-s", type=float, default=0.4)
+    ap.add_argument("--split-s", type=float, default=600.0)
+    ap.add_argument("--summary", type=Path)
+    ap.add_argument("--progress", type=Path)
+    args = ap.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+
+    sides = ("left", "right")
+    addresses = dict(zip(sides, args.addresses.split(","), strict=True))
+    brackets = [int(b) for b in args.brackets_us.split(",")]
+    drop_events = {int(s) for s in args.drop_events.split(",") if s}
+    skip = {(p.split(":")[0], int(p.split(":")[1])) for p in args.skip_trigger.split(",") if p}
+    period_ns = int(1e9 / args.fps)
+
+    servers = {s: FakeCameraServer(addresses[s], f"SIM-{s.upper()}",
+                                   image_source=lambda e, w, h, side=s: sim_pixels(side, e, w, h),
+                                   lost_packet_ratio=args.lost_ratio).start() for s in sides}
+    cams = {s: GigECamera(addresses[s], side=s) for s in sides}
+    for cam in cams.values():
+        cam.configure(CameraSettings(profile="aravis_fake", pixel_format="Mono16", width=args.width,
+                                     height=args.height, packet_size_bytes=args.packet_size)).raise_if_mismatch()
+    cfg = RecorderConfig(chunk_max_age_s=args.chunk_max_age_s, split_s=args.split_s)
+    recorder = Recorder(args.out, args.name, cfg, metadata={"brackets_us": ",".join(map(str, brackets)),
+                                                             "fps": str(args.fps), "source": "simrun"}).start()
+    session = RecordingSession(cams, recorder).start()
+    SoftwareTrigger(cams)
+    progress = open(args.progress, "w", buffering=1) if args.progress else None  # noqa: SIM115
+    n = round(args.seconds * args.fps)
+    t0_ns = time.time_ns() + 200_000_000
+    fired = []
+    for k in range(n):
+        t_ns = t0_ns + k * period_ns
+        while (now := time.time_ns()) < t_ns:
+            time.sleep(min(0.005, (t_ns - now) / 1e9))
+        exposure = brackets[k % len(brackets)]
+        ev = TriggerEvent(session_id=1, trigger_seq=k, bracket_index=k % len(brackets), exposure_us=exposure,
+                          t_start_device_us=(t_ns - t0_ns) // 1000 + 5_000_000, t_start_host_ns=time.time_ns())
+        for cam in cams.values():
+            cam.set_exposure_us(exposure)
+        for s, cam in cams.items():
+            if (s, k) not in skip:
+                cam.software_trigger()
+        if k not in drop_events:
+            session.on_trigger_event(ev)
+        fired.append(k)
+        if progress:
+            progress.write(f"{k} {ev.t_start_host_ns}\n")
+    result = session.stop(drain_s=0.5)
+    summary = {"fired": len(fired), "dropped_events": sorted(drop_events), "skipped_triggers": sorted(skip),
+               "served_exposures_us": {s: srv.exposures() for s, srv in servers.items()},
+               "fill_errors": {s: srv.fill_errors for s, srv in servers.items()}, **result}
+    for cam in cams.values():
+        cam.close()
+    for srv in servers.values():
+        srv.stop()
+    text = json.dumps(summary, indent=1, default=str)
+    if args.summary:
+        args.summary.write_text(text)
+    if recorder.error:
+        print(recorder.error, file=sys.stderr)
+        return 3
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
