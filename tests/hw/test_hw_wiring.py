@@ -1,0 +1,67 @@
+"""hw/wiring.yaml agrees with the firmware pin files (STM32 pins.h, panel pins.py); the diagram is up to date."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from bracketry import paths
+from bracketry.cli import main
+from bracketry.hwcalc import diagram, wiring
+
+
+def test_hw_wiring_matches_firmware_pins() -> None:
+    assert wiring.stm32_pins_path().is_file(), "firmware/stm32_trigger/include/pins.h is missing"
+    assert wiring.panel_pins_path().is_file()
+    assert wiring.check_all() == []
+
+
+def test_hw_wiring_required_signals_present() -> None:
+    w = wiring.load_wiring()
+    stm = wiring.parse_stm32_pins(wiring.stm32_pins_path().read_text())
+    assert stm["USART2_TX"] == {"pin": "PA2", "af": 7} and stm["USART2_RX"]["pin"] == "PA3"
+    for sig in ("TRIG_LEFT", "TRIG_RIGHT", "STATUS_LED"):
+        assert sig in stm and sig in w["pins"]["stm32"]
+    panel = wiring.parse_panel_pins(wiring.panel_pins_path().read_text())
+    for name in wiring.ESP32_PIN_NAMES:
+        assert name in panel and name in w["pins"]["esp32"]
+    # every trigger line is documented with level, polarity and protection
+    trig = [c for c in w["connections"] if str(c["from"]).startswith("stm32.TRIG_")]
+    assert {c["to"] for c in trig} == {"cam_left.Line3", "cam_right.Line3"}
+    for c in trig:
+        assert c["level"] and "FallingEdge" in c["polarity"] and c["protection"]
+
+
+def test_hw_wiring_detects_disagreement(tmp_path: Path) -> None:
+    header = wiring.stm32_pins_path().read_text().replace("PIN('B', 0)", "PIN('B', 4)")
+    h = tmp_path / "pins.h"
+    h.write_text(header + "\n#define PIN_EXTRA PIN('C', 7)\n")
+    pins_py = wiring.panel_pins_path().read_text().replace("LCD_E = 18", "LCD_E = 7").replace("BTN_RECORD = 27",
+                                                                                                "BTN_RECORD = 26")
+    p = tmp_path / "pins.py"
+    p.write_text(pins_py)
+    problems = wiring.check_all(stm32_header=h, panel_pins=p)
+    text = "\n".join(problems)
+    assert "stm32 TRIG_LEFT" in text and "stm32 EXTRA" in text
+    assert "esp32 LCD_E" in text and "flash pin" in text and "GPIO26 assigned twice" in text
+    assert main(["hw", "check"]) == 0
+
+
+def test_hw_diagram_is_generated_and_current(tmp_path: Path) -> None:
+    w = wiring.load_wiring()
+    svg = diagram.to_svg(w)
+    assert svg.startswith("<svg") and svg.rstrip().endswith("</svg>")
+    for node in w["nodes"].values():
+        assert node[0].replace("&", "&amp;").replace(">", "&gt;") in svg
+    committed = paths.hw_dir() / "wiring.svg"
+    assert committed.read_text() == svg, "hw/wiring.svg is stale: run `bracketry hw diagram --out hw/wiring.svg`"
+    out = tmp_path / "w.dot"
+    assert main(["hw", "diagram", "--out", str(out)]) == 0
+    dot = out.read_text()
+    assert dot.startswith("graph bracketry") and "stm32 -- cam_left" in dot
+
+
+@pytest.mark.parametrize("kind", ["ethernet", "power", "usb", "signal"])
+def test_hw_diagram_has_edges_of_each_kind(kind: str) -> None:
+    assert any(k == kind for _a, _b, k, _n in diagram.edges(wiring.load_wiring()))
