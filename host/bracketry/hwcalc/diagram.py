@@ -38,7 +38,7 @@ def edges(wiring: dict[str, Any]) -> list[tuple[str, str, str, int]]:
 def layout(wiring: dict[str, Any]) -> dict[str, tuple[float, float]]:
     """Top-left corner (x, y) of every node box, by group column, in YAML order."""
     rows: dict[int, int] = {}
-    pos = {}
+    pos: dict[str, tuple[float, float]] = {}
     for node, (_label, group) in wiring["nodes"].items():
         col = GROUP_COLUMN.get(group, 4)
         row = rows.get(col, 0)
