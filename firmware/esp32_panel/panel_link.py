@@ -133,7 +133,9 @@ class PanelLink:
         if t == bproto.MSG_HELLO:
             if len(frame.payload) == 0:
                 self._send(bproto.MSG_HELLO, self._hello_fields())
-            return  # a HELLO with payload is not a request: ignore
+            elif bproto.nack_code_for(t, frame.payload):
+                self._nack(frame.seq, bproto.NACK_BAD_LENGTH)
+            return  # a complete HELLO is a device announcement, not a request: ignore
         try:
             fields = bproto.unpack_payload(t, frame.payload)
         except ValueError:

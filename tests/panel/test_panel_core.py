@@ -18,23 +18,27 @@ HERE = Path(__file__).resolve().parent
 FIRMWARE = paths.firmware_dir() / "esp32_panel"
 BPROTO = paths.repo_root() / "host" / "bracketry" / "wire" / "bproto.py"
 CHECKS = HERE / "panel_core_checks.py"
+VECTOR_CHECKS = HERE / "panel_vector_checks.py"
+VECTORS = paths.firmware_dir() / "protocol" / "protocol_vectors.json"
 RUNNER = HERE / "panel_mpy_run.mjs"
+SCRIPTS = {"core": CHECKS, "vectors": VECTOR_CHECKS}
 
 
-def _expected_checks() -> list[str]:
-    return re.findall(r"^def (check_\w+)\(", CHECKS.read_text(), flags=re.M)
+def _expected_checks(script: Path = CHECKS) -> list[str]:
+    return re.findall(r"^def (check_\w+)\(", script.read_text(), flags=re.M)
 
 
 def _passed(stdout: str) -> list[str]:
     return [line[5:].strip() for line in stdout.splitlines() if line.startswith("PASS ")]
 
 
-def test_panel_core_checks_cpython() -> None:
+@pytest.mark.parametrize("which", sorted(SCRIPTS))
+def test_panel_checks_cpython(which: str) -> None:
     env_path = f"{FIRMWARE}:{BPROTO.parent}"
-    proc = subprocess.run([sys.executable, str(CHECKS)], capture_output=True, text=True, timeout=120,
-                          env={"PYTHONPATH": env_path, "PATH": "/usr/bin:/bin"})
+    proc = subprocess.run([sys.executable, str(SCRIPTS[which])], capture_output=True, text=True, timeout=120,
+                          env={"PYTHONPATH": env_path, "PATH": "/usr/bin:/bin"}, cwd=VECTORS.parent)
     assert proc.returncode == 0, proc.stderr
-    assert _passed(proc.stdout) == _expected_checks()
+    assert _passed(proc.stdout) == _expected_checks(SCRIPTS[which])
 
 
 def run_micropython(script: Path, files: list[Path], timeout_s: float = 240) -> subprocess.CompletedProcess[str]:
@@ -49,11 +53,11 @@ def firmware_core_files() -> list[Path]:
 
 
 @pytest.mark.micropython
-def test_panel_core_checks_micropython() -> None:
-    proc = run_micropython(CHECKS, firmware_core_files())
+@pytest.mark.parametrize("which", sorted(SCRIPTS))
+def test_panel_checks_micropython(which: str) -> None:
+    proc = run_micropython(SCRIPTS[which], [*firmware_core_files(), VECTORS])
     assert proc.returncode == 0, proc.stderr + proc.stdout
-    assert "MicroPython" not in proc.stderr
-    assert _passed(proc.stdout) == _expected_checks()
+    assert _passed(proc.stdout) == _expected_checks(SCRIPTS[which])
 
 
 @pytest.mark.micropython
