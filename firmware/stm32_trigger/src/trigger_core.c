@@ -1,0 +1,292 @@
+/*
+ * trigger_core.c - protocol dispatch, validation, bracket scheduler, event queue and heartbeat of the trigger.
+ * Portable C99: talks to the hardware only through hal.h.
+ */
+#include "trigger_core.h"
+
+#include <string.h>
+
+#include "hal.h"
+
+static const uint32_t default_exposures_us[6] = {1000u, 2000u, 4000u, 8000u, 16000u, 32000u};
+
+void trig_timeext_init(trig_timeext_t *t, uint32_t raw)
+{
+    t->last_raw = raw;
+    t->high = 0u;
+}
+
+uint64_t trig_timeext_extend(trig_timeext_t *t, uint32_t raw)
+{
+    if (raw < t->last_raw) {
+        t->high += (uint64_t)1u << 32;
+    }
+    t->last_raw = raw;
+    return t->high | (uint64_t)raw;
+}
+
+uint8_t trig_validate_table(uint32_t period_us, uint8_t n, const uint32_t *exposure_us)
+{
+    if (n < 1u || n > TRIG_MAX_BRACKETS) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
+    if (period_us < TRIG_PERIOD_MIN_US || period_us > TRIG_PERIOD_MAX_US) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
+    for (uint8_t i = 0; i < n; i++) {
+        uint32_t e = exposure_us[i];
+        /* e + 200 <= period, written so that it cannot overflow */
+        if (e < TRIG_EXPOSURE_MIN_US || e > period_us - TRIG_GAP_MIN_US) {
+            return BPROTO_NACK_BAD_VALUE;
+        }
+    }
+    return 0u;
+}
+
+uint8_t trig_sched_index(uint32_t k, uint8_t n)
+{
+    return (uint8_t)(n ? k % n : 0u);
+}
+
+void trig_core_init(trig_core_t *c, uint32_t capabilities)
+{
+    memset(c, 0, sizeof(*c));
+    bproto_decoder_init(&c->dec);
+    c->table.period_us = 45454u;
+    c->table.n = 6u;
+    memcpy(c->table.exposure_us, default_exposures_us, sizeof(default_exposures_us));
+    c->capabilities = capabilities;
+}
+
+static int send_frame(trig_core_t *c, uint8_t type, const uint8_t *payload, size_t len)
+{
+    uint8_t out[BPROTO_MAX_FRAME];
+    size_t n = bproto_encode_frame(type, c->tx_seq, payload, len, out, sizeof(out));
+    if (n == 0u || hal_uart_write(out, n) != n) {
+        c->frames_dropped_tx++;
+        return 0;
+    }
+    c->tx_seq++;
+    return 1;
+}
+
+static void send_ack(trig_core_t *c, uint16_t acked_seq)
+{
+    uint8_t p[2];
+    bproto_put_u16(p, acked_seq);
+    (void)send_frame(c, BPROTO_MSG_ACK, p, sizeof(p));
+}
+
+static void send_nack(trig_core_t *c, uint16_t acked_seq, uint8_t code)
+{
+    uint8_t p[3];
+    bproto_put_u16(p, acked_seq);
+    p[2] = code;
+    (void)send_frame(c, BPROTO_MSG_NACK, p, sizeof(p));
+}
+
+static void send_hello(trig_core_t *c)
+{
+    uint8_t p[21];
+    p[0] = TRIG_DEVICE_KIND;
+    p[1] = TRIG_PROTO_MINOR;
+    p[2] = TRIG_FW_MAJOR;
+    p[3] = TRIG_FW_MINOR;
+    p[4] = TRIG_FW_PATCH;
+    hal_uid(&p[5]);
+    bproto_put_u32(&p[17], c->capabilities);
+    (void)send_frame(c, BPROTO_MSG_HELLO, p, sizeof(p));
+}
+
+static void send_heartbeat(trig_core_t *c, uint32_t now_ms)
+{
+    uint8_t p[5];
+    bproto_put_u32(p, now_ms);
+    p[4] = c->running ? 1u : 0u;
+    (void)send_frame(c, BPROTO_MSG_HEARTBEAT, p, sizeof(p));
+}
+
+/* Send queued TRIGGER events in order; an event that does not fit the TX buffer stays queued. */
+static void drain_events(trig_core_t *c)
+{
+    while (c->q_tail != c->q_head) {
+        const trig_event_t *e = &c->queue[c->q_tail % TRIG_EVENT_QUEUE_LEN];
+        uint8_t p[21];
+        bproto_put_u32(&p[0], e->session_id);
+        bproto_put_u32(&p[4], e->trigger_seq);
+        p[8] = e->bracket_index;
+        bproto_put_u32(&p[9], e->exposure_us);
+        bproto_put_u64(&p[13], e->t_start_us);
+        uint8_t out[BPROTO_MAX_FRAME];
+        size_t n = bproto_encode_frame(BPROTO_MSG_TRIGGER, c->tx_seq, p, sizeof(p), out, sizeof(out));
+        if (n == 0u || hal_uart_write(out, n) != n) {
+            return; /* retry on the next poll */
+        }
+        c->tx_seq++;
+        c->q_tail++;
+    }
+}
+
+static void stop(trig_core_t *c)
+{
+    uint32_t s = hal_irq_save();
+    c->running = 0u;
+    hal_trigger_stop();
+    hal_irq_restore(s);
+    hal_led(0);
+}
+
+static void handle_set_brackets(trig_core_t *c, const bproto_frame_t *f)
+{
+    if (f->len < 5u) {
+        send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+        return;
+    }
+    uint8_t n = f->payload[4];
+    if (f->len != 5u + 4u * (uint16_t)n) {
+        send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+        return;
+    }
+    if (c->running) {
+        send_nack(c, f->seq, BPROTO_NACK_BAD_STATE);
+        return;
+    }
+    uint32_t period_us = bproto_get_u32(&f->payload[0]);
+    uint32_t exp[TRIG_MAX_BRACKETS];
+    if (n < 1u || n > TRIG_MAX_BRACKETS) {
+        send_nack(c, f->seq, BPROTO_NACK_BAD_VALUE);
+        return;
+    }
+    for (uint8_t i = 0; i < n; i++) {
+        exp[i] = bproto_get_u32(&f->payload[5u + 4u * i]);
+    }
+    if (trig_validate_table(period_us, n, exp) != 0u) {
+        send_nack(c, f->seq, BPROTO_NACK_BAD_VALUE);
+        return;
+    }
+    c->table.period_us = period_us;
+    c->table.n = n;
+    memcpy(c->table.exposure_us, exp, sizeof(uint32_t) * n);
+    send_ack(c, f->seq);
+}
+
+static void handle_start(trig_core_t *c, const bproto_frame_t *f)
+{
+    if (f->len != 4u) {
+        send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+        return;
+    }
+    uint32_t session_id = bproto_get_u32(f->payload);
+    if (c->running) {
+        if (session_id == c->session_id) {
+            send_ack(c, f->seq); /* repeated START of the same session: no restart */
+        } else {
+            send_nack(c, f->seq, BPROTO_NACK_BAD_STATE);
+        }
+        return;
+    }
+    drain_events(c); /* leftovers of the previous session go first */
+    uint32_t s = hal_irq_save();
+    c->session_id = session_id;
+    c->next_seq = 0u;
+    c->running = 1u;
+    hal_irq_restore(s);
+    send_ack(c, f->seq); /* the ACK precedes the first TRIGGER event */
+    hal_led(1);
+    hal_trigger_start(&c->table);
+}
+
+void trig_core_handle_frame(trig_core_t *c, const bproto_frame_t *f)
+{
+    if (f->ver != BPROTO_VERSION) {
+        c->unsupported_version++;
+        return;
+    }
+    switch (f->type) {
+    case BPROTO_MSG_HELLO:
+        if (f->len != 0u) {
+            send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+        } else {
+            send_hello(c);
+        }
+        break;
+    case BPROTO_MSG_PING: {
+        if (f->len != 8u) {
+            send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+            break;
+        }
+        uint8_t p[16];
+        memcpy(p, f->payload, 8u);
+        bproto_put_u64(&p[8], hal_time_us());
+        (void)send_frame(c, BPROTO_MSG_PONG, p, sizeof(p));
+        break;
+    }
+    case BPROTO_MSG_SET_BRACKETS:
+        handle_set_brackets(c, f);
+        break;
+    case BPROTO_MSG_START:
+        handle_start(c, f);
+        break;
+    case BPROTO_MSG_STOP:
+        if (f->len != 0u) {
+            send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+            break;
+        }
+        stop(c);
+        drain_events(c); /* events of pulses that happened before STOP precede its ACK */
+        send_ack(c, f->seq);
+        break;
+    case BPROTO_MSG_HEARTBEAT: /* host heartbeat: no reply */
+    case BPROTO_MSG_ACK:
+    case BPROTO_MSG_NACK:
+        break;
+    default:
+        send_nack(c, f->seq, BPROTO_NACK_UNKNOWN_TYPE);
+        break;
+    }
+}
+
+void trig_core_rx_byte(trig_core_t *c, uint8_t byte)
+{
+    bproto_frame_t f;
+    if (bproto_decoder_feed(&c->dec, byte, &f)) {
+        trig_core_handle_frame(c, &f);
+    }
+}
+
+void trig_core_boot(trig_core_t *c, uint32_t now_ms)
+{
+    send_hello(c);
+    c->last_heartbeat_ms = now_ms;
+}
+
+void trig_core_poll(trig_core_t *c, uint32_t now_ms)
+{
+    drain_events(c);
+    if ((uint32_t)(now_ms - c->last_heartbeat_ms) >= TRIG_HEARTBEAT_PERIOD_MS) {
+        c->last_heartbeat_ms = now_ms;
+        send_heartbeat(c, now_ms);
+    }
+}
+
+uint32_t trig_core_on_pulse(trig_core_t *c, uint64_t t_start_us)
+{
+    uint8_t n = c->table.n;
+    if (!c->running || n == 0u) {
+        return 0u;
+    }
+    uint32_t k = c->next_seq++;
+    uint8_t idx = trig_sched_index(k, n);
+    if (c->q_head - c->q_tail < TRIG_EVENT_QUEUE_LEN) {
+        trig_event_t *e = &c->queue[c->q_head % TRIG_EVENT_QUEUE_LEN];
+        e->session_id = c->session_id;
+        e->trigger_seq = k;
+        e->bracket_index = idx;
+        e->exposure_us = c->table.exposure_us[idx];
+        e->t_start_us = t_start_us;
+        c->q_head++;
+    } else {
+        c->events_dropped++;
+    }
+    return c->table.exposure_us[trig_sched_index(k + 1u, n)];
+}
