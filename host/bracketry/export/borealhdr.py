@@ -1,0 +1,109 @@
+"""Export a recording as a BorealHDR tree: ``camera_left|camera_right/<exposure_ms>/<timestamp_ns>.png``.
+
+- ``<exposure_ms>`` is the commanded exposure (trigger pulse width) in milliseconds written as a float, e.g. ``1.0``,
+  ``32.0``, ``0.025`` (the emulator parses folder names as floats);
+- ``<timestamp_ns>`` is the frame time (the trigger start in host time, the Image header stamp), identical for the
+  left and right frames of one trigger;
+- pixels are the raw 12-bit Bayer codes, unshifted, in 16-bit single-channel PNGs (lossless).
+
+Frames without pixels (incomplete) or without a TRIGGER event (unknown exposure) are not exported; they are counted.
+PNG encoding runs in a thread pool (OpenCV releases the GIL) with a progress bar.
+"""
+
+from __future__ import annotations
+
+import threading
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bracketry.errors import BracketryError
+from bracketry.recording import topics as T
+from bracketry.recording.decode import decode, decode_image_msg
+from bracketry.recording.reader import RecordingReader
+from bracketry.recording.verify import recording_files
+
+
+def exposure_folder(exposure_us: int) -> str:
+    """Folder name of an exposure: milliseconds as a float (``1000`` -> ``1.0``, ``25`` -> ``0.025``)."""
+    return repr(exposure_us / 1000.0)
+
+
+@dataclass
+class ExportSummary:
+    written: dict[str, int] = field(default_factory=dict)
+    skipped_no_event: int = 0
+    skipped_no_pixels: int = 0
+    out_dir: str = ""
+
+
+def _write_png(path: Path, image: np.ndarray) -> None:
+    import cv2
+
+    if not cv2.imwrite(str(path), image):
+        raise BracketryError(f"cannot write {path}")
+
+
+def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int = 2,
+                     progress: bool = True) -> ExportSummary:
+    """Export ``recording`` (file or folder of split files) under ``out_dir`` (created)."""
+    try:
+        import cv2  # noqa: F401
+    except ImportError as exc:
+        raise BracketryError("export needs OpenCV (pip install -e '.[host]')") from exc
+    out = Path(out_dir)
+    files = recording_files(recording)
+    summary = ExportSummary(out_dir=str(out))
+    # pass 1: exposure per trigger_seq from the events, frame metas (status) per side
+    exposures: dict[int, int] = {}
+    for path in files:
+        for msg in RecordingReader(path).messages({T.TRIGGER_TOPIC}):
+            ev = decode(msg.schema_name, msg.data)
+            exposures[int(ev.trigger_seq)] = int(ev.exposure_us)
+    total = 0
+    image_topics = {T.image_topic(s): s for s in T.SIDES}
+    for path in files:
+        total += sum(1 for _ in RecordingReader(path).messages(set(image_topics)))
+    lock = threading.Lock()
+    bar: Any = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, unit="img", desc="export", leave=False)
+    made: set[Path] = set()
+
+    def job(path: Path, image: np.ndarray, side: str) -> None:
+        _write_png(path, image)
+        with lock:
+            summary.written[side] = summary.written.get(side, 0) + 1
+            if bar is not None:
+                bar.update(1)
+
+    with ThreadPoolExecutor(max_workers=max(1, workers)) as pool:
+        futures = []
+        for path in files:
+            for msg in RecordingReader(path).messages(set(image_topics)):
+                side = image_topics[msg.topic]
+                exposure = exposures.get(msg.sequence)
+                if exposure is None:
+                    summary.skipped_no_event += 1
+                    continue
+                img = decode_image_msg(msg.data)
+                if img.image.dtype != np.uint16 or img.image.size == 0:
+                    summary.skipped_no_pixels += 1
+                    continue
+                folder = out / f"camera_{side}" / exposure_folder(exposure)
+                if folder not in made:
+                    folder.mkdir(parents=True, exist_ok=True)
+                    made.add(folder)
+                futures.append(pool.submit(job, folder / f"{img.stamp_ns}.png", img.image, side))
+                if len(futures) > 4 * workers:
+                    futures.pop(0).result()
+        for f in futures:
+            f.result()
+    if bar is not None:
+        bar.close()
+    return summary

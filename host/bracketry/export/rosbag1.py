@@ -1,0 +1,83 @@
+"""Export a recording as a ROS 1 bag (``rosbags``), with an upstream-compatible metadata message.
+
+Topics: ``/stereo/left|right/image_raw`` (sensor_msgs/Image, bayer_rggb16), ``/stereo/left|right/camera_info``,
+``/stereo/left|right/frame_meta`` (our FrameMeta), ``/trigger/events``, and for the upstream drop checker
+(``check_bag_bracketing.py``) ``/stereo/camera1/metadata`` (left) and ``/stereo/camera2/metadata`` (right) of type
+``norlab_basler_camera_driver/metadata_msg``: ``Header header, int32 FrameId, int64 Timestamp, float32 ExposureTime
+(microseconds, the commanded pulse width as in the version that script reads), float32 DeviceTemperature`` (NaN).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from bracketry.errors import BracketryError
+from bracketry.recording import topics as T
+from bracketry.recording.decode import decode
+from bracketry.recording.msgdefs import OWN_MSG_TEXT
+from bracketry.recording.reader import RecordingReader
+from bracketry.recording.verify import recording_files
+
+UPSTREAM_METADATA_TYPE = "norlab_basler_camera_driver/msg/metadata_msg"
+UPSTREAM_METADATA_MSG = "std_msgs/Header header\nint32 FrameId\nint64 Timestamp\nfloat32 ExposureTime\n" \
+                        "float32 DeviceTemperature\n"
+UPSTREAM_TOPICS = {"left": "/stereo/camera1/metadata", "right": "/stereo/camera2/metadata"}
+
+
+def export_rosbag1(recording: str | Path, out_bag: str | Path) -> dict[str, int]:
+    """Write ``out_bag`` (must not exist); returns message counts per topic."""
+    try:
+        from rosbags.rosbag1 import Writer
+        from rosbags.typesys import Stores, get_types_from_msg, get_typestore
+    except ImportError as exc:
+        raise BracketryError("rosbag1 export needs rosbags (pip install -e '.[host]')") from exc
+    out = Path(out_bag)
+    if out.exists():
+        raise BracketryError(f"{out} exists; choose another --out")
+    store = get_typestore(Stores.ROS1_NOETIC)  # ROS 1 wire format: Header has seq
+    cdr_store = get_typestore(Stores.ROS2_HUMBLE)  # our stored CDR messages
+    types = {}
+    for name, text in OWN_MSG_TEXT.items():
+        types.update(get_types_from_msg(text, name))
+    cdr_store.register(types)
+    types.update(get_types_from_msg(UPSTREAM_METADATA_MSG, UPSTREAM_METADATA_TYPE))
+    store.register(types)
+    counts: dict[str, int] = {}
+    files = recording_files(recording)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    Header = store.types["std_msgs/msg/Header"]
+    Time = store.types["builtin_interfaces/msg/Time"]
+    Meta = store.types[UPSTREAM_METADATA_TYPE]
+    def header(msg_header: object, seq: int = 0) -> object:
+        st = msg_header.stamp  # type: ignore[attr-defined]
+        return Header(seq=seq, stamp=Time(sec=st.sec, nanosec=st.nanosec),
+                      frame_id=msg_header.frame_id)  # type: ignore[attr-defined]
+
+    with Writer(out) as writer:
+        conns: dict[str, object] = {}
+
+        def conn(topic: str, msgtype: str) -> object:
+            if topic not in conns:
+                conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
+            return conns[topic]
+
+        def write(topic: str, msgtype: str, t_ns: int, msg: object) -> None:
+            writer.write(conn(topic, msgtype), t_ns, store.serialize_ros1(msg, msgtype))
+            counts[topic] = counts.get(topic, 0) + 1
+
+        for path in files:
+            for raw in RecordingReader(path).messages():
+                if raw.schema_name == T.SCHEMA_FRAME_META:
+                    m = decode(raw.schema_name, raw.data)
+                    side = raw.topic.split("/")[2]
+                    meta = Meta(header=header(m.header, int(m.trigger_seq)), FrameId=int(m.cam_frame_id),
+                                Timestamp=int(m.cam_timestamp_ns), ExposureTime=float(m.exposure_us),
+                                DeviceTemperature=float("nan"))
+                    write(UPSTREAM_TOPICS.get(side, f"/stereo/{side}/metadata"), UPSTREAM_METADATA_TYPE,
+                          raw.log_time, meta)
+                # CDR (ROS 2) -> ROS 1 wire format by rosbags (adds the ROS 1 Header.seq)
+                writer.write(conn(raw.topic, raw.schema_name), raw.log_time,
+                             cdr_store.cdr_to_ros1(bytes(raw.data), raw.schema_name))
+                counts[raw.topic] = counts.get(raw.topic, 0) + 1
+    return counts
+

@@ -1,0 +1,271 @@
+"""Check recordings: per camera frames, drops, incomplete and unpaired frames, bracket-order breaks, exposure
+mismatches and missing packets, from the stored FrameMeta and TRIGGER events (never from the summary section, so
+truncated files are checked too). ``repair_recording`` writes a clean copy of a truncated file.
+
+A recording is one ``.mcap`` file or a folder of the split files of one recording (``<name>_NNN.mcap``).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+from bracketry.errors import BracketryError
+from bracketry.recording import topics as T
+from bracketry.recording.decode import decode
+from bracketry.recording.mcap_writer import ChunkedMcapWriter
+from bracketry.recording.reader import RecordingReader, UnreadableRecordingError
+
+#: exposure mismatch tolerance: relative and absolute (µs), whichever is larger
+EXPOSURE_TOLERANCE_REL = 0.02
+EXPOSURE_TOLERANCE_US = 20.0
+#: at most this many trigger_seqs listed per problem kind
+MAX_LISTED = 50
+
+
+def recording_files(path: str | Path) -> list[Path]:
+    """The .mcap files of a recording given as a file or a folder (sorted by name = split order)."""
+    p = Path(path)
+    if p.is_dir():
+        files = sorted(f for f in p.glob("*.mcap") if f.is_file())
+        if not files:
+            raise UnreadableRecordingError(f"{p}: no .mcap files in this folder")
+        return files
+    if not p.exists():
+        raise UnreadableRecordingError(f"{p}: no such file")
+    return [p]
+
+
+@dataclass
+class SideReport:
+    """Counts for one camera; ``seqs`` lists (up to MAX_LISTED) trigger_seqs of each problem kind."""
+
+    frames: int = 0
+    images: int = 0
+    drops: int = 0
+    incomplete: int = 0
+    unpaired: int = 0
+    bracket_order_breaks: int = 0
+    exposure_mismatches: int = 0
+    missing_packets: int = 0
+    timestamp_mismatches: int = 0
+    missing_images: int = 0
+    seqs: dict[str, list[int]] = field(default_factory=lambda: defaultdict(list))
+
+    def note(self, kind: str, seq: int) -> None:
+        setattr(self, kind, getattr(self, kind) + 1)
+        if len(self.seqs[kind]) < MAX_LISTED:
+            self.seqs[kind].append(seq)
+
+
+@dataclass
+class VerifyReport:
+    recording: str
+    readable: bool = True
+    error: str | None = None
+    files: list[dict[str, Any]] = field(default_factory=list)
+    truncated: bool = False
+    events: int = 0
+    events_missing: int = 0
+    events_missing_seqs: list[int] = field(default_factory=list)
+    first_seq: int | None = None
+    last_seq: int | None = None
+    tail_lost: int = 0
+    tail_lost_s: float = 0.0
+    fps: float | None = None
+    queue_overflows: int = 0
+    sides: dict[str, SideReport] = field(default_factory=dict)
+    problems: list[str] = field(default_factory=list)
+
+    @property
+    def ok(self) -> bool:
+        return self.readable and not self.problems
+
+    def as_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["ok"] = self.ok
+        for side in d["sides"].values():
+            side["seqs"] = {k: v for k, v in side["seqs"].items() if v}
+        return d
+
+
+def _load(files: list[Path], report: VerifyReport) -> tuple[dict[int, Any], dict[str, dict[int, Any]],
+                                                            dict[str, set[int]], dict[str, str], list[Any]]:
+    events: dict[int, Any] = {}
+    metas: dict[str, dict[int, Any]] = defaultdict(dict)
+    images: dict[str, set[int]] = defaultdict(set)
+    metadata: dict[str, str] = {}
+    statuses: list[Any] = []
+    for path in files:
+        reader = RecordingReader(path)
+        for msg in reader.messages():
+            if msg.topic == T.TRIGGER_TOPIC:
+                ev = decode(msg.schema_name, msg.data)
+                events[int(ev.trigger_seq)] = ev
+            elif msg.topic.endswith("/frame_meta"):
+                side = msg.topic.split("/")[2]
+                meta = decode(msg.schema_name, msg.data)
+                if int(meta.trigger_seq) in metas[side]:
+                    report.problems.append(f"camera {side}: two frames for trigger_seq {meta.trigger_seq}")
+                metas[side][int(meta.trigger_seq)] = meta
+            elif msg.topic.endswith("/image_raw"):
+                images[msg.topic.split("/")[2]].add(msg.sequence)
+            elif msg.topic == T.STATUS_TOPIC:
+                statuses.append(decode(msg.schema_name, msg.data))
+        rr = reader.report
+        metadata.update(rr.metadata.get(T.METADATA_NAME, {}))
+        report.files.append({"path": str(path), "size_bytes": rr.size_bytes, "truncated": rr.truncated,
+                             "chunks": rr.chunks, "bad_chunks": rr.bad_chunks, "messages": rr.messages,
+                             "tail_bytes_lost": rr.tail_bytes_lost, "problems": rr.problems})
+        report.truncated |= rr.truncated
+    return events, metas, images, metadata, statuses
+
+
+def verify_recording(path: str | Path) -> VerifyReport:
+    """Check one recording (file or folder of split files)."""
+    report = VerifyReport(recording=str(path))
+    try:
+        files = recording_files(path)
+        events, metas, images, metadata, statuses = _load(files, report)
+    except UnreadableRecordingError as exc:
+        report.readable = False
+        report.error = str(exc)
+        return report
+    sides = tuple(s for s in metadata.get("sides", ",".join(T.SIDES)).split(",") if s)
+    report.fps = float(metadata["fps"]) if "fps" in metadata else None
+    n_brackets = len(metadata["brackets_us"].split(",")) if metadata.get("brackets_us") else None
+    if n_brackets is None:
+        indices = [int(e.bracket_index) for e in events.values()]
+        n_brackets = max(indices) + 1 if indices else 1
+    all_seqs = set(events) | {s for m in metas.values() for s in m}
+    if not all_seqs:
+        report.sides = {s: SideReport() for s in sides}
+        report.problems.append("no frames and no trigger events recorded")
+        return report
+    first, last = min(all_seqs), max(all_seqs)
+    if report.truncated or metadata.get("repaired_from"):
+        # what lies after the last trigger_seq recorded by every camera was lost with the open chunk
+        complete = [max(metas[s]) for s in sides if metas.get(s)]
+        last_whole = min(complete) if len(complete) == len(sides) else first - 1
+        report.tail_lost = last - last_whole
+        last = last_whole
+        if report.fps:
+            report.tail_lost_s = report.tail_lost / report.fps
+    report.first_seq, report.last_seq = first, last
+    report.events = len(events)
+    for seq in range(first, last + 1):
+        if seq not in events:
+            report.events_missing += 1
+            if len(report.events_missing_seqs) < MAX_LISTED:
+                report.events_missing_seqs.append(seq)
+    for side in sides:
+        sr = SideReport()
+        side_metas = metas.get(side, {})
+        prev: tuple[int, int] | None = None  # (trigger_seq, bracket_index) of the last frame with an event
+        for seq in range(first, last + 1):
+            meta = side_metas.get(seq)
+            if meta is None:
+                sr.note("drops", seq)
+                continue
+            sr.frames += 1
+            sr.missing_packets += int(meta.missing_packets)
+            if meta.status != "success":
+                sr.note("incomplete", seq)
+            elif seq not in images.get(side, set()):
+                sr.note("missing_images", seq)
+            if not meta.paired:
+                sr.note("unpaired", seq)
+            if meta.note == "timestamp_mismatch":
+                sr.note("timestamp_mismatches", seq)
+            ev = events.get(seq)
+            if ev is not None:
+                # upstream rule (index == previous + 1 mod n), made drop-aware: a dropped frame is a drop, not a break
+                if prev is not None and int(ev.bracket_index) != (prev[1] + seq - prev[0]) % n_brackets:
+                    sr.note("bracket_order_breaks", seq)
+                prev = (seq, int(ev.bracket_index))
+                reported = float(meta.exposure_us_reported)
+                commanded = float(ev.exposure_us)
+                if not math.isnan(reported) and abs(reported - commanded) > max(
+                        EXPOSURE_TOLERANCE_REL * commanded, EXPOSURE_TOLERANCE_US):
+                    sr.note("exposure_mismatches", seq)
+        sr.images = len(images.get(side, set()))
+        report.sides[side] = sr
+    report.queue_overflows = max((int(s.queue_overflows) for s in statuses), default=0)
+    _problems(report)
+    return report
+
+
+def _problems(report: VerifyReport) -> None:
+    for side, sr in report.sides.items():
+        for kind in ("drops", "incomplete", "unpaired", "bracket_order_breaks", "exposure_mismatches",
+                     "timestamp_mismatches", "missing_images"):
+            n = getattr(sr, kind)
+            if n:
+                listed = ", ".join(map(str, sr.seqs[kind][:10])) + (" ..." if n > 10 else "")
+                report.problems.append(f"camera {side}: {n} {kind.replace('_', ' ')} (trigger_seq {listed})")
+        if sr.missing_packets:
+            report.problems.append(f"camera {side}: {sr.missing_packets} missing packets")
+    if report.events_missing:
+        listed = ", ".join(map(str, report.events_missing_seqs[:10]))
+        report.problems.append(f"{report.events_missing} trigger events missing (trigger_seq {listed})")
+    if report.queue_overflows:
+        report.problems.append(f"{report.queue_overflows} items dropped by the recorder queue")
+    if report.truncated:
+        lost = f", last {report.tail_lost} trigger_seqs lost" if report.tail_lost else ""
+        secs = f" ({report.tail_lost_s:.2f} s)" if report.fps and report.tail_lost else ""
+        report.problems.append(f"truncated file (no footer){lost}{secs}: bracketry verify --repair writes a clean copy")
+
+
+def format_report(report: VerifyReport) -> str:
+    """Human-readable text of a report."""
+    if not report.readable:
+        return f"{report.recording}: UNREADABLE: {report.error}"
+    lines = [f"{report.recording}: {'OK' if report.ok else 'PROBLEMS'} "
+             f"(trigger_seq {report.first_seq}..{report.last_seq}, {report.events} events"
+             f"{', truncated' if report.truncated else ''})"]
+    for side, sr in report.sides.items():
+        lines.append(f"  {side:>5}: frames {sr.frames}  drops {sr.drops}  incomplete {sr.incomplete}  "
+                     f"unpaired {sr.unpaired}  bracket-order breaks {sr.bracket_order_breaks}  "
+                     f"exposure mismatches {sr.exposure_mismatches}  missing packets {sr.missing_packets}")
+    lines += [f"  - {p}" for p in report.problems]
+    return "\n".join(lines)
+
+
+def repair_recording(src: str | Path, dst: str | Path | None = None) -> tuple[Path, int]:
+    """Write a clean, finished copy of a (truncated) recording file; returns (path, messages copied).
+
+    Default output: ``<stem>.repaired.mcap`` next to ``src``. Schemas, channels and metadata are kept; the metadata
+    gains ``repaired_from``.
+    """
+    src = Path(src)
+    if src.is_dir():
+        raise BracketryError(f"{src}: --repair takes .mcap files, not folders")
+    out = Path(dst) if dst else src.with_name(src.stem + ".repaired.mcap")
+    if out.resolve() == src.resolve():
+        raise BracketryError("--repair never overwrites its input")
+    reader = RecordingReader(src)
+    writer = ChunkedMcapWriter(out, fsync_interval_s=None)
+    schema_map: dict[int, int] = {}
+    channel_map: dict[int, int] = {}
+    n = 0
+    try:
+        for msg in reader.messages():
+            if msg.channel_id not in channel_map:
+                topic, sid, enc = reader.channels[msg.channel_id]
+                if sid not in schema_map:
+                    name, senc, text = reader.schemas[sid]
+                    schema_map[sid] = writer.register_schema(name, text.encode(), senc)
+                channel_map[msg.channel_id] = writer.register_channel(topic, schema_map[sid], enc)
+            writer.add_message(channel_map[msg.channel_id], msg.log_time, bytes(msg.data),
+                               publish_time=msg.publish_time, sequence=msg.sequence)
+            n += 1
+        for name, md in reader.report.metadata.items():
+            writer.add_metadata(name, {**md, "repaired_from": str(src)} if name == T.METADATA_NAME else md)
+        writer.finish()
+    except BaseException:
+        writer.close()
+        raise
+    return out, n
