@@ -6,7 +6,7 @@ left camera moves forward with a gentle sinusoidal sway and yaw; the right camer
 Images are rendered with nearest-neighbour texture lookup (sharp block corners make good FAST corners).
 
 It writes the same layout the benchmark reads: an emulated run ``<run>/<method>/images_left|images_right/<t_ns>.png``
-(16-bit RGGB-free gray codes 0..4095 or 8-bit) with ``times_images_left|right.txt``, a TUM ``groundtruth.txt``
+(16-bit RGGB-free gray codes 0..4095 or 8-bit) with ``times_images_left|right.txt`` and ``steps.csv`` (exposure 4 ms x gain), a TUM ``groundtruth.txt``
 and ``calibration/left.yaml`` + ``right.yaml`` (ROS camera_info, zero distortion).
 """
 
@@ -127,4 +127,7 @@ class ToyWorld:
                 cv2.imwrite(str(root / f"images_{side}" / f"{t_ns}.png"), codes)
         for side in ("left", "right"):
             (root / f"times_images_{side}.txt").write_text("".join(f"{t}\n" for t in times))
+        rows = "".join(f"{k},{t},{4.0 * gains[k]:.6f},4.000000,{gains[k]:.6f},toy\n" for k, t in enumerate(times))
+        (root / "steps.csv").write_text("step,timestamp_ns,target_exposure_ms,source_exposure_ms,factor,selection\n"
+                                        + rows)
         return times

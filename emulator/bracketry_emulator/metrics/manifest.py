@@ -8,8 +8,12 @@ A manifest is a YAML (or JSON) file::
         name: forest_01                               # optional, default: the folder name
       - path: campus/run2
         subset: Campus2
+        groundtruth: campus/run2_gt.txt               # optional, default: <path>/groundtruth.txt
+        calibration: campus/calibration               # optional, default: <path>/calibration or ../calibration
+        runs: campus/emulated_run2                    # optional: already emulated runs (<runs>/<method>/...)
 
-A dataset path that is a folder (not a manifest) is one trajectory of subset ``all``.
+A dataset path that is a folder (not a manifest) is one trajectory of subset ``all``. A folder that already holds
+emulated runs (``<folder>/<method>/images_left/``) is used as they are (no closed loop is run for those methods).
 """
 
 from __future__ import annotations
@@ -25,11 +29,35 @@ from bracketry.errors import BracketryError
 
 @dataclass(frozen=True)
 class TrajectorySpec:
-    """One trajectory: unique ``name``, dataset ``path``, ``subset`` label."""
+    """One trajectory: unique ``name``, dataset ``path``, ``subset`` label, optional explicit file locations."""
 
     name: str
     path: Path
     subset: str = "all"
+    groundtruth: Path | None = None
+    calibration: Path | None = None
+    runs: Path | None = None
+
+    def groundtruth_path(self) -> Path | None:
+        """The TUM reference of this trajectory, or None when it has none."""
+        cand = self.groundtruth or self.path / "groundtruth.txt"
+        return cand if cand.is_file() else None
+
+    def calibration_dir(self) -> Path | None:
+        """The folder with the left/right camera_info YAMLs."""
+        if self.calibration is not None:
+            return self.calibration
+        for cand in (self.path / "calibration", self.path.parent / "calibration"):
+            if cand.is_dir():
+                return cand
+        return None
+
+    def existing_run(self, method: str) -> Path | None:
+        """An already emulated run of ``method`` for this trajectory, if any."""
+        for root in (self.runs, self.path):
+            if root is not None and (root / method / "images_left").is_dir():
+                return root / method
+        return None
 
 
 def load_manifest(path: str | Path) -> list[TrajectorySpec]:
@@ -41,7 +69,8 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
         out = []
         for e in entries:
             tp = (p.parent / e["path"]).resolve()
-            out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all"))))
+            extra = {k: (p.parent / e[k]).resolve() for k in ("groundtruth", "calibration", "runs") if e.get(k)}
+            out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all")), **extra))
     except (OSError, KeyError, TypeError, yaml.YAMLError) as exc:
         raise BracketryError(f"bad dataset manifest {p}: {exc}") from exc
     return out
@@ -63,7 +92,7 @@ def expand_datasets(paths: list[str | Path]) -> list[TrajectorySpec]:
     for s in specs:
         seen[s.name] += 1
         name = s.name if seen[s.name] == 1 else f"{s.name}_{seen[s.name]}"
-        unique.append(TrajectorySpec(name, s.path, s.subset))
+        unique.append(TrajectorySpec(name, s.path, s.subset, s.groundtruth, s.calibration, s.runs))
     return unique
 
 

@@ -4,7 +4,7 @@ Input: a run folder ``<run>/<method>/`` holding ``images_left/<t_ns>.png`` and `
 Bayer mosaics, 12-bit codes in 16-bit PNGs or 8-bit), listed in time order by ``times_images_left|right.txt`` (first
 column, ns; or by the file names when those are absent); the k-th left image is paired with the k-th right image.
 Output (``out_dir``): ``frames.csv`` (t_ns, state, segment, n_keypoints, coverage, n_stereo, n_ref_matches,
-n_map_matches) and ``CameraTrajectory<n>.txt`` (TUM, one per segment, n from 0 as the ORB-SLAM2 fork numbers maps).
+n_map_matches, reason) and ``CameraTrajectory<n>.txt`` (TUM, one per segment, n from 0 as the ORB-SLAM2 fork numbers maps).
 """
 
 from __future__ import annotations
@@ -22,7 +22,8 @@ from bracketry_emulator.vo.calibration import StereoRectifier
 from bracketry_emulator.vo.tracker import FrameResult, StereoVO, VOSettings
 from bracketry_emulator.vo.tum import write_tum
 
-FRAME_FIELDS = ("t_ns", "state", "segment", "n_keypoints", "coverage", "n_stereo", "n_ref_matches", "n_map_matches")
+FRAME_FIELDS = ("t_ns", "state", "segment", "n_keypoints", "coverage", "n_stereo", "n_ref_matches", "n_map_matches",
+                "reason")
 
 
 def list_side_images(run_dir: str | Path, side: str) -> list[tuple[int, Path]]:
@@ -105,5 +106,5 @@ def read_frames_csv(path: str | Path) -> list[dict]:
             rows.append({"t_ns": int(r["t_ns"]), "state": r["state"], "segment": int(r["segment"]),
                          "n_keypoints": int(r["n_keypoints"]), "coverage": float(r["coverage"]),
                          "n_stereo": int(r["n_stereo"]), "n_ref_matches": int(r["n_ref_matches"]),
-                         "n_map_matches": int(r["n_map_matches"])})
+                         "n_map_matches": int(r["n_map_matches"]), "reason": r.get("reason", "")})
     return rows

@@ -67,6 +67,7 @@ class FrameResult:
         n_keypoints: left keypoints. coverage: fraction of the 20x20 grid filled by left keypoints.
         n_stereo: keypoints with a stereo depth. n_ref_matches: matches to the reference keyframe.
         n_map_matches: keypoints matched to map points and inliers of the final pose ("matches to map").
+        reason: why the frame is LOST / NO_INIT (empty when tracked).
     """
 
     t_ns: int
@@ -78,6 +79,7 @@ class FrameResult:
     n_stereo: int
     n_ref_matches: int = 0
     n_map_matches: int = 0
+    reason: str = ""
 
     @property
     def tracked(self) -> bool:
@@ -174,20 +176,33 @@ class StereoVO:
     # -- pose estimation ------------------------------------------------------------------------------------
     def _refine(self, pts_w: np.ndarray, uv: np.ndarray, octave: np.ndarray, T_cw: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
-        """Iterative LM refinement with chi-square outlier rejection; returns (T_cw, inlier mask)."""
+        """Iterative LM refinement with chi-square outlier rejection; returns (T_cw, inlier mask).
+
+        Inliers: reprojection error^2 < 5.991 * (1.2^octave)^2 and positive depth (ORB-SLAM's monocular test).
+        Four rounds of (Levenberg-Marquardt on the inliers, re-classification); a round that loses more than half of
+        the inliers is rejected (keeps the previous pose).
+        """
         sigma2 = self.extractor.scale_factors[octave] ** 2
+        pts = pts_w.astype(np.float64)
+
+        def classify(rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
+            proj, _ = cv2.projectPoints(pts, rvec, tvec, self.K, None)
+            err2 = ((proj.reshape(-1, 2) - uv) ** 2).sum(axis=1)
+            z = (pts @ cv2.Rodrigues(rvec)[0].T + tvec.ravel())[:, 2]
+            return (err2 < 5.991 * sigma2) & (z > 0)
+
         rvec = cv2.Rodrigues(T_cw[:3, :3])[0]
         tvec = T_cw[:3, 3].reshape(3, 1).copy()
-        inl = np.ones(len(pts_w), bool)
+        inl = classify(rvec, tvec)
         for _ in range(4):
-            if inl.sum() < 4:
+            if inl.sum() < 6:
                 break
-            rvec, tvec = cv2.solvePnPRefineLM(pts_w[inl].astype(np.float64), uv[inl].astype(np.float64), self.K,
-                                              None, rvec, tvec)
-            proj, _ = cv2.projectPoints(pts_w.astype(np.float64), rvec, tvec, self.K, None)
-            err2 = ((proj.reshape(-1, 2) - uv) ** 2).sum(axis=1)
-            pc_z = (pts_w @ cv2.Rodrigues(rvec)[0].T + tvec.ravel())[:, 2]
-            inl = (err2 < 5.991 * sigma2) & (pc_z > 0)
+            r2, t2 = cv2.solvePnPRefineLM(pts[inl], uv[inl].astype(np.float64), self.K, None, rvec.copy(),
+                                          tvec.copy())
+            inl2 = classify(r2, t2)
+            if inl2.sum() < 0.5 * inl.sum():
+                break
+            rvec, tvec, inl = r2, t2, inl2
         return _pose_from_rt(rvec, tvec), inl
 
     def _match_reference(self, feats: Features, m: _Map, ref_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -271,7 +286,9 @@ class StereoVO:
                 self.map.add(self._backproject(feats, depth, idx, self.T_cw), feats.descriptors[idx],
                              feats.octave[idx], feats.angle_deg[idx], fi)
                 result.state, result.segment, result.pose_wc = STATE_INIT, self.segment, np.eye(4)
-                result.n_map_matches = 0
+            else:
+                result.reason = (f"cannot initialise: {len(feats)} keypoints (need > {s.min_init_keypoints}), "
+                                 f"{int(has_depth.sum())} stereo points (need >= {s.min_init_stereo})")
             return result
         m = self.map
         # 3. reference keyframe = previous frame
@@ -279,18 +296,19 @@ class StereoVO:
         mids, kids = self._match_reference(feats, m, ref_ids)
         result.n_ref_matches = len(mids)
         if len(mids) < s.min_ref_matches:
-            return self._lose(result)
+            return self._lose(result, f"{len(mids)} reference matches < {s.min_ref_matches}")
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             m.pos_w[mids].astype(np.float64), feats.xy_px[kids].astype(np.float64), self.K, None,
             iterationsCount=s.ransac_iterations, reprojectionError=s.ransac_reproj_px, confidence=0.99,
             flags=cv2.SOLVEPNP_EPNP)
-        if not ok or inliers is None or len(inliers) < s.min_ref_inliers:
-            return self._lose(result)
+        n_ransac = 0 if not ok or inliers is None else len(inliers)
+        if n_ransac < s.min_ref_inliers:
+            return self._lose(result, f"{n_ransac} PnP RANSAC inliers < {s.min_ref_inliers}")
         inl_idx = inliers.ravel()
         T_cw, inl = self._refine(m.pos_w[mids[inl_idx]], feats.xy_px[kids[inl_idx]].astype(np.float64),
                                  feats.octave[kids[inl_idx]], _pose_from_rt(rvec, tvec))
         if inl.sum() < s.min_ref_inliers:
-            return self._lose(result)
+            return self._lose(result, f"{inl.sum()} reference inliers < {s.min_ref_inliers}")
         mids, kids = mids[inl_idx][inl], kids[inl_idx][inl]
         # 4. local map
         taken = np.zeros(len(feats), bool)
@@ -303,7 +321,7 @@ class StereoVO:
         T_cw, inl = self._refine(m.pos_w[all_m], feats.xy_px[all_k].astype(np.float64), feats.octave[all_k], T_cw)
         result.n_map_matches = int(inl.sum())
         if inl.sum() < s.min_map_inliers:
-            return self._lose(result)
+            return self._lose(result, f"{inl.sum()} local-map inliers < {s.min_map_inliers}")
         all_m, all_k = all_m[inl], all_k[inl]
         # 5. map update: every frame is a keyframe
         m.desc[all_m] = feats.descriptors[all_k]
@@ -321,7 +339,8 @@ class StereoVO:
         result.state, result.segment, result.pose_wc = STATE_OK, self.segment, np.linalg.inv(T_cw)
         return result
 
-    def _lose(self, result: FrameResult) -> FrameResult:
+    def _lose(self, result: FrameResult, reason: str) -> FrameResult:
         self.map = None
         result.state = STATE_LOST
+        result.reason = reason
         return result

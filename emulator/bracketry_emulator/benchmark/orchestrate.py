@@ -1,0 +1,102 @@
+"""Run every (trajectory, method) task locally (process pool) or on a Dask cluster, then statistics and report."""
+
+from __future__ import annotations
+
+import concurrent.futures
+import multiprocessing
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.benchmark.closedloop import all_methods
+from bracketry_emulator.benchmark.tasks import make_task, run_task
+from bracketry_emulator.metrics.manifest import TrajectorySpec, expand_datasets
+from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
+
+
+@dataclass
+class BenchmarkResult:
+    """All task results (sorted by trajectory then method) and where the report went."""
+
+    results: list[dict]
+    out_dir: Path
+    report_files: dict[str, Path]
+
+
+def parse_methods(methods: str | list[str]) -> list[str]:
+    """``all`` or a comma-separated list (or a list) -> method ids, order kept, duplicates removed."""
+    items = methods.split(",") if isinstance(methods, str) else list(methods)
+    out: list[str] = []
+    for item in (m.strip() for m in items):
+        for m in (all_methods() if item == "all" else (item,)):
+            if m and m not in out:
+                out.append(m)
+    if not out:
+        raise BracketryError("no AE method given (--methods all or a comma-separated list)")
+    return out
+
+
+def _run_local(tasks: list[dict], workers: int, on_done: Callable[[dict], None] | None) -> list[dict]:
+    if workers <= 1:
+        results = []
+        for t in tasks:
+            r = run_task(t)
+            if on_done:
+                on_done(r)
+            results.append(r)
+        return results
+    ctx = multiprocessing.get_context("spawn")
+    with concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        futures = [pool.submit(run_task, t) for t in tasks]
+        for f in concurrent.futures.as_completed(futures):
+            if on_done:
+                on_done(f.result())
+        return [f.result() for f in futures]
+
+
+def _run_dask(tasks: list[dict], scheduler: str, on_done: Callable[[dict], None] | None) -> list[dict]:
+    try:
+        from distributed import Client, as_completed
+    except ImportError as exc:
+        raise BracketryError("--scheduler needs dask.distributed (install the emulator extra)") from exc
+    try:
+        client = Client(scheduler, timeout=30)
+    except OSError as exc:
+        raise BracketryError(f"cannot reach the Dask scheduler {scheduler}: {exc}") from exc
+    try:
+        futures = client.map(run_task, tasks, pure=False)
+        if on_done:
+            for f in as_completed(futures):
+                on_done(f.result())
+        return list(client.gather(futures))
+    finally:
+        client.close()
+
+
+def run_benchmark(datasets: list[str | Path] | list[TrajectorySpec], methods: str | list[str], out_dir: str | Path,
+                  reference: str = "ae50", scheduler: str | None = None, workers: int = 1,
+                  windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, max_frames: int | None = None,
+                  alpha: float = 0.05, report: bool = True,
+                  on_done: Callable[[dict], None] | None = None) -> BenchmarkResult:
+    """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
+
+    ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``).
+    """
+    specs = [d if isinstance(d, TrajectorySpec) else None for d in datasets]
+    if any(s is None for s in specs):
+        specs = expand_datasets([d for d in datasets if not isinstance(d, TrajectorySpec)])  # type: ignore[misc]
+    method_ids = parse_methods(methods)
+    if reference not in method_ids:
+        raise BracketryError(f"reference method {reference!r} is not among the benchmarked methods {method_ids}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    tasks = [make_task(s, m, out, windows_m, max_frames) for s in specs if s is not None for m in method_ids]
+    results = _run_dask(tasks, scheduler, on_done) if scheduler else _run_local(tasks, workers, on_done)
+    results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
+    files: dict[str, Path] = {}
+    if report:
+        from bracketry_emulator.report import write_report
+
+        files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha)
+    return BenchmarkResult(results, out, files)

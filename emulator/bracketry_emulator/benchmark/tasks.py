@@ -1,0 +1,99 @@
+"""One benchmark task = one (trajectory, method): closed loop -> stereo VO -> metrics, with a result cache.
+
+Output layout under the benchmark folder ``out``::
+
+    runs/<trajectory>/<method>/...        emulated run (RunWriter layout), unless the dataset already had it
+    vo/<trajectory>/<method>/frames.csv   VO per-frame log + CameraTrajectory<n>.txt segments
+    cache/<trajectory>/<method>.json      the task's result (metrics); present = done
+
+A task whose cache file exists with the same key (dataset path, method, VO/metric settings) is not recomputed, so an
+interrupted benchmark resumes where it stopped. Cache files are written atomically (temporary file + rename).
+Tasks are plain dicts in and out (picklable for process pools and Dask).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+from pathlib import Path
+
+from bracketry_emulator.metrics.evaluate import evaluate_run
+from bracketry_emulator.metrics.manifest import TrajectorySpec
+from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
+
+CACHE_VERSION = 1
+
+
+def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M,
+              max_frames: int | None = None) -> dict:
+    """A picklable task description."""
+    task = {
+        "trajectory": spec.name, "subset": spec.subset, "method": method,
+        "dataset": str(spec.path), "out": str(out_dir),
+        "groundtruth": str(spec.groundtruth_path()) if spec.groundtruth_path() else None,
+        "calibration": str(spec.calibration_dir()) if spec.calibration_dir() else None,
+        "existing_run": str(spec.existing_run(method)) if spec.existing_run(method) else None,
+        "windows_m": [float(w) for w in windows_m], "max_frames": max_frames,
+    }
+    key_src = json.dumps({k: task[k] for k in ("dataset", "method", "groundtruth", "calibration", "existing_run",
+                                               "windows_m", "max_frames")}, sort_keys=True)
+    task["key"] = hashlib.sha256(f"v{CACHE_VERSION}:{key_src}".encode()).hexdigest()[:16]
+    return task
+
+
+def cache_path(task: dict) -> Path:
+    return Path(task["out"]) / "cache" / task["trajectory"] / f"{task['method']}.json"
+
+
+def load_cached(task: dict) -> dict | None:
+    """The cached result of ``task`` if present and made with the same key."""
+    p = cache_path(task)
+    if not p.is_file():
+        return None
+    try:
+        result = json.loads(p.read_text())
+    except (OSError, ValueError):
+        return None
+    return result if result.get("key") == task["key"] else None
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
+
+
+def run_task(task: dict) -> dict:
+    """Run (or load from the cache) one task and return its result dict.
+
+    Result keys: trajectory, subset, method, key, run_dir, vo_dir, cached (bool) and the metrics of
+    :func:`~bracketry_emulator.metrics.evaluate.evaluate_run`.
+    """
+    cached = load_cached(task)
+    if cached is not None:
+        cached["cached"] = True
+        return cached
+    import cv2
+
+    cv2.setNumThreads(1)  # one core per task: deterministic, and workers do not fight over cores
+    from bracketry.errors import BracketryError
+    from bracketry_emulator.benchmark.closedloop import emulate_run
+    from bracketry_emulator.vo.runner import run_vo
+
+    out = Path(task["out"])
+    if task["calibration"] is None:
+        raise BracketryError(f"{task['dataset']}: no calibration/ folder with left/right camera_info YAMLs")
+    if task["existing_run"]:
+        run_dir = Path(task["existing_run"])
+    else:
+        run_dir = emulate_run(Path(task["dataset"]), task["method"], out / "runs" / task["trajectory"])
+    vo_dir = out / "vo" / task["trajectory"] / task["method"]
+    run_vo(run_dir, task["calibration"], vo_dir, max_frames=task["max_frames"])
+    metrics = evaluate_run(vo_dir, task["groundtruth"], tuple(task["windows_m"]))
+    result = {"trajectory": task["trajectory"], "subset": task["subset"], "method": task["method"],
+              "key": task["key"], "run_dir": str(run_dir), "vo_dir": str(vo_dir), **metrics}
+    _write_atomic(cache_path(task), json.dumps(result))
+    result["cached"] = False
+    return result

@@ -1,0 +1,91 @@
+"""Tables of the benchmark report, as lists of rows (header first) ready for CSV, Markdown and HTML."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from bracketry_emulator.metrics.manifest import success_counts
+from bracketry_emulator.stats.mannwhitney import METRICS, SYMBOL, Comparison, verdict_table
+
+RESULT_COLUMNS = ("trajectory", "subset", "method", "n_frames", "success", "time_before_failure_s", "duration_s",
+                  "tracked_fraction", "n_segments", "coverage_mean", "matches_mean", "keypoints_mean", "rte_pct",
+                  "rre_deg_per_m")
+
+
+def _fmt(v, digits: int = 3) -> str:
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, float):
+        return "nan" if math.isnan(v) else f"{v:.{digits}f}"
+    return str(v)
+
+
+def results_table(results: list[dict]) -> list[list[str]]:
+    """One row per (trajectory, method)."""
+    return [list(RESULT_COLUMNS)] + [[_fmt(r.get(c)) for c in RESULT_COLUMNS] for r in results]
+
+
+def windows_table(results: list[dict]) -> list[list[str]]:
+    """One row per (trajectory, method, window): pairs, RTE(t, w) %, RRE(t, w) deg/m."""
+    rows = [["trajectory", "method", "window_m", "n_pairs", "rte_pct", "rre_deg_per_m"]]
+    for r in results:
+        for w in r.get("windows", []):
+            rows.append([r["trajectory"], r["method"], _fmt(w["window_m"], 0), str(w["n_pairs"]),
+                         _fmt(w["rte_pct"]), _fmt(w["rre_deg_per_m"], 4)])
+    return rows
+
+
+def per_metric_values(results: list[dict], methods: list[str]) -> dict[str, dict[str, list[float]]]:
+    """{metric: {method: per-trajectory values}} for the metrics of the statistics table."""
+    return {key: {m: [float(r[key]) for r in results if r["method"] == m] for m in methods} for key in METRICS}
+
+
+def summary_table(results: list[dict], methods: list[str]) -> list[list[str]]:
+    """Per method: RTE and RRE (mean over trajectories of the per-trajectory means over windows, the paper's
+    equations), median coverage (%) and matches, median time before failure, successful trajectories."""
+    rows = [["method", "RTE (%)", "RRE (deg/m)", "coverage median (%)", "matches median", "time before failure "
+             "median (s)", "successful"]]
+    for m in methods:
+        rs = [r for r in results if r["method"] == m]
+        cov = [c for r in rs for c in r.get("coverage", [])]
+        mat = [c for r in rs for c in r.get("matches", [])]
+        rte = [r["rte_pct"] for r in rs if np.isfinite(r["rte_pct"])]
+        rre = [r["rre_deg_per_m"] for r in rs if np.isfinite(r["rre_deg_per_m"])]
+        rows.append([m, _fmt(float(np.mean(rte)) if rte else float("nan"), 2),
+                     _fmt(float(np.mean(rre)) if rre else float("nan"), 3),
+                     _fmt(100 * float(np.median(cov)) if cov else float("nan"), 1),
+                     _fmt(float(np.median(mat)) if mat else float("nan"), 0),
+                     _fmt(float(np.median([r["time_before_failure_s"] for r in rs])) if rs else float("nan"), 1),
+                     f"{sum(bool(r['success']) for r in rs)}/{len(rs)}"])
+    return rows
+
+
+def success_table(results: list[dict], methods: list[str]) -> list[list[str]]:
+    """Successful trajectories per subset (rows) and method (columns); the subset's size in parentheses."""
+    counts = success_counts(results)
+    subsets = [*sorted(s for s in counts if s != "Total"), "Total"]
+    rows = [["subset", *methods]]
+    for s in subsets:
+        total = max(c[1] for c in counts[s].values())
+        rows.append([f"{s} ({total})", *[str(counts[s].get(m, (0, 0))[0]) for m in methods]])
+    return rows
+
+
+def stats_tables(results: list[dict], methods: list[str], reference: str, alpha: float
+                 ) -> tuple[list[list[str]], list[list[str]], dict[str, dict[str, Comparison]]]:
+    """(verdict table with ▲ better / ▼ worse / ≡ equal, p-value table, raw comparisons)."""
+    table = verdict_table(per_metric_values(results, methods), reference, alpha)
+    others = [m for m in methods if m != reference]
+    verdicts = [["metric", *others]]
+    pvalues = [["metric", "method", "n", "median", f"median {reference}", "p two-sided", "p one-sided",
+                "alpha (Bonferroni)", "verdict"]]
+    for key, comps in table.items():
+        label = METRICS[key][0]
+        verdicts.append([label, *[SYMBOL[comps[m].verdict] for m in others]])
+        for m in others:
+            c = comps[m]
+            pvalues.append([label, m, str(c.n), _fmt(c.median), _fmt(c.median_ref), _fmt(c.p_two_sided, 4),
+                            _fmt(c.p_one_sided, 4), _fmt(c.alpha_corrected, 4), c.verdict])
+    return verdicts, pvalues, table

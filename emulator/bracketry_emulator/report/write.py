@@ -1,0 +1,142 @@
+"""Write the benchmark report: CSV tables, Markdown and a self-contained HTML page with the figures.
+
+Files in ``<out>/report/``: ``results.csv`` (per trajectory and method), ``windows.csv`` (RTE/RRE per window),
+``summary.csv``, ``success.csv`` (per subset), ``stats.csv`` (p-values and verdicts), ``verdicts.csv``,
+``report.md``, ``report.html`` and the PNG figures (coverage and matches box plots, time before failure,
+exposure traces, qualitative grid).
+"""
+
+from __future__ import annotations
+
+import csv
+import html
+import json
+from pathlib import Path
+
+import numpy as np
+
+from bracketry_emulator.report import plots
+from bracketry_emulator.report.tables import (
+    results_table,
+    stats_tables,
+    success_table,
+    summary_table,
+    windows_table,
+)
+
+
+def _write_csv(path: Path, rows: list[list[str]]) -> Path:
+    with path.open("w", newline="") as fh:
+        csv.writer(fh).writerows(rows)
+    return path
+
+
+def _markdown(rows: list[list[str]]) -> str:
+    out = ["| " + " | ".join(rows[0]) + " |", "|" + "---|" * len(rows[0])]
+    out += ["| " + " | ".join(r) + " |" for r in rows[1:]]
+    return "\n".join(out)
+
+
+def _html_table(rows: list[list[str]]) -> str:
+    head = "".join(f"<th>{html.escape(c)}</th>" for c in rows[0])
+    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows[1:])
+    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
+
+
+def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, dict[str, np.ndarray]]:
+    from bracketry_emulator.vo.runner import list_side_images, read_gray8
+
+    if not results:
+        return "", {}
+    traj = results[0]["trajectory"]
+    images: dict[str, np.ndarray] = {}
+    for m in methods:
+        r = next((r for r in results if r["trajectory"] == traj and r["method"] == m), None)
+        if r is None:
+            continue
+        try:
+            frames = list_side_images(Path(r["run_dir"]), "left")
+            if frames:
+                images[m] = read_gray8(frames[len(frames) // 2][1])
+        except Exception:
+            continue
+    return traj, images
+
+
+def write_report(results: list[dict], out_dir: str | Path, reference: str, methods: list[str],
+                 alpha: float = 0.05) -> dict[str, Path]:
+    """Write every table and figure; returns {name: path}."""
+    rep = Path(out_dir) / "report"
+    rep.mkdir(parents=True, exist_ok=True)
+    files: dict[str, Path] = {}
+    res_rows = results_table(results)
+    sum_rows = summary_table(results, methods)
+    suc_rows = success_table(results, methods)
+    verdicts, pvalues, _ = stats_tables(results, methods, reference, alpha)
+    files["results.csv"] = _write_csv(rep / "results.csv", res_rows)
+    files["windows.csv"] = _write_csv(rep / "windows.csv", windows_table(results))
+    files["summary.csv"] = _write_csv(rep / "summary.csv", sum_rows)
+    files["success.csv"] = _write_csv(rep / "success.csv", suc_rows)
+    files["verdicts.csv"] = _write_csv(rep / "verdicts.csv", verdicts)
+    files["stats.csv"] = _write_csv(rep / "stats.csv", pvalues)
+
+    figs: list[tuple[str, str]] = []
+    cov = {m: [100 * c for r in results if r["method"] == m for c in r.get("coverage", [])] for m in methods}
+    files["coverage.png"] = plots.box_plot(cov, "filled cells (%)", "Keypoint coverage, 20x20 grid",
+                                           rep / "coverage.png")
+    figs.append(("coverage.png", "Keypoint coverage (20x20 grid) per frame"))
+    mat = {m: [c for r in results if r["method"] == m for c in r.get("matches", [])] for m in methods}
+    files["matches.png"] = plots.box_plot(mat, "matches to the map", "Matches to the map", rep / "matches.png")
+    figs.append(("matches.png", "Matches to the map per frame"))
+    tbf = {m: [r["time_before_failure_s"] for r in results if r["method"] == m] for m in methods}
+    files["failure.png"] = plots.box_plot(tbf, "time before failure (s)", "Time before first failure",
+                                          rep / "failure.png")
+    figs.append(("failure.png", "Time before the first VO failure, per trajectory"))
+    for traj in sorted({r["trajectory"] for r in results})[:4]:
+        traces = {r["method"]: plots.read_exposure_trace(Path(r["run_dir"]))
+                  for r in results if r["trajectory"] == traj}
+        name = f"exposure_{traj}.png"
+        files[name] = plots.exposure_traces(traces, f"Exposure traces: {traj}", rep / name)
+        figs.append((name, f"Exposure chosen by each method on {traj}"))
+    traj, images = _qualitative_images(results, methods)
+    if images:
+        files["qualitative.png"] = plots.qualitative_grid(images, f"{traj}: middle frame, left camera",
+                                                          rep / "qualitative.png")
+        figs.append(("qualitative.png", f"The same frame of {traj} under each method"))
+
+    n_traj = len({r["trajectory"] for r in results})
+    intro = (f"{n_traj} trajectories x {len(methods)} methods. Reference: **{reference}**. Mann-Whitney U, "
+             f"alpha = {alpha} with Bonferroni over {max(len(methods) - 1, 1)} methods "
+             f"(▲ better, ▼ worse, ≡ not different from {reference}). RTE/RRE: evo RPE, windows "
+             f"{_window_text(results)} m, per segment, paper equations.")
+    sections = [("Summary", sum_rows), ("Statistical difference with " + reference, verdicts),
+                ("Successful trajectories per subset", suc_rows), ("Per trajectory", res_rows),
+                ("Tests", pvalues)]
+    md = ["# Auto-exposure benchmark", "", intro, ""]
+    for title, rows in sections:
+        md += [f"## {title}", "", _markdown(rows), ""]
+    md += ["## Figures", ""] + [f"![{cap}]({name})\n" for name, cap in figs]
+    files["report.md"] = rep / "report.md"
+    files["report.md"].write_text("\n".join(md))
+    style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse;margin:8px 0}"
+             "td,th{border:1px solid #bbb;padding:3px 7px;text-align:right}th{background:#eee}"
+             "img{max-width:100%}")
+    body = [f"<h1>Auto-exposure benchmark</h1><p>{html.escape(intro).replace('**', '')}</p>"]
+    for title, rows in sections:
+        body.append(f"<h2>{html.escape(title)}</h2>{_html_table(rows)}")
+    body.append("<h2>Figures</h2>")
+    body += [f"<figure><img src='{n}' alt='{html.escape(c)}'><figcaption>{html.escape(c)}</figcaption></figure>"
+             for n, c in figs]
+    files["report.html"] = rep / "report.html"
+    files["report.html"].write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>AE benchmark</title>"
+                                    f"<style>{style}</style></head><body>{''.join(body)}</body></html>")
+    files["results.json"] = rep / "results.json"
+    files["results.json"].write_text(json.dumps(results, indent=1, default=float))
+    return files
+
+
+def _window_text(results: list[dict]) -> str:
+    ws = sorted({w["window_m"] for r in results for w in r.get("windows", [])})
+    if not ws:
+        return "(none)"
+    return f"{ws[0]:g}..{ws[-1]:g}" if len(ws) > 1 else f"{ws[0]:g}"

@@ -1,0 +1,111 @@
+"""Benchmark orchestration: report files, cache/resume after an interruption, Dask LocalCluster == local run."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from bracketry.cli import main as cli_main
+from bracketry_emulator.benchmark import run_benchmark
+from bracketry_emulator.benchmark.toyworld import ToyWorld
+
+N_FRAMES = 10
+WINDOWS = (1.0, 2.0)
+METHODS = ["ae50", "dim", "burst"]
+_GAINS = {"ae50": [1.0] * N_FRAMES, "dim": [0.7] * N_FRAMES, "burst": [1.0] * 4 + [14.0] * 3 + [1.0] * 3}
+_KEYS = ("trajectory", "method", "success", "time_before_failure_s", "coverage", "matches", "rte_pct",
+         "rre_deg_per_m", "windows", "n_segments")
+
+
+@pytest.fixture(scope="module")
+def datasets(tmp_path_factory) -> list[Path]:
+    """Two toy trajectories, each holding already emulated runs of three 'methods' (different gains)."""
+    root = tmp_path_factory.mktemp("bench_ds")
+    out = []
+    for seed in (1, 2):
+        d = root / f"traj{seed}"
+        w = ToyWorld(width_px=256, height_px=192, fx_px=200.0, seed=seed)
+        w.write_calibration(d)
+        for m in METHODS:
+            times = w.write_run(d, m, N_FRAMES, gain=_GAINS[m])
+        w.write_groundtruth(d / "groundtruth.txt", times)
+        out.append(d)
+    manifest = root / "manifest.yaml"
+    manifest.write_text("trajectories:\n  - {path: traj1, subset: Forest}\n  - {path: traj2, subset: Campus}\n")
+    return [manifest]
+
+
+def _essential(results: list[dict]) -> str:
+    """The compared fields as canonical JSON (NaN-safe: NaN != NaN in a plain dict comparison)."""
+    return json.dumps([{k: r[k] for k in _KEYS} for r in results], sort_keys=True)
+
+
+@pytest.fixture(scope="module")
+def local_run(datasets, tmp_path_factory):
+    out = tmp_path_factory.mktemp("bench_local")
+    return run_benchmark(datasets, METHODS, out, reference="ae50", windows_m=WINDOWS)
+
+
+def test_bench_local_run_and_report(local_run) -> None:
+    res = local_run.results
+    assert [(r["trajectory"], r["method"]) for r in res] == [(t, m) for t in ("traj1", "traj2") for m in METHODS]
+    by = {(r["trajectory"], r["method"]): r for r in res}
+    assert by[("traj1", "ae50")]["success"] and by[("traj2", "dim")]["success"]
+    assert not by[("traj1", "burst")]["success"]
+    assert by[("traj1", "burst")]["time_before_failure_s"] == pytest.approx(4 / ToyWorld().fps, abs=1e-3)
+    assert by[("traj1", "burst")]["n_segments"] == 2
+    rep = local_run.out_dir / "report"
+    for name in ("results.csv", "windows.csv", "summary.csv", "success.csv", "stats.csv", "verdicts.csv",
+                 "report.md", "report.html", "coverage.png", "matches.png", "failure.png", "qualitative.png",
+                 "exposure_traj1.png"):
+        assert (rep / name).is_file() and (rep / name).stat().st_size > 0, name
+    success = (rep / "success.csv").read_text().splitlines()
+    assert success[0] == "subset,ae50,dim,burst"
+    assert "Campus (1),1,1,0" in success and "Forest (1),1,1,0" in success and "Total (2),2,2,0" in success
+    md = (rep / "report.md").read_text()
+    assert "Statistical difference with ae50" in md and "RTE" in md and "![" in md
+    assert "<table>" in (rep / "report.html").read_text()
+
+
+def test_bench_interrupted_run_resumes(datasets, local_run, tmp_path: Path) -> None:
+    seen: list[str] = []
+
+    def stop_after_two(r: dict) -> None:
+        seen.append(r["method"])
+        if len(seen) == 2:
+            raise KeyboardInterrupt  # as a Ctrl-C in the middle of the benchmark
+
+    with pytest.raises(KeyboardInterrupt):
+        run_benchmark(datasets, METHODS, tmp_path, windows_m=WINDOWS, on_done=stop_after_two)
+    cached = sorted(p.name for p in (tmp_path / "cache").rglob("*.json"))
+    assert len(cached) == 2
+    resumed = run_benchmark(datasets, METHODS, tmp_path, windows_m=WINDOWS)
+    assert [r["cached"] for r in resumed.results] == [True, True, False, False, False, False]
+    assert _essential(resumed.results) == _essential(local_run.results)
+    # a cache entry made with other settings is not reused
+    again = run_benchmark(datasets, METHODS, tmp_path, windows_m=(1.0,), report=False)
+    assert not any(r["cached"] for r in again.results)
+
+
+def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Path) -> None:
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                  dashboard_address=None) as cluster:
+        res = run_benchmark(datasets, METHODS, tmp_path, windows_m=WINDOWS, scheduler=cluster.scheduler_address)
+    assert not any(r["cached"] for r in res.results)
+    assert _essential(res.results) == _essential(local_run.results)
+    assert json.loads((tmp_path / "report" / "results.json").read_text())[0]["trajectory"] == "traj1"
+
+
+def test_bench_cli(datasets, tmp_path: Path, capsys) -> None:
+    rc = cli_main(["benchmark", str(datasets[0]), "--methods", ",".join(METHODS), "--out", str(tmp_path),
+                   "--windows", "1:2:1", "--max-frames", "6"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "traj1 / burst" in out and "report:" in out
+    assert cli_main(["benchmark", str(datasets[0]), "--methods", "dim", "--out", str(tmp_path)]) == 2
+    assert "reference method 'ae50'" in capsys.readouterr().err
+    assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
+                     "--windows", "x"]) == 2
