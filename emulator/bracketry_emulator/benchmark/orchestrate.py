@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -74,7 +74,7 @@ def _run_dask(tasks: list[dict], scheduler: str, on_done: Callable[[dict], None]
         client.close()
 
 
-def run_benchmark(datasets: list[str | Path] | list[TrajectorySpec], methods: str | list[str], out_dir: str | Path,
+def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str | list[str], out_dir: str | Path,
                   reference: str = "ae50", scheduler: str | None = None, workers: int = 1,
                   windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, max_frames: int | None = None,
                   alpha: float = 0.05, report: bool = True,
@@ -83,15 +83,14 @@ def run_benchmark(datasets: list[str | Path] | list[TrajectorySpec], methods: st
 
     ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``).
     """
-    specs = [d if isinstance(d, TrajectorySpec) else None for d in datasets]
-    if any(s is None for s in specs):
-        specs = expand_datasets([d for d in datasets if not isinstance(d, TrajectorySpec)])  # type: ignore[misc]
+    paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
+    specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
     method_ids = parse_methods(methods)
     if reference not in method_ids:
         raise BracketryError(f"reference method {reference!r} is not among the benchmarked methods {method_ids}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    tasks = [make_task(s, m, out, windows_m, max_frames) for s in specs if s is not None for m in method_ids]
+    tasks = [make_task(s, m, out, windows_m, max_frames) for s in specs for m in method_ids]
     results = _run_dask(tasks, scheduler, on_done) if scheduler else _run_local(tasks, workers, on_done)
     results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
     files: dict[str, Path] = {}

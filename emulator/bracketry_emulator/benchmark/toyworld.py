@@ -5,9 +5,10 @@ camera frame x right, y down, z forward) covered with random block textures (blo
 left camera moves forward with a gentle sinusoidal sway and yaw; the right camera is ``baseline_m`` to its right.
 Images are rendered with nearest-neighbour texture lookup (sharp block corners make good FAST corners).
 
-It writes the same layout the benchmark reads: an emulated run ``<run>/<method>/images_left|images_right/<t_ns>.png``
-(16-bit RGGB-free gray codes 0..4095 or 8-bit) with ``times_images_left|right.txt`` and ``steps.csv`` (exposure 4 ms x gain), a TUM ``groundtruth.txt``
-and ``calibration/left.yaml`` + ``right.yaml`` (ROS camera_info, zero distortion).
+It writes the same layout the benchmark reads: an emulated run
+``<run>/<method>/images_left|images_right/<t_ns>.png`` (16-bit PNG, gray codes 0..4095) with
+``times_images_left|right.txt`` and ``steps.csv`` (exposure 4 ms x gain), a TUM ``groundtruth.txt`` and
+``calibration/left.yaml`` + ``right.yaml`` (ROS camera_info, zero distortion).
 """
 
 from __future__ import annotations

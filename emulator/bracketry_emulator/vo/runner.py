@@ -4,7 +4,8 @@ Input: a run folder ``<run>/<method>/`` holding ``images_left/<t_ns>.png`` and `
 Bayer mosaics, 12-bit codes in 16-bit PNGs or 8-bit), listed in time order by ``times_images_left|right.txt`` (first
 column, ns; or by the file names when those are absent); the k-th left image is paired with the k-th right image.
 Output (``out_dir``): ``frames.csv`` (t_ns, state, segment, n_keypoints, coverage, n_stereo, n_ref_matches,
-n_map_matches, reason) and ``CameraTrajectory<n>.txt`` (TUM, one per segment, n from 0 as the ORB-SLAM2 fork numbers maps).
+n_map_matches, reason) and ``CameraTrajectory<n>.txt`` (TUM, one per segment, n from 0 as the ORB-SLAM2 fork
+numbers its maps).
 """
 
 from __future__ import annotations
