@@ -120,8 +120,6 @@ class RecordingReader:
     def messages(self, topics: set[str] | None = None) -> Iterator[RawMessage]:
         """Every message of the given topics (all when None), in file order; tolerant of truncation."""
         buf = self._data
-        if bytes(buf[-8:]) == MAGIC and len(buf) >= 16 + 20 + 9:
-            pass  # a footer may be there; we still scan the data section (does not trust indexes)
         for opcode, body, off in self._records(buf, 8, in_chunk=False):
             if opcode == Opcode.HEADER:
                 self._header_seen = True
@@ -155,6 +153,9 @@ class RecordingReader:
                 break
         if not self.report.has_footer:
             self.report.truncated = True
+        elif bytes(buf[-8:]) != MAGIC:
+            self.report.truncated = True
+            self.report.problems.append("closing magic missing after the footer")
         if not self._header_seen:
             raise UnreadableRecordingError(f"{self.path}: no MCAP header record")
 

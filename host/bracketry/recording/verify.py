@@ -53,12 +53,13 @@ class SideReport:
     missing_packets: int = 0
     timestamp_mismatches: int = 0
     missing_images: int = 0
-    seqs: dict[str, list[int]] = field(default_factory=lambda: defaultdict(list))
+    seqs: dict[str, list[int]] = field(default_factory=dict)
 
     def note(self, kind: str, seq: int) -> None:
         setattr(self, kind, getattr(self, kind) + 1)
-        if len(self.seqs[kind]) < MAX_LISTED:
-            self.seqs[kind].append(seq)
+        listed = self.seqs.setdefault(kind, [])
+        if len(listed) < MAX_LISTED:
+            listed.append(seq)
 
 
 @dataclass
@@ -204,7 +205,7 @@ def _problems(report: VerifyReport) -> None:
                      "timestamp_mismatches", "missing_images"):
             n = getattr(sr, kind)
             if n:
-                listed = ", ".join(map(str, sr.seqs[kind][:10])) + (" ..." if n > 10 else "")
+                listed = ", ".join(map(str, sr.seqs.get(kind, [])[:10])) + (" ..." if n > 10 else "")
                 report.problems.append(f"camera {side}: {n} {kind.replace('_', ' ')} (trigger_seq {listed})")
         if sr.missing_packets:
             report.problems.append(f"camera {side}: {sr.missing_packets} missing packets")

@@ -1,0 +1,95 @@
+"""Pairing frames of two cameras with TRIGGER events: drops, missing events, missed triggers, id wrap."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from bracketry.events import TriggerEvent
+from bracketry.pairing.pairer import PairedSet, Pairer
+
+PERIOD_US = 45_454
+BRACKETS = [1000, 2000, 4000, 8000, 16000, 32000]
+
+
+@dataclass
+class FakeFrame:
+    side: str
+    frame_id: int
+    frame_index: int
+    status: str
+    cam_timestamp_ns: int
+    host_receive_ns: int
+    missing_packets: int = 0
+    skipped_ids: int = 0
+    image: object = None
+
+
+def event(k: int) -> TriggerEvent:
+    return TriggerEvent(1, k, k % 6, BRACKETS[k % 6], 1_000_000 + k * PERIOD_US, 5_000_000_000 + k * PERIOD_US * 1000)
+
+
+def frame(side: str, index: int, pulse: int, status: str = "success") -> FakeFrame:
+    cam_ns = {"left": 77_000_000, "right": 900_000_000}[side] + pulse * PERIOD_US * 1000 + 3000
+    return FakeFrame(side, (65400 + index) % 65535 or 65535, index, status, cam_ns, 5_000_000_000 + pulse * 45_454_000)
+
+
+def run(n: int, *, lose_frame=(), lose_event=(), miss_trigger=(), incomplete=()) -> tuple[Pairer, list[PairedSet]]:
+    """Simulate n pulses. lose_frame: (side, k) never received (the camera's id still advanced);
+    miss_trigger: (side, k) the camera never saw the pulse (its ids do not advance)."""
+    sets: list[PairedSet] = []
+    p = Pairer(("left", "right"), sets.append, window=8)
+    index = {"left": 0, "right": 0}
+    for k in range(n):
+        if k not in lose_event:
+            p.add_event(event(k))
+        for side in ("left", "right"):
+            if (side, k) in miss_trigger:
+                continue
+            if (side, k) not in lose_frame:
+                p.add_frame(frame(side, index[side], k, "missing_packets" if (side, k) in incomplete else "success"))
+            index[side] += 1
+    p.flush()
+    return p, sets
+
+
+def test_clean_run_pairs_everything() -> None:
+    p, sets = run(200)
+    assert [s.trigger_seq for s in sets] == list(range(200))
+    assert all(s.complete for s in sets)
+    for side in ("left", "right"):
+        c = p.counters[side]
+        assert (c.frames, c.drops, c.unpaired, c.incomplete, c.timestamp_mismatches) == (200, 0, 0, 0, 0)
+    # frame time = the trigger's host time, shared by both frames
+    assert sets[5].stamp_ns == event(5).t_start_host_ns
+
+
+def test_lost_frames_events_and_incomplete_are_reported_with_their_seq() -> None:
+    p, sets = run(100, lose_frame={("left", 10), ("right", 50)}, lose_event={30}, incomplete={("right", 70)})
+    by_seq = {s.trigger_seq: s for s in sets}
+    assert by_seq[10].frames["left"] is None and by_seq[10].frames["right"] is not None
+    assert by_seq[50].frames["right"] is None
+    assert by_seq[30].event is None and not by_seq[30].complete
+    assert p.counters["left"].drops == 1 and p.counters["right"].drops == 1
+    assert p.events_missing == 1
+    assert p.counters["right"].incomplete == 1
+    # the frames after a loss keep their trigger_seq (ids advanced)
+    assert by_seq[11].frames["left"].frame_index == 11
+    assert sum(s.complete for s in sets) == 100 - 3
+
+
+def test_missed_trigger_is_resynced_by_timestamps() -> None:
+    # the right camera never saw pulse 40: its 40th frame belongs to pulse 41
+    p, sets = run(100, miss_trigger={("right", 40)})
+    by_seq = {s.trigger_seq: s for s in sets}
+    assert by_seq[40].frames["right"] is None
+    assert by_seq[41].frames["right"] is not None and by_seq[41].notes.get("right") == "timestamp_mismatch"
+    assert p.counters["right"].drops == 1
+    assert p.counters["right"].timestamp_mismatches == 1
+    assert all(by_seq[k].complete for k in range(42, 100))
+
+
+def test_frame_ids_wrap_inside_a_run() -> None:
+    # frame ids start at 65400 in `frame()`: 200 frames cross the 65535 -> 1 wrap
+    p, sets = run(200)
+    assert {s.frames["left"].frame_id for s in sets} >= {65535, 1}
+    assert p.counters["left"].drops == 0
