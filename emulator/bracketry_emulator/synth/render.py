@@ -22,7 +22,7 @@ import numpy as np
 
 from bracketry_emulator.synth.calibration import CameraIntrinsics
 from bracketry_emulator.synth.camera_model import BAYER_RGGB
-from bracketry_emulator.synth.scene import GroundTexture, Scene
+from bracketry_emulator.synth.scene import Scene
 
 _NEAR_M = 0.05
 _MAX_OBJ_RANGE_M = 90.0
@@ -87,34 +87,34 @@ class SideRenderer:
         return self.sun_rgb[ch] * ndots + self.sky_rgb[ch] * (0.5 + 0.5 * nz)
 
     # ------------------------------------------------------------------ ground
-    def _ground(self, idx: np.ndarray, X: np.ndarray, Y: np.ndarray, lod: np.ndarray) -> np.ndarray:
-        """Ground radiance at world (X, Y) for flat pixel indices ``idx``; lod = log2(footprint / 4 cm)."""
-        levels = self.scene.ground_levels
-        ch = self.chan_f[idx]
-        out = np.zeros(idx.shape, np.float32)
-        # level footprints: 0 -> L0, 2 -> L1, lod_far -> L2
-        lod_far = float(np.log2(levels[2].texel_m / levels[0].texel_m))
-        inside = (np.abs(X) < -levels[0].origin_m[0] - 0.5) & (np.abs(Y) < -levels[0].origin_m[1] - 0.5)
-        lod = np.where(inside, lod, np.float32(lod_far))
-        w0 = np.clip(1.0 - lod / 2.0, 0.0, 1.0)
-        w2 = np.clip((lod - 2.0) / (lod_far - 2.0), 0.0, 1.0)
-        w1 = 1.0 - w0 - w2
-        for level, weight in zip(levels, (w0, w1, w2)):
-            sel = np.nonzero(weight > 0)[0]
-            if sel.size == 0:
-                continue
-            out[sel] += weight[sel] * self._lookup(level, X[sel], Y[sel], ch[sel])
+    def _ground(self, ch: np.ndarray, X: np.ndarray, Y: np.ndarray, lod: np.ndarray) -> np.ndarray:
+        """Ground radiance at world (X, Y) (flat float32 arrays) for pixels of channel ``ch`` (float32), with
+        ``lod`` = log2(footprint / finest texel): two atlas lookups per pixel, blended."""
+        at = self.scene.ground
+        lod_l1 = float(np.log2(at.texel_m[1] / at.texel_m[0]))
+        lod_l2 = float(np.log2(at.texel_m[2] / at.texel_m[0]))
+        # level coordinate s in [0, 2]: 0 = L0, 1 = L1, 2 = L2 (far); outside the near square only L2 exists
+        s = np.where(lod <= lod_l1, lod * np.float32(1.0 / lod_l1),
+                     np.float32(1.0) + (lod - np.float32(lod_l1)) * np.float32(1.0 / (lod_l2 - lod_l1)))
+        outside = (np.abs(X) > at.half_near_m - 0.5) | (np.abs(Y) > at.half_near_m - 0.5)
+        s[outside] = 2.0
+        np.clip(s, 0.0, 2.0, out=s)
+        lo = np.minimum(s.astype(np.int32), 1)
+        frac = s - lo
+        row_off = ch * np.float32(at.row_stride)
+        out = None
+        for lvl, weight in ((lo, 1.0 - frac), (lo + 1, frac)):
+            inv = at.inv_texel[lvl]
+            mx = at.max_uv[lvl]
+            u = np.minimum(np.maximum((X - at.x0[lvl]) * inv - np.float32(0.5), 0.0), mx)
+            u += at.col_off[lvl]
+            v = np.minimum(np.maximum((Y - at.y0[lvl]) * inv - np.float32(0.5), 0.0), mx)
+            v += row_off
+            val = _remap_flat(at.image, u, v)
+            val *= weight
+            out = val if out is None else out + val
+        assert out is not None
         return out
-
-    @staticmethod
-    def _lookup(level: GroundTexture, X: np.ndarray, Y: np.ndarray, ch: np.ndarray) -> np.ndarray:
-        inv = np.float32(1.0 / level.texel_m)
-        u = (X - np.float32(level.origin_m[0])) * inv - np.float32(0.5)
-        v = (Y - np.float32(level.origin_m[1])) * inv - np.float32(0.5)
-        np.clip(u, 0.0, level.size - 1, out=u)
-        np.clip(v, 0.0, level.size - 1, out=v)
-        v += ch * np.float32(level.size + level.pad)
-        return _remap_flat(level.stacked, u, v)
 
     # ------------------------------------------------------------------ sky and treeline
     def _far(self, idx: np.ndarray, o: np.ndarray, d: np.ndarray, rng_buf: np.ndarray, rad: np.ndarray) -> None:
@@ -365,9 +365,9 @@ class SideRenderer:
             t = np.float32(-o[2]) / dzg
             X = np.float32(o[0]) + t * d[0][ground]
             Y = np.float32(o[1]) + t * d[1][ground]
-            footprint = t * self.pix_rad / np.sqrt(-dzg)
-            lod = np.log2(np.maximum(footprint, np.float32(1e-6)) / np.float32(self.scene.ground_levels[0].texel_m))
-            rad[ground] = self._ground(ground, X, Y, np.maximum(lod, np.float32(0.0)))
+            footprint = t * (self.pix_rad / np.float32(self.scene.ground.texel_m[0])) / np.sqrt(-dzg)
+            lod = np.log2(np.maximum(footprint, np.float32(1e-6)))
+            rad[ground] = self._ground(self.chan_f[ground], X, Y, lod)
             rng_buf[ground] = t
         if far.size:
             self._far(far, o, d, rng_buf, rad)

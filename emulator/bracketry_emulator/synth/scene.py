@@ -84,13 +84,55 @@ class GroundTexture:
 
 
 @dataclass
+class GroundAtlas:
+    """All ground levels in one float32 texture, for one ``cv2.remap`` per lookup.
+
+    Level l, channel c occupies rows ``c * row_stride .. + size[l]`` and columns ``col_off[l] .. + size[l]``.
+    Per-level float32 arrays (n_levels,): ``x0``, ``y0`` (world corner, m), ``inv_texel`` (texels per metre),
+    ``col_off``, ``max_uv`` (size - 1); ``texel_m`` float64.
+    """
+
+    image: np.ndarray
+    row_stride: int
+    x0: np.ndarray
+    y0: np.ndarray
+    inv_texel: np.ndarray
+    col_off: np.ndarray
+    max_uv: np.ndarray
+    texel_m: np.ndarray
+    half_near_m: float
+
+
+def build_atlas(levels: list[GroundTexture]) -> GroundAtlas:
+    """Pack ground levels (channel planes stacked vertically) side by side into one texture."""
+    pad = 4
+    stride = max(lv.size for lv in levels) + pad
+    widths = [lv.size + pad for lv in levels]
+    col_off = np.cumsum([0, *widths[:-1]])
+    image = np.zeros((3 * stride, int(sum(widths))), np.float32)
+    for lv, c0 in zip(levels, col_off):
+        for ch in range(3):
+            src = lv.stacked[ch * (lv.size + lv.pad):ch * (lv.size + lv.pad) + lv.size]
+            block = np.pad(src, ((0, pad), (0, pad)), mode="edge")
+            image[ch * stride:ch * stride + lv.size + pad, c0:c0 + lv.size + pad] = block
+    f32 = np.float32
+    return GroundAtlas(image=image, row_stride=stride,
+                       x0=np.array([lv.origin_m[0] for lv in levels], f32),
+                       y0=np.array([lv.origin_m[1] for lv in levels], f32),
+                       inv_texel=np.array([1.0 / lv.texel_m for lv in levels], f32),
+                       col_off=col_off.astype(f32), max_uv=np.array([lv.size - 1 for lv in levels], f32),
+                       texel_m=np.array([lv.texel_m for lv in levels]),
+                       half_near_m=-levels[0].origin_m[0])
+
+
+@dataclass
 class Scene:
     """Everything the renderer needs besides the camera."""
 
     preset: str
     lighting: Lighting
     prims: Primitives
-    ground_levels: list[GroundTexture]
+    ground: GroundAtlas
     treeline_radius_m: float
     treeline_height_m: np.ndarray  # float32 (n_az,): height of the far treeline per azimuth bin
     treeline_albedo: tuple[float, float, float]
@@ -107,7 +149,7 @@ def _lighting(preset: str) -> Lighting:
     if preset == "forest-winter":
         return Lighting(sun_dir=_sun_dir(17.0, 35.0), sun_rgb=(3.6, 3.3, 2.8), sky_rgb=(0.30, 0.38, 0.52),
                         zenith_rgb=(0.9, 1.6, 3.2), horizon_rgb=(3.0, 3.4, 3.9), halo_rgb=(60.0, 55.0, 45.0))
-    return Lighting(sun_dir=_sun_dir(52.0, 200.0), sun_rgb=(3.0, 2.9, 2.7), sky_rgb=(0.45, 0.55, 0.75),
+    return Lighting(sun_dir=_sun_dir(15.0, 250.0), sun_rgb=(3.0, 2.9, 2.7), sky_rgb=(0.45, 0.55, 0.75),
                     zenith_rgb=(1.2, 2.2, 4.5), horizon_rgb=(4.0, 4.5, 5.2), halo_rgb=(40.0, 38.0, 34.0))
 
 
@@ -207,11 +249,17 @@ def _shadow_mask(prims: Primitives, sun_dir: np.ndarray, origin_m: tuple[float, 
     return soft
 
 
-def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.ndarray, X: np.ndarray,
-                   Y: np.ndarray) -> list[np.ndarray]:
-    """Per-channel ground albedo (three float32 arrays shaped like X)."""
-    fine = noises["fine"](X, Y)
-    big = noises["big"](X, Y)
+def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.ndarray, half_m: float,
+                   texel_m: float) -> list[np.ndarray]:
+    """Per-channel ground albedo of the square [-half_m, half_m]^2 (three float32 (N, N) arrays, rows = y)."""
+    n = path_dist_m.shape[0]
+
+    def field(name: str) -> np.ndarray:
+        return noises[name].grid(-half_m, -half_m, texel_m, n)
+
+    fine = field("fine")
+    big = field("big")
+    mid = field("mid")
     if preset == "forest-winter":
         snow = np.float32(0.86) + np.float32(0.05) * fine
         bare = smoothstep(0.32, 0.40, big)  # bare patches: litter and earth
@@ -220,7 +268,7 @@ def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.n
         for snow_c, litter_c, trail_c in ((1.0, 0.15, 0.46), (1.02, 0.115, 0.43), (1.07, 0.085, 0.39)):
             a = snow * np.float32(snow_c)
             a = a * (1 - bare) + bare * np.float32(litter_c) * (1 + 0.4 * fine)
-            a = a * (1 - trail) + trail * np.float32(trail_c) * (1 + 0.25 * noises["mid"](X, Y))
+            a = a * (1 - trail) + trail * np.float32(trail_c) * (1 + 0.25 * mid)
             out.append(a.astype(np.float32))
         return out
     grass = 1 + 0.35 * fine
@@ -230,7 +278,7 @@ def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.n
     for grass_c, asphalt_c, plaza_c in ((0.10, 0.11, 0.36), (0.16, 0.11, 0.35), (0.06, 0.12, 0.32)):
         a = np.float32(grass_c) * grass
         a = a * (1 - plaza) + plaza * np.float32(plaza_c) * (1 + 0.08 * fine)
-        a = a * (1 - path) + path * np.float32(asphalt_c) * (1 + 0.3 * noises["mid"](X, Y))
+        a = a * (1 - path) + path * np.float32(asphalt_c) * (1 + 0.3 * mid)
         out.append(a.astype(np.float32))
     return out
 
@@ -239,13 +287,11 @@ def _ground_level(preset: str, lighting: Lighting, prims: Primitives, noises: di
                   path_xy: np.ndarray, half_m: float, size: int, pad: int = 4) -> GroundTexture:
     texel = 2 * half_m / size
     origin = (-half_m, -half_m)
-    c = (np.arange(size, dtype=np.float32) + 0.5) * np.float32(texel) - np.float32(half_m)
-    X, Y = np.meshgrid(c, c)
     canvas = np.full((size, size), 255, np.uint8)
     pts = np.round((path_xy - np.asarray(origin)) / texel * 16).astype(np.int32)
     cv2.polylines(canvas, [pts], True, 0, thickness=1, lineType=cv2.LINE_8, shift=4)
     path_dist = cv2.distanceTransform(canvas, cv2.DIST_L2, 5).astype(np.float32) * np.float32(texel)
-    albedo = _ground_albedo(preset, noises, path_dist, X, Y)
+    albedo = _ground_albedo(preset, noises, path_dist, half_m, texel)
     shadow = _shadow_mask(prims, lighting.sun_dir, origin, texel, size)
     direct = np.float32(max(lighting.sun_dir[2], 0.0)) * (1.0 - shadow)
     stacked = np.zeros((3 * (size + pad), size), np.float32)
@@ -255,6 +301,18 @@ def _ground_level(preset: str, lighting: Lighting, prims: Primitives, noises: di
         stacked[r0:r0 + size] = albedo[ch] * light
         stacked[r0 + size:r0 + size + pad] = stacked[r0 + size - 1]
     return GroundTexture(origin, texel, size, pad, stacked)
+
+
+def _downsample(level: GroundTexture, factor: int) -> GroundTexture:
+    """The same ground at ``factor`` x coarser texels (area average of each channel plane)."""
+    n = level.size // factor
+    stacked = np.zeros((3 * (n + level.pad), n), np.float32)
+    for ch in range(3):
+        src = level.stacked[ch * (level.size + level.pad):ch * (level.size + level.pad) + level.size]
+        r0 = ch * (n + level.pad)
+        stacked[r0:r0 + n] = cv2.resize(src, (n, n), interpolation=cv2.INTER_AREA)
+        stacked[r0 + n:r0 + n + level.pad] = stacked[r0 + n - 1]
+    return GroundTexture(level.origin_m, level.texel_m * factor, n, level.pad, stacked)
 
 
 def build_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: float = 1.0) -> Scene:
@@ -268,11 +326,8 @@ def build_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: floa
     noises = {"fine": ValueNoise(rng, 0.6, octaves=5), "mid": ValueNoise(rng, 0.25, octaves=3),
               "big": ValueNoise(rng, 9.0, octaves=4)}
     n0 = round(2048 * detail / 64) * 64
-    levels = [
-        _ground_level(preset, lighting, prims, noises, path_xy, 40.96, n0),
-        _ground_level(preset, lighting, prims, noises, path_xy, 40.96, n0 // 4),
-        _ground_level(preset, lighting, prims, noises, path_xy, 128.0, 512),
-    ]
+    fine = _ground_level(preset, lighting, prims, noises, path_xy, 40.96, n0)
+    levels = [fine, _downsample(fine, 4), _ground_level(preset, lighting, prims, noises, path_xy, 128.0, 512)]
     n_az = 1440
     tl = ValueNoise(rng, 0.05, octaves=4, lattice=64)
     az = np.linspace(0.0, 1.0, n_az, endpoint=False, dtype=np.float32)[None, :]
@@ -283,5 +338,5 @@ def build_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: floa
         *np.meshgrid(np.arange(256, dtype=np.float32) / 5.0, np.arange(64, dtype=np.float32) / 40.0))).astype(
         np.float32)
     treeline_albedo = (0.05, 0.06, 0.045) if preset == "forest-winter" else (0.06, 0.09, 0.04)
-    return Scene(preset, lighting, prims, levels, 120.0, heights, treeline_albedo, bark,
+    return Scene(preset, lighting, prims, build_atlas(levels), 120.0, heights, treeline_albedo, bark,
                  snow_caps=preset == "forest-winter")

@@ -8,6 +8,7 @@ in the ground-truth frame (the left camera's optical frame at t = 0; x right, y 
 
 from __future__ import annotations
 
+import dataclasses
 from collections import OrderedDict
 from pathlib import Path
 
@@ -21,6 +22,22 @@ from bracketry_emulator.synth.scene import PRESETS, Scene, build_scene
 from bracketry_emulator.synth.trajectory import LoopTrajectory
 
 DEFAULT_RESOLUTION = (960, 600)
+_SCENE_CACHE: OrderedDict[tuple, Scene] = OrderedDict()
+_SCENE_CACHE_SIZE = 2
+
+
+def cached_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: float) -> Scene:
+    """:func:`build_scene`, remembering the last two scenes (a scene is read-only once built)."""
+    key = (preset, seed, detail, tuple((f.name, repr(getattr(trajectory, f.name)))
+                                       for f in dataclasses.fields(trajectory) if f.init))
+    scene = _SCENE_CACHE.get(key)
+    if scene is None:
+        scene = build_scene(preset, seed, trajectory, detail)
+        _SCENE_CACHE[key] = scene
+        while len(_SCENE_CACHE) > _SCENE_CACHE_SIZE:
+            _SCENE_CACHE.popitem(last=False)
+    _SCENE_CACHE.move_to_end(key)
+    return scene
 
 
 def parse_resolution(text: str) -> tuple[int, int]:
@@ -65,7 +82,7 @@ class World:
             self.calibration = self.calibration.scaled(w, h)
         self.camera = camera if camera is not None else CameraModel()
         self.trajectory = trajectory if trajectory is not None else LoopTrajectory()
-        self.scene: Scene = build_scene(preset, self.seed, self.trajectory, detail)
+        self.scene: Scene = cached_scene(preset, self.seed, self.trajectory, detail)
         self._renderers: dict[str, SideRenderer] = {}
         self._gain: dict[str, np.ndarray] = {}
         self._cache: OrderedDict[tuple[str, float], RenderResult] = OrderedDict()
