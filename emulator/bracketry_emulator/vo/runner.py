@@ -99,13 +99,19 @@ def write_frames_csv(path: Path, frames: list[FrameResult]) -> None:
                         f.n_map_matches])
 
 
+def _count(text: str) -> int | float:
+    """A count column: int, or NaN when unknown (imported ORB-SLAM runs)."""
+    v = float(text)
+    return int(v) if np.isfinite(v) else float("nan")
+
+
 def read_frames_csv(path: str | Path) -> list[dict]:
-    """Rows of a ``frames.csv`` with numeric fields converted."""
+    """Rows of a ``frames.csv`` with numeric fields converted (unknown counts are NaN)."""
     rows = []
     with Path(path).open(newline="") as fh:
         for r in csv.DictReader(fh):
             rows.append({"t_ns": int(r["t_ns"]), "state": r["state"], "segment": int(r["segment"]),
-                         "n_keypoints": int(r["n_keypoints"]), "coverage": float(r["coverage"]),
-                         "n_stereo": int(r["n_stereo"]), "n_ref_matches": int(r["n_ref_matches"]),
-                         "n_map_matches": int(r["n_map_matches"]), "reason": r.get("reason", "")})
+                         "n_keypoints": _count(r["n_keypoints"]), "coverage": float(r["coverage"]),
+                         "n_stereo": _count(r["n_stereo"]), "n_ref_matches": _count(r["n_ref_matches"]),
+                         "n_map_matches": _count(r["n_map_matches"]), "reason": r.get("reason") or ""})
     return rows
