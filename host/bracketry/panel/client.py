@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from bracketry.wire import bproto
+from bracketry.wire.errors import WireError
 
 log = logging.getLogger(__name__)
 
@@ -104,8 +105,12 @@ class PanelClient:
 
     # -- incoming
     def send_ack(self, seq: int) -> None:
-        """ACK a panel frame (BUTTON) by its seq."""
-        self.link.send(bproto.MSG_ACK, {"acked_seq": seq})
+        """ACK a panel frame (BUTTON) by its seq (a failed write is logged: the panel re-sends anyway)."""
+        try:
+            self.link.send(bproto.MSG_ACK, {"acked_seq": seq})
+        except (WireError, OSError) as exc:
+            log.warning("ACK to the panel not sent: %s", exc)
+            return
         self.counters["acks_sent"] += 1
 
     def handle_message(self, msg_type: int, seq: int, fields: dict[str, Any]) -> None:
@@ -162,7 +167,7 @@ class PanelClient:
         while not self._stop.is_set():
             try:
                 self.send_state()
-            except OSError as exc:  # the port went away: keep trying, the link reports the panel lost
+            except (WireError, OSError) as exc:  # the port went away: keep trying, the link reports it lost
                 log.warning("panel state not sent: %s", exc)
             next_t += self.period_s
             delay = next_t - time.monotonic()
@@ -185,3 +190,16 @@ class PanelClient:
         if self._thread is not None:
             self._thread.join(timeout=2.0)
             self._thread = None
+
+
+def connect(url: str, state_fn: Callable[[], dict[str, Any]], on_button: Callable[[ButtonEvent], None] | None = None,
+            rate_hz: float = 4.0, baudrate: int = 921600) -> PanelClient:
+    """Open a :class:`~bracketry.wire.link.SerialLink` to the panel at ``url`` and start a client on it.
+
+    The link sends no HEARTBEAT of its own (PANEL_STATE is the host heartbeat) and leaves BUTTON ACKs to the client.
+    Close with ``client.stop(); client.link.close()``.
+    """
+    from bracketry.wire.link import SerialLink
+
+    link = SerialLink(url, baudrate, heartbeat_period_s=None, auto_ack_buttons=False, name="panel")
+    return PanelClient(link, state_fn, on_button, rate_hz).start()
