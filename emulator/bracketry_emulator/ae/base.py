@@ -1,0 +1,78 @@
+"""The AE method protocol and the image helpers every method shares.
+
+An AE method is any object with::
+
+    name: str
+    reset(init_exposure_us: float) -> None
+    next_exposure_us(image: np.ndarray, exposure_us: float, meta: dict) -> float
+
+``image`` is the emulated raw RGGB Bayer mosaic (np.ndarray uint16 HxW, 12-bit codes 0..4095) that the camera
+would have delivered at ``exposure_us`` (the exposure the method chose at the previous step, after the runner's
+bounds). The return value is the exposure (us) for the next frame; the runner clamps it to its bounds.
+
+``meta`` (a plain dict, read-only for methods) holds at least:
+    step (int, 0-based), timestamp_ns (int, timestamp of the frame), side ("left"/"right"),
+    sequence_index (int), response (:class:`bracketry_emulator.crf.Response`, the camera response the emulator
+    uses: methods that synthesise images with the CRF use the same curve), source_exposure_us (int, the bracket
+    the image was emulated from), bounds_us ((min_us, max_us), the runner's exposure bounds).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Protocol, runtime_checkable
+
+import cv2
+import numpy as np
+
+#: 12-bit full scale used by the authors' brightness targets (T = int(P / 100 * 4096)).
+FULL_SCALE_12BIT = 4096
+
+
+@runtime_checkable
+class AEMethod(Protocol):
+    """Protocol of an auto-exposure method (see the module docstring)."""
+
+    name: str
+
+    def reset(self, init_exposure_us: float) -> None:
+        """Forget all state; the first image will be taken at ``init_exposure_us``."""
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+        """Exposure (us) of the next frame from the current image (uint16 HxW Bayer) taken at ``exposure_us``."""
+
+
+def bayer_gray(image: np.ndarray) -> np.ndarray:
+    """Gray image of a raw RGGB mosaic exactly as the authors compute it: ``cv2.COLOR_BAYER_RG2GRAY``.
+
+    Returns np.ndarray of the input dtype (uint16 12-bit codes -> uint16), HxW. Reproduced quirk: OpenCV's "RG"
+    names the second row, so on this RGGB sensor true blue is weighted 0.299 and true red 0.114; the classical
+    methods' brightness (and so their parity with the authors' runs) depends on this exact conversion.
+    """
+    if image.ndim != 2:
+        raise ValueError(f"expected a HxW Bayer mosaic, got shape {image.shape}")
+    return cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_BAYER_RG2GRAY)
+
+
+def work_gray(image: np.ndarray, width: int) -> np.ndarray:
+    """Float32 gray image (12-bit code units) downscaled with area averaging to ``width`` columns (0 = full size).
+
+    Gradient-based methods work at a reduced size for speed (documented per method); the aspect ratio is kept.
+    """
+    gray = bayer_gray(image).astype(np.float32)
+    h, w = gray.shape
+    if width <= 0 or width >= w:
+        return gray
+    height = max(1, round(h * width / w))
+    return cv2.resize(gray, (width, height), interpolation=cv2.INTER_AREA)
+
+
+class MethodError(ValueError):
+    """A method got an input it cannot use (wrong shape, non-positive exposure)."""
+
+
+def check_input(image: np.ndarray, exposure_us: float) -> None:
+    """Raise MethodError unless ``image`` is a 2-D array and ``exposure_us`` a positive finite number."""
+    if not isinstance(image, np.ndarray) or image.ndim != 2:
+        raise MethodError(f"expected a HxW uint16 Bayer mosaic, got {getattr(image, 'shape', type(image))}")
+    if not np.isfinite(exposure_us) or exposure_us <= 0:
+        raise MethodError(f"exposure must be a positive number of us, got {exposure_us}")

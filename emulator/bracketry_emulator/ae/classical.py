@@ -1,0 +1,97 @@
+"""Classical mean-brightness AE (AE30, AE50, AE70) and the fixed-exposure baseline (Fix), with the authors' rules.
+
+Paper: Gamache et al., "Reproducible Evaluation of Camera Auto-Exposure Methods in the Field" (baselines section):
+AE30/50/70 keep the mean brightness at 30/50/70 % of the 12-bit range; Fix picks its exposure once at the start of
+the sequence with a 50 % brightness target.
+
+Update rule (the authors' ``classical-P``, reproduced exactly, parity tested on the real sample), in ms::
+
+    gray = cvtColor(mosaic, COLOR_BAYER_RG2GRAY)      # uint16 12-bit codes (see base.bayer_gray for the RG quirk)
+    T = int(P / 100 * 4096)                           # 1228 / 2048 / 2867
+    e = mean(gray) - T
+    t_next = t            if |e| < 15
+             |t - 0.002 e| otherwise                  # +0.002 ms per DN below the target
+
+Parameters: ``percent`` (P), ``gain_ms_per_dn`` = 0.002, ``deadband_dn`` = 15. No clamp of its own (the runner's
+bounds apply), as upstream. Fix: the classical-50 step for the first ``settle_steps`` = 4 calls (the authors' counter
+0..3), then the exposure is returned unchanged for the rest of the run (reproduced; the paper's "selected once at the
+beginning of each sequence" means the same thing since one run is one sequence).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .base import FULL_SCALE_12BIT, bayer_gray, check_input
+
+
+def classical_step_ms(mean_dn: float, t_ms: float, percent: float, gain_ms_per_dn: float = 0.002,
+                      deadband_dn: float = 15.0) -> float:
+    """One step of the authors' classical rule: next exposure (ms) from the gray mean (12-bit DN) and t (ms)."""
+    target = int(percent / 100.0 * FULL_SCALE_12BIT)
+    err = mean_dn - target
+    if abs(err) < deadband_dn:
+        return t_ms
+    return abs(t_ms - gain_ms_per_dn * err)
+
+
+class ClassicalAE:
+    """AE-P: proportional control of the mean gray brightness to P % of 4096 (ids ae30, ae50, ae70)."""
+
+    def __init__(self, percent: float = 50.0, gain_ms_per_dn: float = 0.002, deadband_dn: float = 15.0,
+                 name: str | None = None) -> None:
+        if not 0 < percent < 100:
+            raise ValueError(f"brightness target must be in (0, 100) %, got {percent}")
+        self.percent = percent
+        self.gain_ms_per_dn = gain_ms_per_dn
+        self.deadband_dn = deadband_dn
+        self.name = name or f"ae{percent:g}"
+
+    def reset(self, init_exposure_us: float) -> None:
+        """Stateless: nothing to forget."""
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+        check_input(image, exposure_us)
+        mean_dn = float(np.mean(bayer_gray(image)))
+        t_ms = classical_step_ms(mean_dn, exposure_us / 1000.0, self.percent, self.gain_ms_per_dn, self.deadband_dn)
+        return t_ms * 1000.0
+
+
+class FixAE:
+    """Fix: classical-50 for the first ``settle_steps`` calls, then a constant exposure (id fix)."""
+
+    def __init__(self, settle_steps: int = 4, percent: float = 50.0, name: str = "fix") -> None:
+        self.settle_steps = settle_steps
+        self._classical = ClassicalAE(percent)
+        self.name = name
+        self._calls = 0
+
+    def reset(self, init_exposure_us: float) -> None:
+        self._calls = 0
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+        check_input(image, exposure_us)
+        calls = self._calls
+        self._calls += 1
+        if calls < self.settle_steps:
+            return self._classical.next_exposure_us(image, exposure_us, meta)
+        return float(exposure_us)
+
+
+class ConstantExposure:
+    """A constant exposure whatever the image (id constant-<ms>, e.g. constant-8 or constant-2.5)."""
+
+    def __init__(self, exposure_ms: float, name: str | None = None) -> None:
+        if not np.isfinite(exposure_ms) or exposure_ms <= 0:
+            raise ValueError(f"constant exposure must be a positive number of ms, got {exposure_ms}")
+        self.exposure_us = float(exposure_ms) * 1000.0
+        self.name = name or f"constant-{exposure_ms:g}"
+        self.init_exposure_us: float | None = self.exposure_us
+
+    def reset(self, init_exposure_us: float) -> None:
+        """Stateless; the runner starts a constant method at its own exposure (``init_exposure_us`` attribute)."""
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+        return self.exposure_us

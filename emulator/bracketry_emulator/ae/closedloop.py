@@ -1,0 +1,474 @@
+"""Closed-loop runs of AE methods on a bracketed dataset: decode once, emulate for all, parallel over processes.
+
+Python API::
+
+    from bracketry_emulator.ae import run_methods
+    summary = run_methods("path/to/dataset", ["ae50", "shim", "kim"], "out/", workers=2)
+
+At step k (the k-th complete bracket sequence) every method's current target exposure is emulated for every camera
+side, the images are written (the emulator output layout, :class:`RunWriter`), and the method sees the image of
+``ae_side`` (default left, as the authors) to choose the next target, which is clamped to the run's bounds.
+
+Bounds (explicit, documented; the authors clamp nothing in the loop): ``min_exposure_us`` = 20 us (the authors'
+only floor, Zhang's 0.02 ms) and ``max_exposure_us`` = 64 ms (2x the sample's longest bracket: beyond it the
+emulation extrapolates more than one stop above any recorded frame). The first target is ``init_exposure_us``
+(4 ms, as the authors) unless a method carries its own ``init_exposure_us`` attribute (constant-<ms>).
+
+Parallelism: the methods are split over ``workers`` forked processes (balanced by an estimated cost); the
+sequences are processed in chunks that fit ``memory_budget_bytes``: each chunk's PNGs are decoded ONCE (split over
+the workers) into one shared anonymous memory map, then every worker runs its methods through the chunk. Within a
+worker, identical emulations (same sequence, side and target) are computed once. ``workers`` <= 1 runs in-process.
+
+Outputs in ``out_dir``: ``<method>/`` (images_left|right/, times_images_*.txt, steps.csv, plus ``ae.csv``: step,
+timestamp_ns, exposure_ms, next_exposure_ms, ae_ms, and ``summary.json``), ``exposures.csv`` (one column per
+method), ``summary.json`` and ``exposure_times.png`` (exposure versus time of every method).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import mmap
+import multiprocessing as mp
+import os
+import time
+import traceback
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bracketry.errors import BracketryError
+
+from ..dataset import BracketSequence, Dataset, open_dataset
+from ..emulation import EmulatedImage, Emulator, EmulatorConfig, RunWriter
+from .base import AEMethod
+from .registry import get_method
+
+DEFAULT_INIT_EXPOSURE_US = 4000.0
+DEFAULT_MIN_EXPOSURE_US = 20.0
+DEFAULT_MAX_EXPOSURE_US = 64000.0
+#: Estimated relative cost of one step per method (emulation + writing ~ 20), for balancing the workers.
+_COST = {"fix": 1, "ae30": 1, "ae50": 1, "ae70": 1, "drl": 3, "shim": 10, "wang": 20, "zhang": 10, "kim": 40}
+
+
+@dataclass
+class LoopConfig:
+    """Settings of a closed-loop run (see the module docstring)."""
+
+    emulator: EmulatorConfig = field(default_factory=EmulatorConfig)
+    camera: str = "both"
+    ae_side: str = "left"
+    init_exposure_us: float = DEFAULT_INIT_EXPOSURE_US
+    min_exposure_us: float = DEFAULT_MIN_EXPOSURE_US
+    max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US
+    seed: int = 0
+    drl_weights: str | None = None
+    write_images: bool = True
+    overwrite: bool = False
+    max_sequences: int | None = None
+    memory_budget_bytes: int = 1 << 30
+
+    def validate(self) -> None:
+        if self.camera not in ("left", "right", "both"):
+            raise BracketryError(f"--camera must be left, right or both, got {self.camera}")
+        if self.ae_side not in ("left", "right"):
+            raise BracketryError(f"the AE side must be left or right, got {self.ae_side}")
+        if not 0 < self.min_exposure_us < self.max_exposure_us:
+            raise BracketryError(f"bad exposure bounds [{self.min_exposure_us}, {self.max_exposure_us}] us")
+        if not self.min_exposure_us <= self.init_exposure_us <= self.max_exposure_us:
+            raise BracketryError(f"initial exposure {self.init_exposure_us / 1000:g} ms is outside the bounds "
+                                 f"[{self.min_exposure_us / 1000:g}, {self.max_exposure_us / 1000:g}] ms")
+        self.emulator.validate()
+
+
+@dataclass
+class StepRecord:
+    """One closed-loop step of one method."""
+
+    step: int
+    sequence_index: int
+    timestamp_ns: int
+    exposure_us: float
+    next_exposure_us: float
+    source_exposure_us: int
+    ae_s: float
+
+
+@dataclass
+class MethodRun:
+    """The result of one method: its steps and cost."""
+
+    method: str
+    steps: list[StepRecord] = field(default_factory=list)
+
+    @property
+    def exposures_ms(self) -> list[float]:
+        return [s.exposure_us / 1000.0 for s in self.steps]
+
+    def summary(self) -> dict[str, Any]:
+        exp = np.array(self.exposures_ms) if self.steps else np.zeros(0)
+        cost = np.array([s.ae_s for s in self.steps]) * 1000.0 if self.steps else np.zeros(0)
+        return {"method": self.method, "steps": len(self.steps),
+                "exposure_ms": {"first": float(exp[0]) if exp.size else None,
+                                "last": float(exp[-1]) if exp.size else None,
+                                "mean": float(exp.mean()) if exp.size else None,
+                                "min": float(exp.min()) if exp.size else None,
+                                "max": float(exp.max()) if exp.size else None},
+                "ae_ms_per_step": {"median": float(np.median(cost)) if cost.size else None,
+                                   "mean": float(cost.mean()) if cost.size else None}}
+
+
+@dataclass
+class RunSummary:
+    """All methods of one run."""
+
+    out_dir: Path
+    runs: dict[str, MethodRun]
+    n_sequences: int
+    sides: tuple[str, ...]
+    wall_s: float
+    plot_path: Path | None = None
+
+
+class _Emulators:
+    """The emulator plus per-chunk caches: saturation-driven selection and identical emulations."""
+
+    def __init__(self, config: EmulatorConfig) -> None:
+        self.emulator = Emulator(config)
+        self._cache: dict[tuple[int, str, float], EmulatedImage] = {}
+
+    def clear(self) -> None:
+        self._cache.clear()
+
+    def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float) -> EmulatedImage:
+        key = (seq_index, side, float(target_us))
+        hit = self._cache.get(key)
+        if hit is None:
+            hit = self.emulator.emulate(images, target_us)
+            self._cache[key] = hit
+        return hit
+
+
+def _method_cost(spec: str) -> int:
+    return 20 + _COST.get(spec.lower(), 1 if spec.lower().startswith("constant-") else 10)
+
+
+def _partition(specs: list[str], n: int) -> list[list[str]]:
+    """Longest-processing-time-first split of the methods over ``n`` workers (order kept within a worker)."""
+    loads = [0] * n
+    groups: list[list[str]] = [[] for _ in range(n)]
+    for spec in sorted(specs, key=_method_cost, reverse=True):
+        i = int(np.argmin(loads))
+        groups[i].append(spec)
+        loads[i] += _method_cost(spec)
+    order = {s: k for k, s in enumerate(specs)}
+    return [sorted(g, key=order.__getitem__) for g in groups if g]
+
+
+class _Worker:
+    """Runs a group of methods through the sequences; the same object serves in-process and forked modes."""
+
+    def __init__(self, specs: list[str], cfg: LoopConfig, dataset: Dataset, out_dir: Path,
+                 emu_sides: tuple[str, ...], write_sides: tuple[str, ...], buffer: Any, shape: tuple[int, int],
+                 n_exp: int) -> None:
+        self.cfg = cfg
+        self.dataset = dataset
+        self.sequences = dataset.sequences()
+        self.emu_sides, self.write_sides = emu_sides, write_sides
+        self.buffer, self.shape, self.n_exp = buffer, shape, n_exp
+        self.emu = _Emulators(cfg.emulator)
+        self.methods: dict[str, AEMethod] = {}
+        self.targets: dict[str, float] = {}
+        self.runs: dict[str, MethodRun] = {}
+        self.writers: dict[str, RunWriter] = {}
+        for spec in specs:
+            method = get_method(spec, seed=cfg.seed, drl_weights=cfg.drl_weights)
+            init = getattr(method, "init_exposure_us", None) or cfg.init_exposure_us
+            method.reset(float(init))
+            self.methods[spec] = method
+            self.targets[spec] = float(init)
+            self.runs[spec] = MethodRun(spec)
+            self.writers[spec] = RunWriter(out_dir, _folder(spec), write_sides, depth=cfg.emulator.depth,
+                                           overwrite=cfg.overwrite)
+
+    def _view(self, slot: int, side_i: int, exp_i: int) -> np.ndarray:
+        h, w = self.shape
+        n = h * w
+        off = ((slot * len(self.emu_sides) + side_i) * self.n_exp + exp_i) * n * 2
+        return np.frombuffer(self.buffer, dtype=np.uint16, count=n, offset=off).reshape(h, w)
+
+    def decode(self, tasks: list[tuple[int, int, int, int]]) -> None:
+        """Decode frames (slot, seq index, side index, exposure index) into the shared buffer."""
+        for slot, seq_i, side_i, exp_i in tasks:
+            seq = self.sequences[seq_i]
+            exp = seq.exposures_us[exp_i]
+            img = seq.frames[self.emu_sides[side_i]][exp].load()
+            if img.shape != self.shape:
+                raise BracketryError(f"sequence {seq.index}: frame shape {img.shape} differs from {self.shape}")
+            self._view(slot, side_i, exp_i)[...] = img
+
+    def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
+        """Advance every method of this worker through the given sequences (slot = position in the list)."""
+        self.emu.clear()
+        for slot, seq_i in enumerate(seq_indices):
+            seq = self.sequences[seq_i]
+            brackets = {side: {e: self._view(slot, si, ei) for ei, e in enumerate(seq.exposures_us)}
+                        for si, side in enumerate(self.emu_sides)}
+            for spec, method in self.methods.items():
+                self._step(spec, method, seq_i, seq, brackets)
+                progress(1)
+        self.emu.clear()
+
+    def _step(self, spec: str, method: AEMethod, seq_i: int, seq: BracketSequence,
+              brackets: dict[str, dict[int, np.ndarray]]) -> None:
+        cfg = self.cfg
+        target = self.targets[spec]
+        images = {side: self.emu.emulate(seq_i, side, brackets[side], target) for side in self.emu_sides}
+        if cfg.write_images:
+            self.writers[spec].write_step(seq_i, seq, {s: images[s] for s in self.write_sides}, target)
+        ae_img = images[cfg.ae_side]
+        ts = seq.timestamps_ns[cfg.ae_side][ae_img.source_exposure_us]
+        meta = {"step": seq_i, "timestamp_ns": ts, "side": cfg.ae_side, "sequence_index": seq.index,
+                "response": self.emu.emulator.response, "source_exposure_us": ae_img.source_exposure_us,
+                "bounds_us": (cfg.min_exposure_us, cfg.max_exposure_us)}
+        t0 = time.perf_counter()
+        try:
+            nxt = float(method.next_exposure_us(ae_img.image, target, meta))
+        except BracketryError:
+            raise
+        except Exception as exc:
+            raise BracketryError(f"AE method {spec} failed at step {seq_i}: {type(exc).__name__}: {exc}") from exc
+        ae_s = time.perf_counter() - t0
+        if not np.isfinite(nxt):
+            raise BracketryError(f"AE method {spec} returned a non-finite exposure at step {seq_i}")
+        nxt = float(np.clip(nxt, cfg.min_exposure_us, cfg.max_exposure_us))
+        self.runs[spec].steps.append(StepRecord(seq_i, seq.index, ts, target, nxt, ae_img.source_exposure_us, ae_s))
+        self.targets[spec] = nxt
+
+    def close(self) -> dict[str, MethodRun]:
+        for w in self.writers.values():
+            w.close()
+        return self.runs
+
+
+def _folder(spec: str) -> str:
+    """Output folder name of a method id (plugin specs 'pkg.mod:Cls' -> 'pkg.mod-Cls')."""
+    return spec.replace(":", "-").replace("/", "_")
+
+
+def _worker_loop(conn: Connection, worker: Callable[[], _Worker]) -> None:
+    try:
+        w = worker()
+        conn.send(("ready", None))
+        while True:
+            cmd, arg = conn.recv()
+            if cmd == "decode":
+                w.decode(arg)
+                conn.send(("decoded", None))
+            elif cmd == "run":
+                w.run(arg, lambda n: conn.send(("progress", n)))
+                conn.send(("ran", None))
+            elif cmd == "close":
+                conn.send(("closed", w.close()))
+                return
+    except BaseException as exc:  # report to the parent, which raises one clear line
+        msg = str(exc) if isinstance(exc, BracketryError) else f"{type(exc).__name__}: {exc}"
+        with contextlib.suppress(Exception):
+            conn.send(("error", (msg, traceback.format_exc())))
+    finally:
+        conn.close()
+
+
+def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Path, *, workers: int = 0,
+                config: LoopConfig | None = None, progress: bool = True, **overrides: Any) -> RunSummary:
+    """Run ``methods`` (ids, see :func:`get_method`) in closed loop on a dataset; see the module docstring.
+
+    ``workers``: processes (0 = min(methods, CPUs, 4); 1 = in-process). ``overrides``: LoopConfig fields.
+    Raises BracketryError (one line) on bad input or a failing method; outputs already written stay on disk.
+    """
+    t_start = time.perf_counter()
+    cfg = config or LoopConfig()
+    for k, v in overrides.items():
+        if not hasattr(cfg, k):
+            raise TypeError(f"unknown closed-loop option {k}")
+        setattr(cfg, k, v)
+    cfg.validate()
+    specs = list(dict.fromkeys(methods))
+    if not specs:
+        raise BracketryError("no AE method given")
+    # fail fast in the parent on unknown ids / missing weights
+    for spec in specs:
+        if spec.strip().lower() == "drl":  # torch is loaded in the workers only (no fork after torch threads)
+            from .drl import check_weights_path
+
+            check_weights_path(cfg.drl_weights)
+        else:
+            get_method(spec, seed=cfg.seed, drl_weights=cfg.drl_weights)
+    dataset = open_dataset(dataset_path)
+    write_sides = dataset.sides if cfg.camera == "both" else (cfg.camera,)
+    for s in (*write_sides, cfg.ae_side):
+        if s not in dataset.sides:
+            raise BracketryError(f"the dataset has no {s} camera (sides: {', '.join(dataset.sides)})")
+    emu_sides = tuple(dict.fromkeys([*write_sides, cfg.ae_side]))
+    sequences = dataset.sequences()
+    if cfg.max_sequences is not None:
+        sequences = sequences[: cfg.max_sequences]
+    n_seq = len(sequences)
+    if n_seq == 0:
+        raise BracketryError(f"no complete bracket sequence in {dataset_path}")
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    first = sequences[0]
+    shape = first.frames[emu_sides[0]][first.exposures_us[0]].load().shape
+    n_exp = len(first.exposures_us)
+    seq_bytes = len(emu_sides) * n_exp * shape[0] * shape[1] * 2
+    chunk = max(1, min(n_seq, cfg.memory_budget_bytes // max(seq_bytes, 1)))
+    buffer = mmap.mmap(-1, chunk * seq_bytes)
+    n_workers = workers if workers > 0 else min(len(specs), os.cpu_count() or 1, 4)
+    can_fork = "fork" in mp.get_all_start_methods()
+    n_workers = max(1, min(n_workers, len(specs))) if can_fork else 1
+    groups = _partition(specs, n_workers)
+
+    def make(group: list[str]) -> Callable[[], _Worker]:
+        return lambda: _Worker(group, cfg, dataset, out, emu_sides, write_sides, buffer, shape, n_exp)
+
+    bar = _progress_bar(progress, len(specs) * n_seq)
+    runs: dict[str, MethodRun] = {}
+    try:
+        if len(groups) == 1:
+            w = make(groups[0])()
+            for c0 in range(0, n_seq, chunk):
+                idx = list(range(c0, min(n_seq, c0 + chunk)))
+                w.decode(_decode_tasks(idx, len(emu_sides), n_exp))
+                w.run(idx, bar.update)
+            runs.update(w.close())
+        else:
+            runs.update(_run_forked(groups, make, n_seq, chunk, len(emu_sides), n_exp, bar))
+    finally:
+        bar.close()
+        buffer.close()
+    ordered = {s: runs[s] for s in specs}
+    summary = RunSummary(out, ordered, n_seq, write_sides, time.perf_counter() - t_start)
+    _write_outputs(summary, cfg, dataset)
+    summary.wall_s = time.perf_counter() - t_start
+    return summary
+
+
+def _decode_tasks(seq_indices: list[int], n_sides: int, n_exp: int) -> list[tuple[int, int, int, int]]:
+    return [(slot, seq_i, si, ei) for slot, seq_i in enumerate(seq_indices) for si in range(n_sides)
+            for ei in range(n_exp)]
+
+
+def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[], _Worker]], n_seq: int,
+                chunk: int, n_sides: int, n_exp: int, bar: Any) -> dict[str, MethodRun]:
+    ctx = mp.get_context("fork")
+    procs: list[Any] = []
+    conns: list[Connection] = []
+    runs: dict[str, MethodRun] = {}
+    try:
+        for group in groups:
+            parent, child = ctx.Pipe()
+            p = ctx.Process(target=_worker_loop, args=(child, make(group)), daemon=True)
+            p.start()
+            child.close()
+            procs.append(p)
+            conns.append(parent)
+        _collect(conns, "ready", bar)
+        for c0 in range(0, n_seq, chunk):
+            idx = list(range(c0, min(n_seq, c0 + chunk)))
+            tasks = _decode_tasks(idx, n_sides, n_exp)
+            for k, conn in enumerate(conns):
+                conn.send(("decode", tasks[k::len(conns)]))
+            _collect(conns, "decoded", bar)
+            for conn in conns:
+                conn.send(("run", idx))
+            _collect(conns, "ran", bar)
+        for conn in conns:
+            conn.send(("close", None))
+        for res in _collect(conns, "closed", bar):
+            runs.update(res)
+    finally:
+        for conn in conns:
+            conn.close()
+        for p in procs:
+            p.join(timeout=10)
+            if p.is_alive():
+                p.terminate()
+                p.join(timeout=5)
+    return runs
+
+
+def _collect(conns: list[Connection], expected: str, bar: Any) -> list[Any]:
+    """Wait until every worker answered ``expected`` (forwarding progress); raise on a worker error."""
+    pending = {id(c): c for c in conns}
+    results: dict[int, Any] = {}
+    while pending:
+        for c in wait(list(pending.values())):
+            assert isinstance(c, Connection)
+            try:
+                kind, payload = c.recv()
+            except EOFError as exc:
+                raise BracketryError("an emulation worker process died (out of memory?)") from exc
+            if kind == "progress":
+                bar.update(payload)
+            elif kind == "error":
+                if os.environ.get("BRACKETRY_DEBUG") == "1":
+                    print(payload[1])
+                raise BracketryError(payload[0])
+            elif kind == expected:
+                results[id(c)] = payload
+                del pending[id(c)]
+    return [results[id(c)] for c in conns]
+
+
+class _NoBar:
+    def update(self, n: int = 1) -> None:
+        pass
+
+    def close(self) -> None:
+        pass
+
+
+def _progress_bar(enabled: bool, total: int) -> Any:
+    if not enabled:
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="step", desc="emulate", dynamic_ncols=True, leave=False)
+
+
+def _write_outputs(summary: RunSummary, cfg: LoopConfig, dataset: Dataset) -> None:
+    from .plot import plot_exposures
+
+    out = summary.out_dir
+    t0_ns = min((s.timestamp_ns for r in summary.runs.values() for s in r.steps), default=0)
+    for spec, run in summary.runs.items():
+        folder = out / _folder(spec)
+        with open(folder / "ae.csv", "w") as f:
+            f.write("step,timestamp_ns,exposure_ms,next_exposure_ms,source_exposure_ms,ae_ms\n")
+            for s in run.steps:
+                f.write(f"{s.step},{s.timestamp_ns},{s.exposure_us / 1000:.6f},{s.next_exposure_us / 1000:.6f},"
+                        f"{s.source_exposure_us / 1000:.6f},{s.ae_s * 1000:.3f}\n")
+        (folder / "summary.json").write_text(json.dumps(run.summary(), indent=2) + "\n")
+    with open(out / "exposures.csv", "w") as f:
+        specs = list(summary.runs)
+        f.write("step,timestamp_ns," + ",".join(f"{s}_ms" for s in specs) + "\n")
+        first = next(iter(summary.runs.values()))
+        for k, st in enumerate(first.steps):
+            row = [f"{summary.runs[s].steps[k].exposure_us / 1000:.6f}" for s in specs]
+            f.write(f"{st.step},{st.timestamp_ns}," + ",".join(row) + "\n")
+    emu = asdict(cfg.emulator)
+    emu = {k: (str(v) if isinstance(v, Path) else v) for k, v in emu.items() if k != "noise"}
+    doc = {"dataset": str(dataset.path), "sequences": summary.n_sequences, "sides": list(summary.sides),
+           "ae_side": cfg.ae_side, "init_exposure_ms": cfg.init_exposure_us / 1000.0,
+           "bounds_ms": [cfg.min_exposure_us / 1000.0, cfg.max_exposure_us / 1000.0], "seed": cfg.seed,
+           "emulator": emu, "wall_s": round(summary.wall_s, 3),
+           "methods": {s: r.summary() for s, r in summary.runs.items()}}
+    (out / "summary.json").write_text(json.dumps(doc, indent=2, default=str) + "\n")
+    series = {s: ([(st.timestamp_ns - t0_ns) / 1e9 for st in r.steps], r.exposures_ms)
+              for s, r in summary.runs.items()}
+    summary.plot_path = plot_exposures(series, out / "exposure_times.png")

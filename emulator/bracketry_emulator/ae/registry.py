@@ -1,0 +1,150 @@
+"""Method ids -> AE method objects, and the plugin loader.
+
+Built-in ids: ``fix``, ``ae30``, ``ae50``, ``ae70``, ``shim``, ``wang``, ``kim``, ``zhang``, ``drl`` and
+``constant-<ms>`` (e.g. ``constant-8``). A plugin is ``pkg.module:ClassName`` (any importable class or factory
+returning an object with the :class:`AEMethod` protocol) or the name of an entry point in the group
+``bracketry.ae_methods``. See PLUGINS.md.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import re
+from collections.abc import Callable
+from typing import Any
+
+from bracketry.errors import BracketryError
+
+from .base import AEMethod
+from .classical import ClassicalAE, ConstantExposure, FixAE
+
+#: The eight methods of the paper, in its table order.
+PAPER_METHODS: tuple[str, ...] = ("fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl")
+#: Every built-in id (``all`` on the command line).
+BUILTIN_METHODS: tuple[str, ...] = (*PAPER_METHODS, "zhang")
+ENTRY_POINT_GROUP = "bracketry.ae_methods"
+_CONSTANT = re.compile(r"^constant-(\d+(?:\.\d*)?|\.\d+)$")
+
+
+def _builtin(name: str, options: dict[str, Any]) -> AEMethod | None:
+    seed = int(options.get("seed", 0))
+    if name in ("ae30", "ae50", "ae70"):
+        return ClassicalAE(float(name[2:]), name=name)
+    if name == "fix":
+        return FixAE()
+    if name == "shim":
+        from .shim import ShimAE
+
+        return ShimAE()
+    if name == "kim":
+        from .kim import KimAE
+
+        return KimAE(seed=seed)
+    if name == "zhang":
+        from .zhang import ZhangAE
+
+        return ZhangAE()
+    if name == "wang":
+        from .wang import WangAE
+
+        return WangAE()
+    if name == "drl":
+        from .drl import DrlAE
+
+        return DrlAE(options.get("drl_weights"))
+    m = _CONSTANT.match(name)
+    if m:
+        ms = float(m.group(1))
+        if ms <= 0:
+            raise BracketryError(f"constant exposure must be positive: {name}")
+        return ConstantExposure(ms, name=name)
+    return None
+
+
+def _entry_points() -> dict[str, importlib.metadata.EntryPoint]:
+    return {ep.name: ep for ep in importlib.metadata.entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def _instantiate(factory: Any, spec: str, options: dict[str, Any]) -> AEMethod:
+    if not callable(factory):
+        raise BracketryError(f"AE plugin {spec} is not a class or factory")
+    try:
+        obj = factory(**options.get("plugin_kwargs", {}))
+    except TypeError as exc:
+        raise BracketryError(f"AE plugin {spec} cannot be created without arguments: {exc}") from exc
+    for attr in ("reset", "next_exposure_us"):
+        if not callable(getattr(obj, attr, None)):
+            raise BracketryError(f"AE plugin {spec} has no method {attr}() (see the AEMethod protocol, PLUGINS.md)")
+    if not isinstance(getattr(obj, "name", None), str) or not obj.name:
+        try:
+            obj.name = spec.split(":")[-1]
+        except AttributeError as exc:
+            raise BracketryError(f"AE plugin {spec} has no 'name' and it cannot be set") from exc
+    return obj
+
+
+def load_plugin(spec: str, options: dict[str, Any] | None = None) -> AEMethod:
+    """A method from ``pkg.module:Attr`` (import path) -> instance of that class/factory (no arguments)."""
+    options = options or {}
+    module_name, _, attr = spec.partition(":")
+    if not module_name or not attr:
+        raise BracketryError(f"bad plugin spec {spec!r} (use pkg.module:ClassName)")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise BracketryError(f"cannot import AE plugin module {module_name}: {exc}") from exc
+    factory: Any = module
+    for part in attr.split("."):
+        factory = getattr(factory, part, None)
+        if factory is None:
+            raise BracketryError(f"AE plugin module {module_name} has no {attr}")
+    return _instantiate(factory, spec, options)
+
+
+def get_method(spec: str, **options: Any) -> AEMethod:
+    """The AE method of one id (see the module docstring); ``options``: ``seed`` (Kim's GP, default 0),
+    ``drl_weights`` (path of the DRL actor), ``plugin_kwargs`` (keyword arguments for a plugin class).
+
+    Raises BracketryError (one line) for an unknown id or a plugin that cannot be loaded.
+    """
+    name = spec.strip()
+    method = _builtin(name.lower(), options)
+    if method is not None:
+        return method
+    if ":" in name:
+        return load_plugin(name, options)
+    eps = _entry_points()
+    if name in eps:
+        try:
+            factory = eps[name].load()
+        except Exception as exc:
+            raise BracketryError(f"cannot load AE entry point {name} ({eps[name].value}): {exc}") from exc
+        method = _instantiate(factory, eps[name].value, options)
+        return method
+    known = ", ".join([*BUILTIN_METHODS, "constant-<ms>", *sorted(eps)])
+    raise BracketryError(f"unknown AE method {spec!r} (known: {known}; or a plugin pkg.module:Class)")
+
+
+def expand_methods(specs: str | list[str], has_drl_weights: bool = True,
+                   warn: Callable[[str], None] | None = None) -> list[str]:
+    """Split a comma list, expand ``all`` (the built-ins; drl only when weights are given), drop duplicates."""
+    items = specs.split(",") if isinstance(specs, str) else list(specs)
+    out: list[str] = []
+    for raw in items:
+        s = raw.strip()
+        if not s:
+            continue
+        if s.lower() == "all":
+            for b in BUILTIN_METHODS:
+                if b == "drl" and not has_drl_weights:
+                    if warn:
+                        warn("note: 'all' skips drl (no --drl-weights given)")
+                    continue
+                if b not in out:
+                    out.append(b)
+        elif s not in out:
+            out.append(s)
+    if not out:
+        raise BracketryError("no AE method given (e.g. --method ae50,shim or --method all)")
+    return out

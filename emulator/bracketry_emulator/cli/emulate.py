@@ -1,0 +1,91 @@
+"""``bracketry emulate``: emulate images at chosen exposures and run AE methods in closed loop on a dataset."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import click
+
+from bracketry.errors import BracketryError
+
+
+def _emulator_config(selection: str, crf: str, parity: str, depth: int, gain_db: float) -> object:
+    from bracketry_emulator.emulation import EmulatorConfig
+
+    if crf.lower() != "srgb" and not Path(crf).is_file():
+        raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf}")
+    if parity == "upstream" and selection == "highernosat":
+        selection = "upstream"  # the authors' closer_least_sat goes with their arithmetic
+    cfg = EmulatorConfig(selection=selection, crf=crf, parity=parity, depth=depth, gain_db=gain_db)  # type: ignore[arg-type]
+    cfg.validate()
+    return cfg
+
+
+@click.command("emulate")
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("--method", "-m", "methods", default="ae50", show_default=True,
+              help="Comma list of AE methods: fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, constant-<ms> "
+                   "(e.g. constant-8), a plugin pkg.module:Class or an entry point; 'all' = every built-in.")
+@click.option("--out", "-o", "out_dir", required=True, type=click.Path(path_type=Path),
+              help="Output folder: one sub-folder per method, summary.json, exposures.csv, exposure_times.png.")
+@click.option("--selection", type=click.Choice(["highernosat", "upstream", "fusion"]), default="highernosat",
+              show_default=True, help="Source-bracket selection of the emulator.")
+@click.option("--crf", default="srgb", show_default=True, help="Camera response: 'srgb' or a pcalib.txt file.")
+@click.option("--parity", type=click.Choice(["default", "upstream"]), default="default", show_default=True,
+              help="'upstream' reproduces the authors' emulation arithmetic (use with --crf their pcalib).")
+@click.option("--camera", type=click.Choice(["left", "right", "both"]), default="both", show_default=True,
+              help="Cameras to emulate and write.")
+@click.option("--ae-camera", type=click.Choice(["left", "right"]), default="left", show_default=True,
+              help="Camera whose emulated image the AE methods see (the authors: left).")
+@click.option("--depth", type=click.Choice(["12", "8"]), default="12", show_default=True,
+              help="Bit depth of written images (12: 16-bit PNG of 12-bit codes; 8: code >> 4).")
+@click.option("--gain-db", type=float, default=0.0, show_default=True, help="Emulated analog gain (dB).")
+@click.option("--init-exposure-ms", type=float, default=4.0, show_default=True,
+              help="First target exposure of every method (the authors: 4 ms).")
+@click.option("--min-exposure-ms", type=float, default=0.02, show_default=True,
+              help="Lower bound applied to every method's output.")
+@click.option("--max-exposure-ms", type=float, default=64.0, show_default=True,
+              help="Upper bound applied to every method's output.")
+@click.option("--drl-weights", type=click.Path(path_type=Path), default=None,
+              help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth).")
+@click.option("--seed", type=int, default=0, show_default=True, help="Seed of stochastic methods (Kim's GP).")
+@click.option("--workers", "-j", type=int, default=0, show_default=True,
+              help="Worker processes (0 = automatic, 1 = in-process).")
+@click.option("--max-sequences", type=int, default=None, help="Stop after this many bracket sequences.")
+@click.option("--no-images", is_flag=True, help="Do not write images (exposure trajectories and summaries only).")
+@click.option("--overwrite", is_flag=True, help="Replace the files of an earlier run in the same --out.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str, parity: str, camera: str,
+            ae_camera: str, depth: str, gain_db: float, init_exposure_ms: float, min_exposure_ms: float,
+            max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
+            no_images: bool, overwrite: bool, quiet: bool) -> int:
+    """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world or MCAP).
+
+    Every method starts at --init-exposure-ms; at each bracket sequence its current target is emulated for the
+    cameras, the images are written, and the method picks the next target from the --ae-camera image. Each decoded
+    bracket sequence is shared by all methods; methods run in parallel worker processes.
+    """
+    from bracketry_emulator.ae import LoopConfig, expand_methods, run_methods
+
+    if workers < 0:
+        raise BracketryError("--workers must be >= 0")
+    if max_sequences is not None and max_sequences < 1:
+        raise BracketryError("--max-sequences must be >= 1")
+    specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
+    emu = _emulator_config(selection, crf, parity, int(depth), gain_db)
+    cfg = LoopConfig(emulator=emu, camera=camera, ae_side=ae_camera,  # type: ignore[arg-type]
+                     init_exposure_us=init_exposure_ms * 1000.0, min_exposure_us=min_exposure_ms * 1000.0,
+                     max_exposure_us=max_exposure_ms * 1000.0, seed=seed,
+                     drl_weights=str(drl_weights) if drl_weights else None, write_images=not no_images,
+                     overwrite=overwrite, max_sequences=max_sequences)
+    summary = run_methods(dataset, specs, out_dir, workers=workers, config=cfg, progress=not quiet)
+    click.echo(f"{len(summary.runs)} method(s) x {summary.n_sequences} sequence(s), cameras "
+               f"{','.join(summary.sides)}, in {summary.wall_s:.1f} s -> {summary.out_dir}")
+    for name, run in summary.runs.items():
+        s = run.summary()
+        exp = s["exposure_ms"]
+        click.echo(f"  {name:<12} exposure ms first {exp['first']:.3f} last {exp['last']:.3f} "
+                   f"mean {exp['mean']:.3f}  AE {s['ae_ms_per_step']['median']:.1f} ms/step")
+    if summary.plot_path:
+        click.echo(f"  plot: {summary.plot_path}")
+    return 0
