@@ -87,10 +87,12 @@ def _orphan_message(orphans: list[Frame]) -> str:
 
 
 def group_sequences(frames_by_side: dict[str, list[Frame]], *, tolerance_ns: int = 2_000_000,
-                    max_gap_factor: float = 1.6) -> tuple[list[BracketSequence], list[str]]:
+                    max_gap_factor: float = 1.6, order: tuple[int, ...] | None = None
+                    ) -> tuple[list[BracketSequence], list[str]]:
     """Complete sequences present on every side, matched by timestamp; returns (sequences, problems).
 
-    ``frames_by_side``: ``{side: [Frame, ...]}`` in any order. Raises DatasetError when no side has frames or the
+    ``frames_by_side``: ``{side: [Frame, ...]}`` in any order. ``order``: the cycle order of the exposures when the
+    source knows it (bracket_index), else it is estimated. Raises DatasetError when no side has frames or the
     sides use different bracket sets.
     """
     sides = [s for s, fr in frames_by_side.items() if fr]
@@ -104,7 +106,8 @@ def group_sequences(frames_by_side: dict[str, list[Frame]], *, tolerance_ns: int
     if len(exposures) < 2:
         raise DatasetError(f"need at least 2 bracket exposures, found {exposures} us")
     ordered = {s: sorted(frames_by_side[s], key=lambda f: (f.t_ns, f.exposure_us)) for s in sides}
-    order = cycle_order(ordered, exposures)
+    if order is None or sorted(order) != list(exposures):
+        order = cycle_order(ordered, exposures)
     problems: list[str] = []
     cycles_by_side: dict[str, list[list[Frame]]] = {}
     for s in sides:

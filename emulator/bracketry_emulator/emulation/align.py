@@ -15,6 +15,8 @@ import cv2
 import numpy as np
 
 Motion = Literal["none", "translation", "homography"]
+#: Resolution of the estimation relative to the half-resolution gray image (1.0: 960x600 for 1920x1200).
+ALIGN_SCALE = 1.0
 
 
 def bayer_gray_half(linear: np.ndarray) -> np.ndarray:
@@ -40,8 +42,8 @@ def estimate_motion(moving: np.ndarray, reference: np.ndarray, motion: Motion = 
         return eye
     mov = _log_norm(bayer_gray_half(moving))
     ref = _log_norm(bayer_gray_half(reference))
-    # quarter of the half resolution for speed, then refine nothing: global motion is smooth
-    scale = 0.5
+    # optionally below the half resolution for speed (global motion is smooth)
+    scale = ALIGN_SCALE
     mov_s = cv2.resize(mov, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     ref_s = cv2.resize(ref, None, fx=scale, fy=scale, interpolation=cv2.INTER_AREA)
     win = cv2.createHanningWindow(ref_s.shape[::-1], cv2.CV_32F)

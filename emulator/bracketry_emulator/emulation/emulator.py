@@ -27,7 +27,7 @@ from bracketry.errors import BracketryError
 from ..crf import Lifting, Response, load_response
 from ..crf.response import Rounding
 from .align import Motion
-from .fusion import fuse
+from .fusion import FusionResult, fuse, fusion_brackets
 from .kernel import LutCache, apply_lut
 from .noise import NoiseModel
 from .selection import SatCount, saturation_fraction, select_highernosat, select_upstream
@@ -133,6 +133,9 @@ class Emulator:
         self.response = response
         self.rounding: Rounding = "trunc" if self.config.parity == "upstream" else "round"
         self._luts = LutCache(response)
+        # fused irradiance per (bracket images, reference): independent of the target, reused across targets. The
+        # cache holds the arrays themselves so their ids stay unique while cached.
+        self._fusion_cache: list[tuple[tuple[np.ndarray, ...], int, FusionResult]] = []
 
     @property
     def gain(self) -> float:
@@ -193,8 +196,18 @@ class Emulator:
 
     def _emulate_fusion(self, images: dict[int, np.ndarray], target_us: float) -> EmulatedImage:
         ref = self.select(images, target_us)
-        result = fuse(images, target_us, self.response, self.config.noise, reference_us=ref,
-                      brackets=self.config.fusion_brackets, motion=self.config.motion)
+        used = fusion_brackets(list(images), target_us, self.config.fusion_brackets)
+        key = tuple(images[e] for e in sorted({*used, ref}))
+        result = None
+        for arrays, cached_ref, cached in self._fusion_cache:
+            if cached_ref == ref and len(arrays) == len(key) and all(a is b for a, b in zip(arrays, key, strict=True)):
+                result = cached
+                break
+        if result is None:
+            result = fuse(images, target_us, self.response, self.config.noise, reference_us=ref,
+                          brackets=self.config.fusion_brackets, motion=self.config.motion)
+            self._fusion_cache.append((key, ref, result))
+            del self._fusion_cache[:-4]
         linear = result.irradiance * (target_us * self.gain)
         if self.adds_noise:
             g = self.gain

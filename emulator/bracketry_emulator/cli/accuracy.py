@@ -1,0 +1,123 @@
+"""``bracketry accuracy``: the emulator's accuracy protocols (static stack, neighbours on real data); JSON + PNG."""
+
+from __future__ import annotations
+
+import json
+import math
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import click
+
+from bracketry.errors import BracketryError
+
+
+def _write(out_dir: Path, name: str, result: dict) -> Path:
+    out_dir.mkdir(parents=True, exist_ok=True)
+    path = out_dir / f"{name}.json"
+    path.write_text(json.dumps(result, indent=1, allow_nan=True) + "\n")
+    return path
+
+
+def _fmt(x: float | None) -> str:
+    return "-" if x is None or (isinstance(x, float) and math.isnan(x)) else f"{x:8.2f}"
+
+
+def _progress(label: str) -> Callable[[int, int], None] | None:
+    """A progress callback writing to stderr when it is a terminal, else None."""
+    if not sys.stderr.isatty():
+        return None
+
+    def cb(done: int, total: int) -> None:
+        click.echo(f"\r{label}: {done}/{total}", nl=done == total, err=True)
+    return cb
+
+
+@click.group("accuracy")
+def command() -> None:
+    """Measure the emulator's accuracy (static stack protocol, neighbour protocol on real data)."""
+
+
+@command.command("static")
+@click.argument("stack_dir", type=click.Path(path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=None,
+              help="output folder for accuracy_static.json and .png (default: STACK_DIR/accuracy)")
+@click.option("--crf", default="srgb", show_default=True, help="'srgb' or a pcalib.txt file")
+@click.option("--max-targets", type=int, default=250, show_default=True,
+              help="ground-truth exposures used (evenly spread; 0 = all)")
+@click.option("--alpha", type=float, default=0.01, show_default=True, help="HigherNoSat saturation threshold")
+@click.option("--side", default="left", show_default=True, help="camera side of a plain BorealHDR-tree stack")
+@click.option("--json", "as_json", is_flag=True, help="print the summary as JSON")
+def static_cmd(stack_dir: Path, out_dir: Path | None, crf: str, max_targets: int, alpha: float, side: str,
+               as_json: bool) -> int:
+    """Emulate every ground-truth exposure of a static stack (the paper's protocol); RMSE median/max per mode.
+
+    Exit code 0 when the HigherNoSat goals (median <= 9 DN, max <= 73 DN, noise-corrected) hold, 1 otherwise.
+    """
+    from bracketry_emulator.accuracy import open_static_stack, run_static
+    from bracketry_emulator.accuracy.plots import plot_static
+
+    stack = open_static_stack(stack_dir, side=side)
+    result = run_static(stack, crf=crf, max_targets=max_targets or None, alpha=alpha,
+                        progress=_progress("static targets"))
+    out = out_dir or (stack_dir / "accuracy")
+    jpath = _write(out, "accuracy_static", result)
+    ppath = plot_static(result, out / "accuracy_static.png")
+    if as_json:
+        click.echo(json.dumps({"summary": result["summary"], "goals": result["goals"]}, indent=1))
+    else:
+        click.echo(f"{result['n_targets']} targets, brackets {[b / 1000 for b in result['brackets_us']]} ms, "
+                   f"crf {result['crf']}")
+        click.echo(f"{'mode':12s} {'metric':10s} {'median':>8s} {'max':>8s} {'med.in':>8s}")
+        for mode, metrics in result["summary"].items():
+            for metric, s in metrics.items():
+                click.echo(f"{mode:12s} {metric:10s} {_fmt(s['all']['median'])} {_fmt(s['all']['max'])} "
+                           f"{_fmt(s['in_bracket_range']['median'])}")
+        for name, g in result["goals"].items():
+            click.echo(f"goal {name}: {'met' if g['met'] else 'NOT met'} "
+                       f"({', '.join(f'{k}={v:.3g}' for k, v in g.items() if k != 'met')})")
+        click.echo(f"wrote {jpath} and {ppath}")
+    g = result["goals"]
+    ok = all(g[k]["met"] for k in ("highernosat_median_le_9dn", "highernosat_max_le_73dn") if k in g)
+    return 0 if ok else 1
+
+
+@command.command("neighbours")
+@click.argument("dataset", type=click.Path(path_type=Path))
+@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("accuracy-neighbours"),
+              show_default=True, help="output folder for accuracy_neighbours.json and .png")
+@click.option("--crf", default="srgb", show_default=True, help="'srgb' or a pcalib.txt file")
+@click.option("--camera", type=click.Choice(["left", "right", "both"]), default="both", show_default=True)
+@click.option("--alignment", type=click.Choice(["homography", "translation"]), default="homography",
+              show_default=True, help="global alignment used for the aligned variant")
+@click.option("--max-sequences", type=int, default=0, help="use the first N sequences (0 = all)")
+@click.option("--json", "as_json", is_flag=True, help="print the summary as JSON")
+def neighbours_cmd(dataset: Path, out_dir: Path, crf: str, camera: str, alignment: str, max_sequences: int,
+                   as_json: bool) -> int:
+    """Emulate bracket k from k-1 and k+1 on real data, with and without alignment; RMSE and bias per mode."""
+    from bracketry_emulator.accuracy import run_neighbours
+    from bracketry_emulator.accuracy.plots import plot_neighbours
+    from bracketry_emulator.dataset import open_dataset
+
+    ds = open_dataset(dataset)
+    sides = ds.sides if camera == "both" else (camera,)
+    if any(s not in ds.sides for s in sides):
+        raise BracketryError(f"dataset has no {camera} camera (sides: {', '.join(ds.sides)})")
+    result = run_neighbours(ds, sides=sides, crf=crf, alignments=("none", alignment),  # type: ignore[arg-type]
+                            max_sequences=max_sequences or None, progress=_progress("sequences x sides"))
+    jpath = _write(out_dir, "accuracy_neighbours", result)
+    ppath = plot_neighbours(result, out_dir / "accuracy_neighbours.png")
+    if as_json:
+        click.echo(json.dumps({"summary": result["summary"], "goals": result["goals"]}, indent=1))
+    else:
+        click.echo(f"{result['n_pairs']} emulated frames from {result['n_sequences']} sequences, sides {sides}")
+        click.echo(f"{'alignment':11s} {'mode':12s} {'rmse med':>8s} {'rmse mean':>9s} {'bias med':>8s}")
+        for al, modes in result["summary"].items():
+            for mode, s in modes.items():
+                click.echo(f"{al:11s} {mode:12s} {_fmt(s['rmse_dn']['median'])} {_fmt(s['rmse_dn']['mean'])}  "
+                           f"{_fmt(s['bias_dn']['median'])}")
+        for name, g in result["goals"].items():
+            click.echo(f"goal {name}: {'met' if g['met'] else 'NOT met'}")
+        click.echo(f"wrote {jpath} and {ppath}")
+    return 0
