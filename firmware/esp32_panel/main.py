@@ -35,5 +35,13 @@ def run(transport=TRANSPORT, should_stop=None, idle_hook=None):
     return app
 
 
+def safe_mode_requested():
+    """True when SENSORS is held at boot: main.py then returns to the REPL (the link disables Ctrl-C)."""
+    return panel_hw.Buttons().read()[0]
+
+
 if __name__ == "__main__":
-    run()
+    if safe_mode_requested():
+        print("bracketry panel: SENSORS held at boot -> safe mode (REPL)")
+    else:
+        run()

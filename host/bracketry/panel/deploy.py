@@ -48,5 +48,6 @@ def deploy(port: str, dry_run: bool = False, timeout_s: float = 120.0) -> list[s
         raise BracketryError(f"mpremote timed out after {timeout_s:.0f} s on {port}") from None
     if proc.returncode != 0:
         last = (proc.stderr.strip() or proc.stdout.strip() or "no output").splitlines()[-1]
-        raise BracketryError(f"mpremote failed on {port}: {last}")
+        raise BracketryError(f"mpremote failed on {port}: {last} (if the panel firmware is running, hold SENSORS "
+                             "while resetting the board to start it in safe mode, then deploy again)")
     return cmd
