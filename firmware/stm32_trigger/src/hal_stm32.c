@@ -5,7 +5,8 @@
  * bounded; on a timeout the chip stays on HSI 16 MHz (and says so in the HELLO capabilities).
  * Host link: USART2 921600 8N1, RX interrupt into a ring buffer, TX from a ring buffer (TXE interrupt + main-loop
  * kick, because QEMU never raises TXE interrupts).
- * Trigger: TIM3 at a 1 MHz tick, ARR = period_us - 1, CH3 (left) and CH4 (right) in PWM mode 1 from the same
+ * Trigger: TIM3 at a 1 MHz tick (a k us tick, k = ceil(period_us / 65536), for periods beyond its 16-bit
+ * range), ARR = period_us - 1, CH3 (left) and CH4 (right) in PWM mode 1 from the same
  * counter, compare preload on; the next width is written by DMA1 stream 2 (TIM3_UP, DMA burst into CCR3+CCR4) on
  * each update event, or by the update interrupt where DMA does not exist (QEMU). The update interrupt also stamps
  * the pulse start on the device clock: TIM5, a free-running 32-bit 1 MHz counter extended to 64 bits.
@@ -46,6 +47,7 @@ static volatile uint32_t tx_head, tx_tail;
 static int dma_available;
 static uint32_t dma_buf[2u * TRIG_MAX_BRACKETS]; /* (CCR3, CCR4) pairs, burst-written on each update */
 static volatile uint32_t trig_arr;
+static volatile uint32_t trig_tick_us = 1u; /* TIM3 tick: 1 us, or k us for periods > 65.536 ms (16-bit ARR) */
 static uint64_t emu_next_pulse_us; /* emulation only: start of the next synthesised pulse */
 static uint32_t emu_period_us;     /* emulation only: 0 while stopped */
 
@@ -176,6 +178,14 @@ static uint32_t tim_prescaler_1mhz(void)
     return hz / 1000000u - 1u;
 }
 
+/* TIM3 is 16-bit: periods up to 65536 us run on a 1 us tick; longer ones (up to 1 s) on a k us tick, k <= 16,
+ * with widths and period rounded to the nearest tick. */
+static uint32_t to_ticks(uint32_t us)
+{
+    uint32_t t = (us + trig_tick_us / 2u) / trig_tick_us;
+    return t ? t : 1u;
+}
+
 static void devclock_init(void)
 {
     TIM_CR1(TIM5_BASE) = 0u;
@@ -289,12 +299,13 @@ void hal_trigger_start(const trig_table_t *t)
     TIM_CR1(TIM3_BASE) = 0u;
     TIM_DIER(TIM3_BASE) = 0u;
     DMA_S_CR(2) = 0u;
-    TIM_PSC(TIM3_BASE) = tim_prescaler_1mhz();
-    trig_arr = t->period_us - 1u;
+    trig_tick_us = (t->period_us + 65535u) / 65536u;
+    TIM_PSC(TIM3_BASE) = (tim_prescaler_1mhz() + 1u) * trig_tick_us - 1u;
+    trig_arr = to_ticks(t->period_us) - 1u;
     TIM_ARR(TIM3_BASE) = trig_arr;
     /* pulse 0 width into the preload registers; UG (with URS: no interrupt, no DMA) loads PSC, ARR and CCRs */
-    TIM_CCR3(TIM3_BASE) = t->exposure_us[0];
-    TIM_CCR4(TIM3_BASE) = t->exposure_us[0];
+    TIM_CCR3(TIM3_BASE) = to_ticks(t->exposure_us[0]);
+    TIM_CCR4(TIM3_BASE) = to_ticks(t->exposure_us[0]);
     TIM_CCMR2(TIM3_BASE) = TIM_CCMR2_OC3PE | TIM_CCMR2_OC4PE | (TIM_OCM_PWM1 << TIM_CCMR2_OC3M_SHIFT) |
                            (TIM_OCM_PWM1 << TIM_CCMR2_OC4M_SHIFT);
     TIM_CCER(TIM3_BASE) = TIM_CCER_CC3E | TIM_CCER_CC4E |
@@ -308,7 +319,7 @@ void hal_trigger_start(const trig_table_t *t)
     if (dma_available) {
         /* DMA writes the width of pulse k+1 at the update that starts pulse k */
         for (uint32_t j = 0; j < n; j++) {
-            uint32_t w = t->exposure_us[(j + 1u) % n];
+            uint32_t w = to_ticks(t->exposure_us[(j + 1u) % n]);
             dma_buf[2u * j] = w;
             dma_buf[2u * j + 1u] = w;
         }
@@ -380,11 +391,12 @@ void TIM3_IRQHandler(void)
     if (since > trig_arr) {
         since = 0u;
     }
+    since *= trig_tick_us;
 
     uint32_t next_w = trig_core_on_pulse(core, now - since);
     if (!dma_available && next_w != 0u) {
-        TIM_CCR3(TIM3_BASE) = next_w;
-        TIM_CCR4(TIM3_BASE) = next_w;
+        TIM_CCR3(TIM3_BASE) = to_ticks(next_w);
+        TIM_CCR4(TIM3_BASE) = to_ticks(next_w);
     }
 }
 
