@@ -25,6 +25,7 @@ class PanelApp:
         self.screen_name = SCREEN_BOOT
         self.screen = panel_layout.render_boot(FW_VERSION, self.link.uid)
         self.events = []  # (button, action, event_seq or None) emitted, newest last (kept short)
+        self._render_key = None
 
     def step(self, now_ms, rx=b"", sensors_pressed=False, record_pressed=False):
         """One iteration: feed received bytes, scan buttons, run timers, render. Returns the screen lines."""
@@ -38,7 +39,13 @@ class PanelApp:
                 if len(self.events) > 16:
                     self.events.pop(0)
         self.link.poll(now_ms)
-        self.screen = self.render(now_ms)
+        # re-render only when something visible may have changed (state, link status, blink phase, lost seconds)
+        lost = self.link.host_lost
+        key = (self.link.state_count, lost, self.link.state is None, panel_layout.blink_phase(now_ms),
+               self.link.host_silent_ms(now_ms) // 1000 if lost else 0)
+        if key != self._render_key:
+            self._render_key = key
+            self.screen = self.render(now_ms)
         return self.screen
 
     def render(self, now_ms):
