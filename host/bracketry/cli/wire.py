@@ -1,0 +1,180 @@
+"""``bracketry wire``: decode and encode bproto frames by hand (hex, capture files, a live serial port)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+import click
+
+from bracketry.errors import BracketryError
+from bracketry.wire import bproto
+from bracketry.wire.errors import WireError
+from bracketry.wire.text import (
+    describe_frame,
+    describe_stats,
+    frame_to_json,
+    looks_like_hex_text,
+    parse_fields,
+    parse_hex,
+)
+
+
+@click.group("wire")
+def command() -> None:
+    """Encode and decode frames of the serial wire protocol (firmware/protocol/PROTOCOL.md)."""
+
+
+def _emit(frame: bproto.Frame, as_json: bool, t_s: float | None = None) -> None:
+    if as_json:
+        obj = frame_to_json(frame)
+        if t_s is not None:
+            obj["t_s"] = round(t_s, 6)
+        click.echo(json.dumps(obj))
+    else:
+        prefix = f"{t_s:10.3f}s " if t_s is not None else ""
+        click.echo(prefix + describe_frame(frame))
+
+
+def _summary(dec: bproto.Decoder, as_json: bool) -> int:
+    if as_json:
+        click.echo(json.dumps({"stats": dec.stats}))
+    else:
+        click.echo(describe_stats(dec.stats), err=True)
+    return 1 if dec.errors else 0
+
+
+def _read_input(source: str) -> bytes:
+    if source == "-":
+        data = sys.stdin.buffer.read()
+        return parse_hex(data.decode("ascii")) if looks_like_hex_text(data) else data
+    path = Path(source)
+    try:
+        is_file = path.is_file()
+    except OSError:  # e.g. a long hex string is too long for a file name
+        is_file = False
+    if is_file:
+        try:
+            data = path.read_bytes()
+        except OSError as exc:
+            raise BracketryError(f"cannot read {path}: {exc.strerror}") from exc
+        return parse_hex(data.decode("ascii")) if looks_like_hex_text(data) else data
+    try:
+        return parse_hex(source)
+    except ValueError as exc:
+        raise BracketryError(f"{source!r} is neither a file nor hex ({exc})") from exc
+
+
+@command.command("decode")
+@click.argument("source", required=False)
+@click.option("--port", help="Read a live serial port (path or pyserial URL such as socket://127.0.0.1:5000).")
+@click.option("--baud", default=921600, show_default=True, help="Baud rate of --port.")
+@click.option("--duration", "duration_s", type=float, default=None, help="With --port: stop after this many seconds.")
+@click.option("--count", type=int, default=None, help="With --port: stop after this many frames.")
+@click.option("--hello", "send_hello", is_flag=True, help="With --port: send a HELLO request first.")
+@click.option("--json", "as_json", is_flag=True, help="One JSON object per frame, then the decoder counters.")
+def decode(source: str | None, port: str | None, baud: int, duration_s: float | None, count: int | None,
+           send_hello: bool, as_json: bool) -> int:
+    """Print every frame in SOURCE (hex string, a file with raw bytes or a hex dump, or - for stdin) or on --port.
+
+    Each valid frame is one line of readable fields; rejected bytes are counted in the summary (stderr).
+    Exit code 0 when nothing was rejected, 1 otherwise.
+    """
+    if (source is None) == (port is None):
+        raise BracketryError("give either SOURCE (hex, file or -) or --port")
+    dec = bproto.Decoder()
+    if source is not None:
+        for frame in dec.feed(_read_input(source)):
+            _emit(frame, as_json)
+        return _summary(dec, as_json)
+    assert port is not None
+    from bracketry.wire.link import open_serial
+
+    try:
+        ser = open_serial(port, baud)
+    except WireError as exc:
+        raise BracketryError(str(exc)) from exc
+    n = 0
+    t0 = time.monotonic()
+    try:
+        if send_hello:
+            ser.write(b"\x00" + bproto.encode_message(bproto.MSG_HELLO, 0, {}))
+        while (duration_s is None or time.monotonic() - t0 < duration_s) and (count is None or n < count):
+            data = ser.read(max(1, ser.in_waiting))
+            for frame in dec.feed(data):
+                _emit(frame, as_json, time.monotonic() - t0)
+                n += 1
+                if count is not None and n >= count:
+                    break
+    except KeyboardInterrupt:
+        pass
+    except OSError as exc:
+        raise BracketryError(f"{port}: {exc}") from exc
+    finally:
+        ser.close()
+    return _summary(dec, as_json)
+
+
+@command.command("encode")
+@click.argument("msg_type", metavar="TYPE")
+@click.argument("fields", nargs=-1)
+@click.option("--seq", type=int, default=0, show_default=True, help="Sequence number (0..65535).")
+@click.option("--payload", "payload_hex", help="Raw payload in hex instead of fields (any type, even unknown).")
+@click.option("--format", "fmt", type=click.Choice(["hex", "spaced", "c"]), default="hex", show_default=True,
+              help="hex: one hex string; spaced: bytes separated by spaces; c: a C array initialiser.")
+@click.option("--out", "out_path", type=click.Path(path_type=Path), help="Also write the raw frame bytes here.")
+@click.option("--port", help="Also send the frame to this serial port (path or pyserial URL).")
+def encode(msg_type: str, fields: tuple[str, ...], seq: int, payload_hex: str | None, fmt: str,
+           out_path: Path | None, port: str | None) -> int:
+    """Build one frame: TYPE is a name (PING, SET_BRACKETS, ...) or a number, FIELDS are name=value.
+
+    \b
+    Examples:
+      bracketry wire encode PING host_time_ns=123
+      bracketry wire encode SET_BRACKETS period_us=50000 exposures_us=1000,2000,4000
+      bracketry wire encode PANEL_STATE cam_left=REC cam_right=REC trigger=IDLE imu=OFF lidar=OFF gnss=OFF \\
+          free_disk_mb=1000 fps_left_centi=1000 fps_right_centi=1000 rec_seconds=0 'message=hello'
+    """
+    try:
+        t = bproto.type_by_name(msg_type)
+    except ValueError as exc:
+        raise BracketryError(f"{exc} (known: {', '.join(bproto.MSG_NAMES.values())})") from exc
+    if not 0 <= seq <= 0xFFFF:
+        raise BracketryError("--seq must be 0..65535")
+    try:
+        if payload_hex is not None:
+            if fields:
+                raise ValueError("give either --payload or fields, not both")
+            frame = bproto.encode_frame(t, seq, parse_hex(payload_hex))
+        else:
+            if t not in bproto.MSG_NAMES:
+                raise ValueError(f"type 0x{t:02x} has no known fields: use --payload HEX")
+            frame = bproto.encode_message(t, seq, parse_fields(t, list(fields)))
+    except ValueError as exc:
+        raise BracketryError(str(exc)) from exc
+    if fmt == "hex":
+        click.echo(frame.hex())
+    elif fmt == "spaced":
+        click.echo(frame.hex(" "))
+    else:
+        click.echo("{" + ", ".join(f"0x{b:02x}" for b in frame) + "}")
+    if out_path is not None:
+        try:
+            out_path.write_bytes(frame)
+        except OSError as exc:
+            raise BracketryError(f"cannot write {out_path}: {exc.strerror}") from exc
+    if port is not None:
+        from bracketry.wire.link import open_serial
+
+        try:
+            ser = open_serial(port)
+        except WireError as exc:
+            raise BracketryError(str(exc)) from exc
+        try:
+            ser.write(frame)
+            ser.flush()
+        finally:
+            ser.close()
+    return 0
