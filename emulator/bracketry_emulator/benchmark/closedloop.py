@@ -67,7 +67,7 @@ def emulate_run(dataset_path: Path, method: str, runs_dir: Path) -> Path:
         run_methods = getattr(ae_pkg, "run_methods", None)
         if run_methods is not None:
             params = inspect.signature(run_methods).parameters
-            kwargs = {"progress": False} if "progress" in params else {}
+            kwargs: dict = {k: v for k, v in (("progress", False), ("workers", 1)) if k in params}
             run_methods(dataset_path, [method], tmp_root, **kwargs)
         else:
             _fallback_closed_loop(dataset_path, method, tmp_root)

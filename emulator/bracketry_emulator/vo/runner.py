@@ -96,7 +96,7 @@ def write_frames_csv(path: Path, frames: list[FrameResult]) -> None:
         w.writerow(FRAME_FIELDS)
         for f in frames:
             w.writerow([f.t_ns, f.state, f.segment, f.n_keypoints, f"{f.coverage:.6f}", f.n_stereo, f.n_ref_matches,
-                        f.n_map_matches])
+                        f.n_map_matches, f.reason])
 
 
 def _count(text: str) -> int | float:

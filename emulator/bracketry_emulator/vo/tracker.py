@@ -8,7 +8,7 @@ Per frame (every frame becomes a keyframe; no motion model; no loop closure; no 
    segment (pose = identity) and a new map from its stereo points (ORB-SLAM2's stereo initialisation).
 3. Track the reference keyframe (the previous frame): its map points are matched to the frame by descriptor
    (Hamming <= 50, ratio 0.7, one-to-one, rotation-consistency histogram of 30 bins keeping the 3 largest), then the
-   pose is found by PnP + RANSAC with NO prior (no motion model) and refined.
+   pose is found by PnP (SQPnP) + RANSAC with NO prior (no motion model) and refined.
 4. Track the local map (points seen in the last ``local_window`` frames): project, search by projection
    (radius ``3 * 1.2^octave`` px, Hamming <= 100, ratio 0.8), refine the pose on all matches, drop outliers
    (chi-square 5.991 at the keypoint's scale, 4 rounds, as ORB-SLAM's pose optimisation).
@@ -300,7 +300,7 @@ class StereoVO:
         ok, rvec, tvec, inliers = cv2.solvePnPRansac(
             m.pos_w[mids].astype(np.float64), feats.xy_px[kids].astype(np.float64), self.K, None,
             iterationsCount=s.ransac_iterations, reprojectionError=s.ransac_reproj_px, confidence=0.99,
-            flags=cv2.SOLVEPNP_EPNP)
+            flags=cv2.SOLVEPNP_SQPNP)
         n_ransac = 0 if not ok or inliers is None else len(inliers)
         if n_ransac < s.min_ref_inliers:
             return self._lose(result, f"{n_ransac} PnP RANSAC inliers < {s.min_ref_inliers}")
