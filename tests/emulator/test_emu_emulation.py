@@ -150,3 +150,17 @@ def test_emu_run_writer_layout(tmp_path: Path) -> None:
     assert float(rows[0]["factor"]) == pytest.approx(0.75)
     with pytest.raises(BracketryError, match="already holds a run"):
         RunWriter(out, "constant-6", ds.sides)
+
+
+def test_emu_noise_model_calibration_and_loading(tmp_path: Path) -> None:
+    from bracketry_emulator.emulation import NoiseModel, calibrate_noise
+
+    irr = radiance_map(80, 120, seed=5) * 0.2
+    rng = np.random.default_rng(3)
+    repeats = {e: [render(irr, e, rng, read_dn=1.5, dn_per_e=0.2) for _ in range(8)] for e in (2000, 8000)}
+    model = calibrate_noise(repeats, SRGB)
+    assert model.read_dn == pytest.approx(1.5, abs=0.3)
+    assert model.dn_per_e == pytest.approx(0.2, rel=0.15)
+    cam = tmp_path / "camera_model.json"
+    cam.write_text('{"read_noise_e": 7.0, "gain_e_per_dn": 7.0}')
+    assert NoiseModel.from_json(cam) == NoiseModel(read_dn=1.0, dn_per_e=1 / 7.0)

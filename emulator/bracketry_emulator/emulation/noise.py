@@ -37,8 +37,22 @@ class NoiseModel:
 
     @classmethod
     def from_mapping(cls, data: Mapping[str, float]) -> NoiseModel:
-        """From a mapping with keys read_dn and dn_per_e."""
-        return cls(read_dn=float(data["read_dn"]), dn_per_e=float(data["dn_per_e"]))
+        """From a mapping with keys read_dn and dn_per_e (as written by ``calibrate-crf --noise-out``), or a
+        synthetic world's ``camera_model.json`` content (read_noise_e, gain_e_per_dn)."""
+        if "read_dn" in data:
+            return cls(read_dn=float(data["read_dn"]), dn_per_e=float(data["dn_per_e"]))
+        if "read_noise_e" in data and "gain_e_per_dn" in data:
+            gain = float(data["gain_e_per_dn"])
+            return cls(read_dn=float(data["read_noise_e"]) / gain, dn_per_e=1.0 / gain)
+        raise ValueError("noise model needs read_dn + dn_per_e, or read_noise_e + gain_e_per_dn")
+
+    @classmethod
+    def from_json(cls, path: str | Path) -> NoiseModel:
+        """Load :meth:`from_mapping` data from a JSON file (a top-level "camera" object is looked into too)."""
+        data = json.loads(Path(path).read_text())
+        if "read_dn" not in data and "read_noise_e" not in data and isinstance(data.get("camera"), dict):
+            data = data["camera"]
+        return cls.from_mapping(data)
 
 
 def photon_transfer(repeats: Sequence[np.ndarray], response: Response, max_pixels: int = 400_000,
