@@ -442,6 +442,10 @@ uint32_t hal_init(trig_core_t *c)
 {
     core = c;
     caps = 0u;
+    /* trigger lines to the inactive level first, before the (bounded but slow) clock bring-up */
+    RCC_AHB1ENR |= RCC_AHB1ENR_GPIOAEN | RCC_AHB1ENR_GPIOBEN | RCC_AHB1ENR_GPIODEN;
+    (void)RCC_AHB1ENR;
+    hal_outputs_inactive();
     clock_init();
     if (!clocks.emulated && (RCC_CSR & RCC_CSR_IWDGRSTF)) {
         caps |= TRIG_CAP_IWDG_RESET;

@@ -89,7 +89,7 @@ class QemuTrigger:
     def command(self) -> list[str]:
         """The qemu-system-arm command line."""
         if self.serial == "tcp":
-            backend = f"tcp:127.0.0.1:{self.port},server=on,wait=off"
+            backend = f"tcp:127.0.0.1:{self.port},server=on,wait=off,nodelay=on"
         else:
             backend = "pty"
         return [QEMU_BINARY, "-M", QEMU_MACHINE, "-nographic", "-monitor", "none", "-kernel", str(self.elf),
