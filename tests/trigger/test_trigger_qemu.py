@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -12,7 +13,6 @@ from trigger_scenario import EXPOSURES_US, check_events, collect_events, run_sce
 
 from bracketry.trigger.client import TriggerClient
 from bracketry.trigger.qemu import QemuTrigger, build_firmware
-from bracketry.wire import bproto
 
 pytestmark = pytest.mark.qemu
 #: QEMU on a loaded 2-core machine answers slowly: generous per-attempt reply timeout
@@ -35,6 +35,9 @@ def test_trigger_qemu_scenario(qemu: QemuTrigger) -> None:
     with TriggerClient.open(qemu.url, timeout_s=TIMEOUT_S) as client:
         client.link.peer_lost_after_s = 10.0
         events = run_scenario(client, client.link._write, quiet_s=1.0)  # raw bytes straight to the port
+        # the 64-bit device clock (TIM5 extended) never goes backwards
+        device_us = [int(client.ping()["device_time_us"]) for _ in range(5)]
+        assert all(b > a for a, b in itertools.pairwise(device_us))
         assert client.counters.missed_events == 0
         assert client.link.counters["crc_errors"] == 0
         # capabilities: QEMU has no RCC/DMA: emulated, interrupt reload path, no PLL, exposure while low
@@ -71,4 +74,3 @@ def test_trigger_qemu_pty_and_cli(elf: Path, tmp_path: Path) -> None:
     finally:
         proc.terminate()
         proc.wait(timeout=10)
-    assert bproto.MSG_TRIGGER == 0x20

@@ -3,6 +3,7 @@ the clock model, dropped events, reboots, and the `bracketry trigger simulate` c
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import time
@@ -116,6 +117,15 @@ def test_trigger_simulator_reboot_detected(sim_factory) -> None:  # type: ignore
     assert client.counters.reboots == 1
 
 
+def test_trigger_simulator_silent_reboot_detected_from_heartbeat(sim_factory) -> None:  # type: ignore[no-untyped-def]
+    """A reboot whose HELLO is lost: the heartbeat uptime going backwards tells."""
+    sim, client = sim_factory()
+    assert _wait_until(lambda: client.last_heartbeat is not None and client.last_heartbeat["uptime_ms"] >= 1000)
+    sim.reboot(announce=False)
+    assert _wait_until(lambda: client.counters.reboots == 1)
+    assert client.link.counters["unsolicited_hellos"] == 0
+
+
 def test_trigger_simulate_command(tmp_path: Path) -> None:
     """`bracketry trigger simulate --link PATH` serves the protocol at PATH; `start`/`stop` commands drive it."""
     link = tmp_path / "ttyTRIGGER"
@@ -131,6 +141,11 @@ def test_trigger_simulate_command(tmp_path: Path) -> None:
         out = subprocess.run([sys.executable, "-m", "bracketry", "trigger", "start", "--port", str(link), "--session",
                               "5", "--timeout-s", "0.5"], capture_output=True, text=True, timeout=60)
         assert out.returncode != 0 and "BAD_STATE" in out.stderr and "Traceback" not in out.stderr
+        out = subprocess.run([sys.executable, "-m", "bracketry", "trigger", "status", "--port", str(link), "--json",
+                              "--timeout-s", "0.5"], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0, out.stderr
+        status = json.loads(out.stdout)
+        assert status["heartbeat"]["state"] == 1 and status["device"]["device_kind"] == 1
         out = subprocess.run([sys.executable, "-m", "bracketry", "trigger", "stop", "--port", str(link),
                               "--timeout-s", "0.5"], capture_output=True, text=True, timeout=60)
         assert out.returncode == 0, out.stderr

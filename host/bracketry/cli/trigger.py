@@ -32,8 +32,8 @@ def _client(port: str, timeout_s: float) -> Any:
     return TriggerClient.open(port, timeout_s=timeout_s)
 
 
-def _wait_forever(duration_s: float | None) -> None:
-    """Sleep until Ctrl-C / SIGTERM, or for ``duration_s``."""
+def _wait_forever(duration_s: float | None) -> bool:
+    """Sleep until Ctrl-C / SIGTERM (returns False), or for ``duration_s`` (returns True)."""
     stop = {"flag": False}
 
     def handler(_signum: int, _frame: object) -> None:
@@ -45,9 +45,10 @@ def _wait_forever(duration_s: float | None) -> None:
         while not stop["flag"] and (deadline is None or time.monotonic() < deadline):
             time.sleep(0.1)
     except KeyboardInterrupt:
-        pass
+        return False
     finally:
         signal.signal(signal.SIGTERM, previous)
+    return not stop["flag"]
 
 
 @click.group("trigger")
@@ -72,9 +73,10 @@ timeout_option = click.option("--timeout-s", type=float, default=0.1, show_defau
 @click.option("--drop-prob", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True,
               help="Probability of not sending a TRIGGER event.")
 @click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--reboot-every-s", type=float, default=None, help="Simulate a device reset this often.")
 @click.option("--duration-s", type=float, default=None, help="Stop after this many seconds (default: Ctrl-C).")
 def simulate(link_path: Path, drift_ppm: float, pulse_jitter_us: float, reply_jitter_us: float, drop_prob: float,
-             seed: int, duration_s: float | None) -> int:
+             seed: int, reboot_every_s: float | None, duration_s: float | None) -> int:
     """Run the behavioural trigger simulator on a pty linked at --link."""
     from bracketry.trigger.simulator import SimConfig, simulate_on_pty
 
@@ -86,7 +88,17 @@ def simulate(link_path: Path, drift_ppm: float, pulse_jitter_us: float, reply_ji
         raise BracketryError(f"cannot create the simulated port at {link_path}: {exc}") from None
     click.echo(f"trigger simulator running: connect to {path}", err=False)
     try:
-        _wait_forever(duration_s)
+        if reboot_every_s is not None and reboot_every_s > 0:
+            deadline = None if duration_s is None else time.monotonic() + duration_s
+            while deadline is None or time.monotonic() < deadline:
+                step = reboot_every_s if deadline is None else min(reboot_every_s, deadline - time.monotonic())
+                if not _wait_forever(max(0.0, step)):
+                    break
+                if deadline is None or time.monotonic() < deadline:
+                    sim.reboot()
+                    click.echo("simulated reboot", err=True)
+        else:
+            _wait_forever(duration_s)
     finally:
         sim.close()
         with contextlib.suppress(OSError):

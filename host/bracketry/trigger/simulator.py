@@ -145,12 +145,14 @@ class TriggerSimulator:
     def __exit__(self, *exc: object) -> None:
         self.close()
 
-    def reboot(self) -> None:
-        """Simulate a reset: outputs stop, state and device clock restart, unsolicited HELLO."""
+    def reboot(self, announce: bool = True) -> None:
+        """Simulate a reset: outputs stop, state and device clock restart, unsolicited HELLO (unless
+        ``announce`` is False: a HELLO lost on the wire, so the host must notice from the heartbeat uptime)."""
         with self._lock:
             self.counters["reboots"] += 1
             self._boot()
-        self._send_hello()
+        if announce:
+            self._send_hello()
         self._wake.set()
 
     # ------------------------------------------------------------------ protocol
