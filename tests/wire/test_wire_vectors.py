@@ -105,3 +105,11 @@ def test_wire_vectors_micropython(tmp_path: Path) -> None:
         capture_output=True, text=True, timeout=180, cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert proc.stdout.strip().splitlines()[-1].startswith("PASS")
+
+
+def test_wire_vectors_cpython_pure_paths(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The vectors also pass with the pure-Python CRC and COBS decoder that MicroPython uses."""
+    monkeypatch.setattr(bproto, "crc16", bproto.crc16_table)
+    monkeypatch.setattr(bproto, "cobs_decode", bproto.cobs_decode_py)
+    n, fails = wire_vectors_check.run(bproto, vectors.load_vectors())
+    assert fails == [] and n > 50
