@@ -1,0 +1,74 @@
+"""Differential tests: the C decoder (ASan/UBSan) and the MicroPython runtime against CPython on a seeded corpus."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import struct
+import subprocess
+from pathlib import Path
+
+import pytest
+from wire_corpus import make_corpus
+
+from bracketry import paths
+from bracketry.wire import bproto
+from bracketry_testkit import missing_component
+
+C_DIR = paths.firmware_dir() / "protocol" / "c"
+HERE = Path(__file__).resolve().parent
+STAT_ORDER = ("frames_ok", "crc_errors", "length_errors", "cobs_errors", "version_errors", "overflows",
+              "bytes_discarded")
+
+
+def _fnv(frames: list[bproto.Frame]) -> int:
+    h = 2166136261
+    for f in frames:
+        for b in (f.msg_type, f.seq & 0xFF, f.seq >> 8, len(f.payload) & 0xFF, len(f.payload) >> 8, *f.payload):
+            h = ((h ^ b) * 16777619) & 0xFFFFFFFF
+    return h
+
+
+def _python(records: list[bytes]) -> list[tuple[list[bproto.Frame], list[int]]]:
+    out = []
+    for rec in records:
+        dec = bproto.Decoder()
+        frames = dec.feed(rec)
+        out.append((frames, [dec.stats[k] for k in STAT_ORDER]))
+    return out
+
+
+def test_wire_c_decoder_matches_python_under_asan(tmp_path: Path) -> None:
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        missing_component("host gcc not found")
+    exe = tmp_path / "bproto_fuzz"
+    subprocess.run([str(gcc), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", "-g", "-fsanitize=address,undefined",
+                    "-fno-sanitize-recover=all", str(C_DIR / "bproto.c"), str(C_DIR / "bproto_fuzz.c"), "-o",
+                    str(exe)], check=True, timeout=120)
+    records = make_corpus(4000, seed=11)
+    blob = b"".join(struct.pack("<I", len(r)) + r for r in records)
+    proc = subprocess.run([str(exe)], input=blob, capture_output=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr.decode()[-3000:]
+    rows = [[int(x) for x in line.split()] for line in proc.stdout.decode().splitlines()]
+    expected = [[*stats, _fnv(frames)] for frames, stats in _python(records)]
+    assert len(rows) == len(expected)
+    mismatches = [i for i, (a, b) in enumerate(zip(rows, expected)) if a != b]
+    assert mismatches == [], f"first mismatch: record {mismatches[0]} = {records[mismatches[0]].hex()}"
+    assert sum(r[0] for r in rows) > 500  # the corpus does contain plenty of valid frames
+
+
+@pytest.mark.micropython
+def test_wire_micropython_decoder_matches_cpython(tmp_path: Path) -> None:
+    records = make_corpus(600, seed=12)
+    corpus = [[rec.hex(), [[f.msg_type, f.seq, f.payload.hex()] for f in frames], stats]
+              for rec, (frames, stats) in zip(records, _python(records))]
+    corpus_path = tmp_path / "corpus.json"
+    corpus_path.write_text(json.dumps(corpus))
+    node = shutil.which("node")
+    assert node is not None
+    proc = subprocess.run([node, str(HERE / "wire_mpy_run.mjs"), str(paths.micropython_module_path()),
+                           str(HERE / "wire_mpy_differential.py"), str(Path(bproto.__file__)), str(corpus_path)],
+                          capture_output=True, text=True, timeout=300, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    assert proc.stdout.strip().splitlines()[-1] == "PASS 600"
