@@ -27,21 +27,21 @@ class HD44780:
         self._shadow = None
         self.init()
 
-    def _pulse(self):
+    def _pulse(self, wait_us):
         self.e.value(1)
         sleep_us(1)  # E high >= 230 ns
         self.e.value(0)
-        sleep_us(50)  # most commands need 37 us
+        sleep_us(wait_us)
 
-    def _nibble(self, nib):
+    def _nibble(self, nib, wait_us=50):
         for i in range(4):
             self.data[i].value((nib >> i) & 1)
-        self._pulse()
+        self._pulse(wait_us)
 
     def _byte(self, value, rs):
         self.rs.value(rs)
-        self._nibble(value >> 4)
-        self._nibble(value & 0x0F)
+        self._nibble(value >> 4, 1)  # the controller only executes after the second nibble
+        self._nibble(value & 0x0F, 50)  # most instructions and data writes need 37 us
 
     def command(self, cmd):
         """Send an instruction byte (RS = 0); waits 2 ms after clear/home."""

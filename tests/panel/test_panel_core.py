@@ -21,11 +21,14 @@ CHECKS = HERE / "panel_core_checks.py"
 VECTOR_CHECKS = HERE / "panel_vector_checks.py"
 VECTORS = paths.firmware_dir() / "protocol" / "protocol_vectors.json"
 RUNNER = HERE / "panel_mpy_run.mjs"
-SCRIPTS = {"core": CHECKS, "vectors": VECTOR_CHECKS}
+MACHINE_CHECKS = HERE / "panel_machine_checks.py"
+FAKE_MACHINE_DIR = HERE / "mpy_fake"
+SCRIPTS = {"core": CHECKS, "vectors": VECTOR_CHECKS, "machine": MACHINE_CHECKS}
 
 
 def _expected_checks(script: Path = CHECKS) -> list[str]:
     return re.findall(r"^def (check_\w+)\(", script.read_text(), flags=re.M)
+
 
 
 def _passed(stdout: str) -> list[str]:
@@ -34,7 +37,7 @@ def _passed(stdout: str) -> list[str]:
 
 @pytest.mark.parametrize("which", sorted(SCRIPTS))
 def test_panel_checks_cpython(which: str) -> None:
-    env_path = f"{FIRMWARE}:{BPROTO.parent}"
+    env_path = f"{FAKE_MACHINE_DIR}:{FIRMWARE}:{BPROTO.parent}" if which == "machine" else f"{FIRMWARE}:{BPROTO.parent}"
     proc = subprocess.run([sys.executable, str(SCRIPTS[which])], capture_output=True, text=True, timeout=120,
                           env={"PYTHONPATH": env_path, "PATH": "/usr/bin:/bin"}, cwd=VECTORS.parent)
     assert proc.returncode == 0, proc.stderr
@@ -55,7 +58,10 @@ def firmware_core_files() -> list[Path]:
 @pytest.mark.micropython
 @pytest.mark.parametrize("which", sorted(SCRIPTS))
 def test_panel_checks_micropython(which: str) -> None:
-    proc = run_micropython(SCRIPTS[which], [*firmware_core_files(), VECTORS])
+    files = [*firmware_core_files(), VECTORS]
+    if which == "machine":  # the machine layer too, on a fake `machine` (the runtime has none)
+        files = [BPROTO, *sorted(FIRMWARE.glob("*.py")), FAKE_MACHINE_DIR / "machine.py"]
+    proc = run_micropython(SCRIPTS[which], files)
     assert proc.returncode == 0, proc.stderr + proc.stdout
     assert _passed(proc.stdout) == _expected_checks(SCRIPTS[which])
 
