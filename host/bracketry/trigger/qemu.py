@@ -64,7 +64,7 @@ class QemuTrigger:
     """One QEMU process running the trigger firmware.
 
     Args:
-        elf: firmware ELF (default: :func:`default_elf`).
+        elf: firmware ELF (default: :func:`default_elf`, built by :func:`build_firmware` if it does not exist).
         serial: ``"tcp"`` (loopback TCP server, ``url`` is ``socket://127.0.0.1:PORT``) or ``"pty"`` (``url`` is the
             pty path).
         port: TCP port (``serial="tcp"``); a free one if None.
@@ -78,6 +78,7 @@ class QemuTrigger:
                  log_path: str | Path | None = None) -> None:
         if serial not in ("tcp", "pty"):
             raise BracketryError(f"serial must be tcp or pty, not {serial!r}")
+        self._build_default = elf is None
         self.elf = Path(elf) if elf is not None else default_elf()
         self.serial = serial
         self.port = port
@@ -99,6 +100,8 @@ class QemuTrigger:
         """Launch QEMU and wait until its serial port is reachable. Returns self."""
         if shutil.which(QEMU_BINARY) is None:
             raise MissingComponentError(f"{QEMU_BINARY} not found (Debian: apt-get install qemu-system-arm)")
+        if not self.elf.is_file() and self._build_default:
+            self.elf = build_firmware()
         if not self.elf.is_file():
             raise BracketryError(f"firmware ELF not found: {self.elf} (build it: make -C firmware/stm32_trigger)")
         if self.serial == "tcp" and self.port is None:
