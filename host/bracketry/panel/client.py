@@ -95,13 +95,24 @@ class PanelClient:
         self.period_s = 1.0 / rate_hz
         self.events: list[ButtonEvent] = []
         self.counters = {"states_sent": 0, "buttons": 0, "duplicates": 0, "acks_sent": 0, "reboots": 0,
-                         "hellos": 0, "state_errors": 0}
+                         "hellos": 0, "state_errors": 0, "lost": 0}
         self.panel_hello: dict[str, Any] | None = None
         self._seen: deque[int] = deque(maxlen=DUPLICATE_WINDOW)
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         link.add_listener(self.handle_message)
+        add_lost = getattr(link, "add_lost_listener", None)
+        if add_lost is not None:
+            add_lost(self._on_lost)
+
+    def _on_lost(self, lost: bool) -> None:
+        """Link callback: the panel went silent (lost=True) or is heard again."""
+        if lost:
+            self.counters["lost"] += 1
+            log.warning("panel lost (no frames for 1.5 s)")
+        else:
+            log.info("panel back")
 
     # -- incoming
     def send_ack(self, seq: int) -> None:
