@@ -34,10 +34,11 @@ def sim_factory() -> Iterator:
     sims: list[TriggerSimulator] = []
     clients: list[TriggerClient] = []
 
-    def make(config: SimConfig | None = None) -> tuple[TriggerSimulator, TriggerClient]:
+    def make(config: SimConfig | None = None, clock_sync_period_s: float = 0.0) -> tuple[TriggerSimulator,
+                                                                                          TriggerClient]:
         sim, path = simulate_on_pty(None, config)
         sims.append(sim)
-        client = TriggerClient.open(path, timeout_s=TIMEOUT_S)
+        client = TriggerClient.open(path, timeout_s=TIMEOUT_S, clock_sync_period_s=clock_sync_period_s)
         clients.append(client)
         return sim, client
 
@@ -157,3 +158,21 @@ def test_trigger_simulate_command(tmp_path: Path) -> None:
         proc.terminate()
         proc.wait(timeout=10)
     assert not link.exists()
+
+
+def test_trigger_qemu_runner_reports_missing_pieces(tmp_path: Path) -> None:
+    """A missing ELF or a bad serial mode is one clear BracketryError, never a traceback or a hang."""
+    from bracketry.errors import BracketryError
+    from bracketry.trigger.qemu import QemuTrigger
+
+    with pytest.raises(BracketryError, match="ELF not found"):
+        QemuTrigger(tmp_path / "missing.elf").start()
+    with pytest.raises(BracketryError, match="tcp or pty"):
+        QemuTrigger(tmp_path / "missing.elf", serial="udp")
+
+
+def test_trigger_client_background_clock_sync(sim_factory) -> None:  # type: ignore[no-untyped-def]
+    """The background clock sync keeps the clock model fed (TriggerClient.open: one PING per second)."""
+    _sim, client = sim_factory(clock_sync_period_s=0.2)
+    assert _wait_until(lambda: client.clock.n_samples >= 2, timeout_s=15.0)
+    assert client.status()["clock"]["samples"] >= 2

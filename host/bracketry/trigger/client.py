@@ -93,9 +93,15 @@ class TriggerClient:
 
     @classmethod
     def open(cls, url: str, baudrate: int = 921600, **kwargs: Any) -> TriggerClient:
-        """Open ``url`` (a port, ``socket://host:port`` or a pty path) with a SerialLink and wrap it."""
+        """Open ``url`` (a port, ``socket://host:port`` or a pty path) with a SerialLink and wrap it.
+
+        The link's clock runs on ``time.time_ns`` (epoch host times in the events) and, unless
+        ``clock_sync_period_s`` is given, the clock model is refreshed by one PING per second, so it follows the
+        device's drift over long recordings.
+        """
         from bracketry.wire.link import SerialLink
 
+        kwargs.setdefault("clock_sync_period_s", 1.0)
         return cls(SerialLink(url, baudrate=baudrate, time_ns=time.time_ns), **kwargs)
 
     def close(self) -> None:
