@@ -85,6 +85,9 @@ def test_hw_cli(capsys: pytest.CaptureFixture[str]) -> None:
     out = capsys.readouterr().out
     assert "852.0 Mbit/s" in out and "1GbE    does NOT fit" in out
     assert main(["hw", "bandwidth", "--pixel-format", "BayerRG12p", "--packet-size", "9000"]) == 0
+    assert main(["hw", "bandwidth", "--extended-ids", "--cameras", "1", "--extra-mbps", "8"]) == 0
+    out = capsys.readouterr().out
+    assert "1GbE    fits" in out
     assert main(["hw", "bandwidth", "--packet-size", "12"]) == 2
     err = capsys.readouterr().err
     assert err.strip().startswith("error:") and "Traceback" not in err

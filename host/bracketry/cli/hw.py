@@ -48,16 +48,17 @@ def power_cmd(bom_path: Path | None, efficiency: float, usable_fraction: float) 
               show_default=True)
 @click.option("--packet-size", type=int, default=1500, show_default=True,
               help="GevSCPSPacketSize in bytes (1500 standard MTU, 9000 jumbo frames).")
+@click.option("--extended-ids", is_flag=True, help="GVSP 2.0 extended ids (20-byte GVSP header instead of 8).")
 @click.option("--cameras", type=int, default=2, show_default=True, help="Cameras sharing the uplink.")
 @click.option("--extra-mbps", type=float, default=0.0, show_default=True,
               help="Other traffic on the uplink (e.g. 8 for a VLP-16 on the same switch).")
-def bandwidth_cmd(fps: float, width: int, height: int, pixel_format: str, packet_size: int, cameras: int,
-                  extra_mbps: float) -> int:
+def bandwidth_cmd(fps: float, width: int, height: int, pixel_format: str, packet_size: int, extended_ids: bool,
+                  cameras: int, extra_mbps: float) -> int:
     """GVSP bandwidth per camera (headers included) and whether a shared uplink fits (exit 0 either way)."""
     if cameras < 1:
         raise BracketryError("--cameras must be at least 1")
     try:
-        s = bw.stream_bandwidth(fps, width, height, pixel_format, packet_size)
+        s = bw.stream_bandwidth(fps, width, height, pixel_format, packet_size, extended_ids)
     except ValueError as exc:
         raise BracketryError(str(exc)) from None
     click.echo(f"camera: {width}x{height} {pixel_format} at {fps:g} fps, packet size {packet_size} B: "
