@@ -19,7 +19,7 @@ from bracketry_emulator.metrics.evaluate import read_segments
 from bracketry_emulator.vo.tum import read_tum, write_tum
 
 
-def _line(n: int = 1001, step_m: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
+def _line(n: int = 601, step_m: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
     t = np.arange(n) * 0.1
     poses = np.tile(np.eye(4), (n, 1, 1))
     poses[:, 0, 3] = np.arange(n) * step_m
@@ -27,7 +27,7 @@ def _line(n: int = 1001, step_m: float = 0.1) -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_bench_scale_error_gives_one_percent_at_every_window() -> None:
-    t, gt = _line()  # 100 m straight line
+    t, gt = _line(1001)  # 100 m straight line, a pose every 0.1 m
     est = gt.copy()
     est[:, :3, 3] *= 1.01
     errs = relative_errors(t, gt, [(t, est)], DEFAULT_WINDOWS_M)
@@ -38,7 +38,7 @@ def test_bench_scale_error_gives_one_percent_at_every_window() -> None:
         assert abs(e.rte_pct - 1.0) < 0.005
         assert e.rre_deg_per_m == pytest.approx(0.0, abs=1e-9)
     rte, rre = trajectory_rte_rre(errs)
-    assert rte == pytest.approx(1.0, abs=0.005) and rre == pytest.approx(0.0, abs=1e-9)
+    assert rte == pytest.approx(1.0, abs=0.01) and rre == pytest.approx(0.0, abs=1e-9)
 
 
 def test_bench_rotation_error_per_metre() -> None:

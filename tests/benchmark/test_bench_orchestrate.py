@@ -8,13 +8,15 @@ from pathlib import Path
 import pytest
 
 from bracketry.cli import main as cli_main
-from bracketry_emulator.benchmark import run_benchmark
+from bracketry_emulator.benchmark import make_task, run_benchmark
+from bracketry_emulator.benchmark.tasks import load_cached
 from bracketry_emulator.benchmark.toyworld import ToyWorld
+from bracketry_emulator.metrics import expand_datasets
 
-N_FRAMES = 10
-WINDOWS = (1.0, 2.0)
+N_FRAMES = 6
+WINDOWS = (1.0,)
 METHODS = ["ae50", "dim", "burst"]
-_GAINS = {"ae50": [1.0] * N_FRAMES, "dim": [0.7] * N_FRAMES, "burst": [1.0] * 4 + [14.0] * 3 + [1.0] * 3}
+_GAINS = {"ae50": [1.0] * N_FRAMES, "dim": [0.7] * N_FRAMES, "burst": [1.0] * 3 + [14.0] * 2 + [1.0]}
 _KEYS = ("trajectory", "method", "success", "time_before_failure_s", "coverage", "matches", "rte_pct",
          "rre_deg_per_m", "windows", "n_segments")
 
@@ -54,7 +56,7 @@ def test_bench_local_run_and_report(local_run) -> None:
     by = {(r["trajectory"], r["method"]): r for r in res}
     assert by[("traj1", "ae50")]["success"] and by[("traj2", "dim")]["success"]
     assert not by[("traj1", "burst")]["success"]
-    assert by[("traj1", "burst")]["time_before_failure_s"] == pytest.approx(4 / ToyWorld().fps, abs=1e-3)
+    assert by[("traj1", "burst")]["time_before_failure_s"] == pytest.approx(3 / ToyWorld().fps, abs=1e-3)
     assert by[("traj1", "burst")]["n_segments"] == 2
     rep = local_run.out_dir / "report"
     for name in ("results.csv", "windows.csv", "summary.csv", "success.csv", "stats.csv", "verdicts.csv",
@@ -85,8 +87,10 @@ def test_bench_interrupted_run_resumes(datasets, local_run, tmp_path: Path) -> N
     assert [r["cached"] for r in resumed.results] == [True, True, False, False, False, False]
     assert _essential(resumed.results) == _essential(local_run.results)
     # a cache entry made with other settings is not reused
-    again = run_benchmark(datasets, METHODS, tmp_path, windows_m=(1.0,), report=False)
-    assert not any(r["cached"] for r in again.results)
+    spec = expand_datasets(datasets)[0]
+    assert load_cached(make_task(spec, "ae50", tmp_path, WINDOWS)) is not None
+    assert load_cached(make_task(spec, "ae50", tmp_path, (1.0, 2.0))) is None
+    assert load_cached(make_task(spec, "ae50", tmp_path, WINDOWS, max_frames=3)) is None
 
 
 def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Path) -> None:
@@ -99,12 +103,13 @@ def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Pa
     assert json.loads((tmp_path / "report" / "results.json").read_text())[0]["trajectory"] == "traj1"
 
 
-def test_bench_cli(datasets, tmp_path: Path, capsys) -> None:
-    rc = cli_main(["benchmark", str(datasets[0]), "--methods", ",".join(METHODS), "--out", str(tmp_path),
-                   "--windows", "1:2:1", "--max-frames", "6"])
+def test_bench_cli(datasets, local_run, tmp_path: Path, capsys) -> None:
+    # same settings as the library run in the same folder: every task comes from the cache
+    rc = cli_main(["benchmark", str(datasets[0]), "--methods", ",".join(METHODS), "--out", str(local_run.out_dir),
+                   "--windows", "1"])
     assert rc == 0
     out = capsys.readouterr().out
-    assert "traj1 / burst" in out and "report:" in out
+    assert "cached traj1 / burst: failed at 0.8 s" in out and "report:" in out
     assert cli_main(["benchmark", str(datasets[0]), "--methods", "dim", "--out", str(tmp_path)]) == 2
     assert "reference method 'ae50'" in capsys.readouterr().err
     assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
