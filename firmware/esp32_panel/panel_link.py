@@ -45,6 +45,8 @@ class PanelLink:
         self._seq = 0
         self._boot_ms = now_ms
         self._last_hb_ms = now_ms
+        self._uptime_ms = 0  # accumulated (tick values wrap after ~12 days; this does not)
+        self._last_poll_ms = now_ms
         self.last_host_ms = None  # tick of the last valid host frame, None before the first
         self.host_lost = False
         self.state = None  # last PANEL_STATE fields (dict) or None
@@ -168,6 +170,8 @@ class PanelLink:
     # -- timers ------------------------------------------------------------------------------------------------
     def poll(self, now_ms):
         """Timers: host-lost detection, heartbeat out, BUTTON re-send. Call every few milliseconds."""
+        self._uptime_ms += ticks_diff(now_ms, self._last_poll_ms)
+        self._last_poll_ms = now_ms
         since = self.last_host_ms if self.last_host_ms is not None else self._boot_ms
         if not self.host_lost and ticks_diff(now_ms, since) >= HOST_LOST_MS:
             self.host_lost = True
@@ -177,8 +181,7 @@ class PanelLink:
             self._pending = []
         if ticks_diff(now_ms, self._last_hb_ms) >= HEARTBEAT_MS:
             self._last_hb_ms = now_ms
-            uptime_ms = ticks_diff(now_ms, self._boot_ms) & 0xFFFFFFFF
-            self._send(bproto.MSG_HEARTBEAT, {"uptime_ms": uptime_ms,
+            self._send(bproto.MSG_HEARTBEAT, {"uptime_ms": self._uptime_ms & 0xFFFFFFFF,
                                               "state": HB_HOST_LOST if self.host_lost else HB_NORMAL})
         if self._pending and ticks_diff(now_ms, self._last_send_ms) >= RESEND_MS:
             self._send_head(now_ms)

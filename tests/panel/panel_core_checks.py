@@ -163,6 +163,7 @@ def check_link_boot_hello_heartbeat_and_lost():
         app.step(t)
         t += 10
     assert app.screen_name == "boot" and len(host.of_type(bproto.MSG_HEARTBEAT)) == 1
+    assert host.of_type(bproto.MSG_HEARTBEAT)[0][2] == {"uptime_ms": 500, "state": 0}
     # a HELLO request is answered
     app.step(t, host.frame(bproto.MSG_HELLO, {}))
     assert len(host.of_type(bproto.MSG_HELLO)) == 2
