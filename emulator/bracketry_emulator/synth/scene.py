@@ -260,8 +260,11 @@ def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.n
     fine = field("fine")
     big = field("big")
     mid = field("mid")
+    # small scattered objects (twigs, needles, stones): texture for visual odometry
+    specks = smoothstep(0.42, 0.5, field("speck"))
     if preset == "forest-winter":
-        snow = np.float32(0.86) + np.float32(0.05) * fine
+        snow = np.float32(0.86) + np.float32(0.06) * fine
+        snow = snow * (1 - specks) + specks * np.float32(0.12)
         bare = smoothstep(0.32, 0.40, big)  # bare patches: litter and earth
         trail = 1.0 - smoothstep(0.55, 0.95, path_dist_m + 0.25 * fine)
         out = []
@@ -271,13 +274,18 @@ def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.n
             a = a * (1 - trail) + trail * np.float32(trail_c) * (1 + 0.25 * mid)
             out.append(a.astype(np.float32))
         return out
-    grass = 1 + 0.35 * fine
+    grass = 1 + 0.35 * fine + 0.5 * specks
     path = 1.0 - smoothstep(1.0, 1.3, path_dist_m)
     plaza = smoothstep(0.30, 0.36, big)
+    # paving slabs of the plazas: 1.2 m grid of dark joints
+    c = (np.arange(n, dtype=np.float32) + 0.5) * np.float32(texel_m) - np.float32(half_m)
+    jx = np.abs((c / np.float32(1.2)) % 1.0 - 0.5) > 0.47
+    joints = (jx[None, :] | jx[:, None]).astype(np.float32)
+    plaza_tex = (1 + 0.08 * fine) * (1 - 0.6 * joints)
     out = []
     for grass_c, asphalt_c, plaza_c in ((0.10, 0.11, 0.36), (0.16, 0.11, 0.35), (0.06, 0.12, 0.32)):
         a = np.float32(grass_c) * grass
-        a = a * (1 - plaza) + plaza * np.float32(plaza_c) * (1 + 0.08 * fine)
+        a = a * (1 - plaza) + plaza * np.float32(plaza_c) * plaza_tex
         a = a * (1 - path) + path * np.float32(asphalt_c) * (1 + 0.3 * mid)
         out.append(a.astype(np.float32))
     return out
@@ -324,7 +332,7 @@ def build_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: floa
     path_xy = trajectory.centreline()
     prims = _forest_prims(rng, path_xy) if preset == "forest-winter" else _campus_prims(rng, path_xy)
     noises = {"fine": ValueNoise(rng, 0.6, octaves=5), "mid": ValueNoise(rng, 0.25, octaves=3),
-              "big": ValueNoise(rng, 9.0, octaves=4)}
+              "big": ValueNoise(rng, 9.0, octaves=4), "speck": ValueNoise(rng, 0.16, octaves=2)}
     n0 = round(2048 * detail / 64) * 64
     fine = _ground_level(preset, lighting, prims, noises, path_xy, 40.96, n0)
     levels = [fine, _downsample(fine, 4), _ground_level(preset, lighting, prims, noises, path_xy, 128.0, 512)]
