@@ -119,3 +119,21 @@ def test_panel_sim_rejects_missing_link(tmp_path: Path) -> None:
         stop_process(proc)
     assert proc.returncode != 0 and err.strip().startswith("error:") and "Traceback" not in err
     assert wait_for(lambda: True)
+
+
+def test_panel_sim_prints_screen_to_terminal(tmp_path: Path) -> None:
+    """Without --quiet the simulator prints the 4x20 buffer in a frame on every change (here: boot, HOST LOST)."""
+    import subprocess
+    import sys
+
+    pty = Pty()
+    try:
+        proc = subprocess.run([sys.executable, "-m", "bracketry", "panel", "simulate", "--link", pty.path,
+                               "--duration", "3"], capture_output=True, text=True, timeout=60, stdin=subprocess.DEVNULL)
+    finally:
+        pty.close()
+    assert proc.returncode == 0, proc.stderr
+    assert "+--------------------+" in proc.stdout and "|bracketry panel     |" in proc.stdout
+    assert "HOST LOST" in proc.stdout
+    rows = [line for line in proc.stdout.splitlines() if line.startswith("|")]
+    assert rows and all(len(line) == 22 for line in rows)
