@@ -108,3 +108,29 @@ def test_bench_manifest_and_success_counts(tmp_path: Path) -> None:
     counts = success_counts(rows)
     assert counts["Forest"]["ae50"] == (1, 2) and counts["Campus1"]["ae50"] == (0, 1)
     assert counts["Total"]["ae50"] == (1, 3)
+
+
+def test_bench_rotation_errors_equal_evo_rotation_angle() -> None:
+    from evo.core import metrics as evo_metrics
+
+    from bracketry_emulator.metrics.rpe import _pair_errors, _traj
+
+    rng = np.random.default_rng(4)
+    t, gt = _line(121)
+    est = gt.copy()
+    for i in range(len(est)):
+        a = rng.normal(0, 0.02, 3)
+        est[i, :3, :3] = cv2_rodrigues(a)
+        est[i, :3, 3] += rng.normal(0, 0.05, 3)
+    ref_t, est_t = _traj(t, gt), _traj(t, est)
+    _e_t, e_r = _pair_errors(ref_t, est_t, 5.0, 0.1)
+    rpe = evo_metrics.RPE(evo_metrics.PoseRelation.rotation_angle_deg, delta=5.0, delta_unit=evo_metrics.Unit.meters,
+                          all_pairs=True, pairs_from_reference=True)
+    rpe.process_data((ref_t, est_t))
+    assert np.allclose(e_r, rpe.error, atol=1e-6)
+
+
+def cv2_rodrigues(rvec: np.ndarray) -> np.ndarray:
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(rvec, float))[0]

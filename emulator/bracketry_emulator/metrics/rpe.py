@@ -39,18 +39,22 @@ def _traj(times_s: np.ndarray, poses_wc: np.ndarray):
 
 
 def _pair_errors(ref, est, window_m: float, rel_delta_tol: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per-pair (translation error m, rotation error deg) of one evo RPE pass.
+
+    evo's RPE with ``translation_part`` keeps the per-pair error transforms ``E``; the rotation error is the angle of
+    their rotation part (what ``rotation_angle_deg`` computes), so one pass (one pair search) gives both.
+    """
     from evo.core import filters, metrics
 
-    out = []
-    for relation in (metrics.PoseRelation.translation_part, metrics.PoseRelation.rotation_angle_deg):
-        rpe = metrics.RPE(relation, delta=window_m, delta_unit=metrics.Unit.meters, rel_delta_tol=rel_delta_tol,
-                          all_pairs=True, pairs_from_reference=True)
-        try:
-            rpe.process_data((ref, est))
-        except (filters.FilterException, metrics.MetricsException):
-            return np.zeros(0), np.zeros(0)
-        out.append(np.asarray(rpe.error, float))
-    return out[0], out[1]
+    rpe = metrics.RPE(metrics.PoseRelation.translation_part, delta=window_m, delta_unit=metrics.Unit.meters,
+                      rel_delta_tol=rel_delta_tol, all_pairs=True, pairs_from_reference=True)
+    try:
+        rpe.process_data((ref, est))
+    except (filters.FilterException, metrics.MetricsException):
+        return np.zeros(0), np.zeros(0)
+    E = np.asarray(rpe.E, float).reshape(-1, 4, 4)
+    cos = np.clip((np.trace(E[:, :3, :3], axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+    return np.asarray(rpe.error, float), np.degrees(np.arccos(cos))
 
 
 def relative_errors(gt_times_s: np.ndarray, gt_poses_wc: np.ndarray,
