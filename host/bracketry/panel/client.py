@@ -4,6 +4,12 @@ The client sits on a wire link (:class:`bracketry.wire.link.SerialLink` or anyth
 ``send`` / ``peer_lost`` interface). Every BUTTON frame is ACKed (with the frame's seq) — duplicates too, so the
 panel stops re-sending — but acted on only once per ``event_seq``. An unsolicited HELLO from the panel means it
 rebooted: its event numbering restarts, so the duplicate window is cleared and ``reboots`` counts it.
+
+Daemon use::
+
+    client = connect("/dev/ttyUSB0", lambda: snapshot_fields(rig_state.snapshot()), on_button=queue.put)
+    ...  # client.status() -> {"lost": bool, "firmware": "1.0.0", "buttons": n, "duplicates": n, "reboots": n, ...}
+    client.stop(); client.link.close()
 """
 
 from __future__ import annotations
