@@ -35,6 +35,7 @@ def plot_static(result: dict, path: Path, metric: str = "corrected") -> Path:
             ax.axvline(b / 1000.0, color="0.85", lw=0.5, zorder=0)
         ax.set_xscale("log")
         ax.set_yscale("symlog", linthresh=10)
+        ax.set_ylim(bottom=0)
         ax.set_xlabel("target exposure (ms)")
         ax.set_ylabel(f"RMSE (DN, {met})")
         ax.grid(True, which="both", alpha=0.3)

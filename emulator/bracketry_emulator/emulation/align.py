@@ -50,20 +50,24 @@ def estimate_motion(moving: np.ndarray, reference: np.ndarray, motion: Motion = 
     (dx, dy), _resp = cv2.phaseCorrelate(ref_s, mov_s, win)
     # coordinates: reference (x, y) -> moving (x + dx, y + dy) at this scale
     warp = np.array([[1, 0, dx], [0, 1, dy], [0, 0, 1]], dtype=np.float32)
-    if motion == "homography":
-        mask: np.ndarray = np.ones(ref_s.shape, dtype=np.uint8)
-        if valid is not None:
-            mask = cv2.resize(valid.astype(np.uint8), ref_s.shape[::-1], interpolation=cv2.INTER_NEAREST)
-        criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 60, 1e-5)
-        with contextlib.suppress(cv2.error):
+    # refine with ECC (sub-pixel, and the full homography when asked), initialised by the phase correlation
+    mask: np.ndarray = np.ones(ref_s.shape, dtype=np.uint8)
+    if valid is not None:
+        mask = cv2.resize(valid.astype(np.uint8), ref_s.shape[::-1], interpolation=cv2.INTER_NEAREST)
+    criteria = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, 60, 1e-5)
+    with contextlib.suppress(cv2.error):
+        if motion == "homography":
             _cc, found = cv2.findTransformECC(ref_s, mov_s, warp, cv2.MOTION_HOMOGRAPHY, criteria, mask, 3)
             warp = np.asarray(found, dtype=np.float32)
-    # from (half * scale) coordinates to full-resolution coordinates: s = 2 / scale
+        else:
+            _cc, found = cv2.findTransformECC(ref_s, mov_s, np.ascontiguousarray(warp[:2]), cv2.MOTION_TRANSLATION,
+                                              criteria, mask, 3)
+            warp[:2] = np.asarray(found, dtype=np.float32)
+    # small-image pixel j has its centre at full-resolution 2 (j + 0.5) / scale - 0.5 (half = 2x2 blocks)
     s = 2.0 / scale
-    to_small = np.diag([1 / s, 1 / s, 1.0])
-    to_full = np.diag([s, s, 1.0])
-    # pixel centres: full (x) <-> half ((x - 0.5) / 2); the half-pixel offsets cancel to first order
-    return to_full @ warp.astype(np.float64) @ to_small
+    c = 1.0 / scale - 0.5
+    to_full = np.array([[s, 0, c], [0, s, c], [0, 0, 1.0]])
+    return to_full @ warp.astype(np.float64) @ np.linalg.inv(to_full)
 
 
 def warp_mosaic(mosaic: np.ndarray, ref_to_moving: np.ndarray, border_value: float = np.nan) -> np.ndarray:
