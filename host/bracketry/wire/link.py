@@ -462,11 +462,15 @@ class SerialLink:
                 self._counters["unmatched_replies"] += 1
             return
         self.device_info = fields
-        with self._lock:
-            waiting = sorted((p for p in self._pending.values()
-                              if p.msg_type == bproto.MSG_HELLO and not p.event.is_set()), key=lambda p: p.seq)
-            if waiting:
-                waiting[0].reply_type, waiting[0].fields = bproto.MSG_HELLO, fields
+        # A device numbers its frames from 0 at boot and its boot HELLO is its first frame, so a HELLO with seq 0 is
+        # a boot announcement even while a HELLO request is pending (its reply follows with a later seq).
+        waiting: list[_Pending] = []
+        if seq != 0:
+            with self._lock:
+                waiting = sorted((p for p in self._pending.values()
+                                  if p.msg_type == bproto.MSG_HELLO and not p.event.is_set()), key=lambda p: p.seq)
+                if waiting:
+                    waiting[0].reply_type, waiting[0].fields = bproto.MSG_HELLO, fields
         if waiting:
             waiting[0].event.set()
             return
