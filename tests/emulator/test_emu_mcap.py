@@ -90,3 +90,39 @@ def test_emu_mcap_errors(tmp_path: Path) -> None:
     _write_recording(empty, [])
     with pytest.raises(DatasetError, match="no camera frames"):
         open_dataset(empty)
+
+
+def test_emu_reads_the_rig_recorder_output(tmp_path: Path) -> None:
+    """A recording written by the rig's own Recorder (the CAMERAS helper's component) reads as bracket sequences."""
+    import time
+    from types import SimpleNamespace
+
+    from bracketry.events import TriggerEvent
+    from bracketry.pairing.pairer import PairedSet
+    from bracketry.recording.recorder import Recorder, RecorderConfig
+
+    irr = radiance_map(24, 32)
+    rng = np.random.default_rng(1)
+    rec = Recorder(tmp_path, "emu", RecorderConfig(queue_max_items=1000),
+                   metadata={"brackets_us": ",".join(map(str, BRACKETS_US))}).start()
+    expected = {}
+    for k in range(14):  # 2 full cycles + 2 frames
+        t_ns = 1_700_000_000_000_000_000 + k * 45_454_000
+        ev = TriggerEvent(7, k, k % 6, BRACKETS_US[k % 6], 1_000_000 + k * 45_454, t_ns)
+        frames = {}
+        for side in ("left", "right"):
+            img = render(irr, BRACKETS_US[k % 6], rng)
+            expected[(side, k)] = img
+            frames[side] = SimpleNamespace(side=side, frame_id=k + 1, frame_index=k, skipped_ids=0, status="success",
+                                           image=img, cam_timestamp_ns=k * 45_454_000, host_receive_ns=t_ns + 9_000_000,
+                                           missing_packets=0, exposure_us_reported=None)
+        assert rec.put_event(ev)
+        assert rec.put_set(PairedSet(k, ev, frames, t_ns))
+        time.sleep(0.001)
+    rec.stop()
+    ds = open_dataset(Path(rec.summary.files[0]))
+    seqs = ds.sequences()
+    assert len(seqs) == 2 and ds.sides == ("left", "right")
+    assert seqs[1].timestamps_ns["right"][4000] == 1_700_000_000_000_000_000 + 8 * 45_454_000
+    np.testing.assert_array_equal(seqs[1].load("right")[4000], expected[("right", 8)])
+    assert any("incomplete" in p for p in ds.problems)  # the 2 trailing frames
