@@ -171,24 +171,29 @@ class SideRenderer:
         sc = self.scene
         lt = sc.lighting
         f32 = np.float32
-        a = np.maximum(dx * dx + dy * dy, f32(1e-12))
-        b = f32(o[0]) * dx + f32(o[1]) * dy
-        c = f32(o[0] ** 2 + o[1] ** 2 - sc.treeline_radius_m ** 2)
-        t = (np.sqrt(np.maximum(b * b - a * c, 0.0)) - b) / a
-        hx = f32(o[0]) + t * dx
-        hy = f32(o[1]) + t * dy
-        hz = f32(o[2]) + t * dz
-        n_az = sc.treeline_height_m.size
-        az_bin = np.minimum((pseudo_angle(hx, hy) * f32(n_az / 4.0)).astype(np.int32), n_az - 1)
-        top = sc.treeline_height_m[az_bin]
-        tree = hz < top
-        # treeline: vertical surface facing the ray, vertical streaks, darker near the ground
-        streak = f32(0.6) + f32(0.8 / 97.0) * ((az_bin * 7919) % 97).astype(np.float32)
-        shade = f32(0.6) + f32(0.4) * np.clip(hz / top, 0.0, 1.0)
-        inv_a = f32(1.0) / np.sqrt(a)
-        ndots = np.maximum(-(dx * self.sun[0] + dy * self.sun[1]) * inv_a, 0.0)
-        light = self.sun_rgb[chan] * ndots + self.sky_rgb[chan] * f32(0.5)
-        tree_rad = np.asarray(sc.treeline_albedo, f32)[chan] * streak * shade * light
+        # the treeline can only be hit below the slope of its highest point seen from the nearest distance
+        nearest_m = max(sc.treeline_radius_m - float(np.hypot(o[0], o[1])), 1.0)
+        top_slope = (float(sc.treeline_height_m.max()) - o[2]) / nearest_m
+        may_hit = float(dz.min()) < top_slope
+        if may_hit:
+            a = np.maximum(dx * dx + dy * dy, f32(1e-12))
+            b = f32(o[0]) * dx + f32(o[1]) * dy
+            c = f32(o[0] ** 2 + o[1] ** 2 - sc.treeline_radius_m ** 2)
+            t = (np.sqrt(np.maximum(b * b - a * c, 0.0)) - b) / a
+            hx = f32(o[0]) + t * dx
+            hy = f32(o[1]) + t * dy
+            hz = f32(o[2]) + t * dz
+            n_az = sc.treeline_height_m.size
+            az_bin = np.minimum((pseudo_angle(hx, hy) * f32(n_az / 4.0)).astype(np.int32), n_az - 1)
+            top = sc.treeline_height_m[az_bin]
+            tree = hz < top
+            # treeline: vertical surface facing the ray, vertical streaks, darker near the ground
+            streak = f32(0.6) + f32(0.8 / 97.0) * ((az_bin * 7919) % 97).astype(np.float32)
+            shade = f32(0.6) + f32(0.4) * np.clip(hz / top, 0.0, 1.0)
+            inv_a = f32(1.0) / np.sqrt(a)
+            ndots = np.maximum(-(dx * self.sun[0] + dy * self.sun[1]) * inv_a, 0.0)
+            light = self.sun_rgb[chan] * ndots + self.sky_rgb[chan] * f32(0.5)
+            tree_rad = np.asarray(sc.treeline_albedo, f32)[chan] * streak * shade * light
         # sky: horizon-to-zenith gradient, halo and solar disk
         hor = np.asarray(lt.horizon_rgb, f32)[chan]
         zen = np.asarray(lt.zenith_rgb, f32)[chan]
@@ -197,6 +202,8 @@ class SideRenderer:
         ang = np.sqrt(np.maximum(f32(2.0) * (f32(1.0) - cosang), 0.0))
         sky += np.asarray(lt.halo_rgb, f32)[chan] * np.exp(-ang * f32(1.0 / lt.halo_rad))
         sky[ang < lt.disk_rad] = lt.disk_radiance
+        if not may_hit:
+            return sky, np.full(sky.shape, np.inf, f32)
         rad = np.where(tree, tree_rad, sky)
         rng = np.where(tree, t, f32(np.inf))
         return rad, rng
