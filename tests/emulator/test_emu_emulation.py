@@ -10,7 +10,7 @@ import pytest
 from emu_synthetic import BRACKETS_US, SRGB, radiance_map, render, write_tree
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.crf import load_pcalib
+from bracketry_emulator.crf import load_pcalib, srgb_eotf
 from bracketry_emulator.dataset import open_dataset, read_png12
 from bracketry_emulator.emulation import (
     Emulator,
@@ -204,3 +204,17 @@ def test_emu_fusion_motion_compensation_removes_ghosting() -> None:
     assert errs["translation"] < 0.5 * errs["none"]
     assert errs["homography"] < 0.5 * errs["none"]
     assert truth.shape == out.image.shape
+
+
+def test_emu_fusion_unbiased_near_black() -> None:
+    # a flat dark field: 1.5 linear levels at 1 ms (codes 0, 12, 25, 38 ...), 3 at 2 ms
+    irr = np.full((300, 300), 0.0015)
+    rng = np.random.default_rng(11)
+    imgs = {e: render(irr, e, rng) for e in BRACKETS_US}
+    for target in (1500.0, 3000.0, 12000.0):
+        out = Emulator(EmulatorConfig(selection="fusion")).emulate(imgs, target)
+        mean_level = SRGB.icrf[out.image].mean()
+        assert mean_level == pytest.approx(0.0015 * target, rel=0.03, abs=0.05)
+    # the continuous sRGB inverse reads every dark code ~0.05 level low (floor encoding): the bin means do not
+    cont = 4095 * srgb_eotf(imgs[2000] / 4095.0)
+    assert SRGB.icrf[imgs[2000]].mean() - cont.mean() > 0.04
