@@ -66,3 +66,25 @@ def test_synth_refuses_non_empty_out(tmp_path: Path, capsys: pytest.CaptureFixtu
     rc = main(["synth", "trajectory", "--out", str(tmp_path), "--seconds", "0.3", "--resolution", "32x20", "-q"])
     assert rc != 0 and "--force" in capsys.readouterr().err
     assert (tmp_path / "keep.txt").read_text() == "x"
+
+
+@pytest.mark.realdata
+def test_synth_default_intrinsics_are_the_real_calibration(borealhdr_sample: Path, tmp_path: Path) -> None:
+    from bracketry_emulator.synth.calibration import default_calibration, load_calibration
+
+    real = load_calibration(borealhdr_sample / "calibration", 1920, 1200)
+    embedded = default_calibration()
+    for side in ("left", "right"):
+        assert np.allclose(real.side(side).K, embedded.side(side).K)
+        assert np.allclose(real.side(side).D, embedded.side(side).D)
+    # --calibration and a pcalib response through the CLI
+    out = tmp_path / "w"
+    rc = main(["synth", "trajectory", "--out", str(out), "--resolution", "96x60", "--seconds", "0.3", "-q",
+               "--calibration", str(borealhdr_sample / "calibration"),
+               "--response", str(borealhdr_sample / "calibration" / "pcalib_inside1.txt")])
+    assert rc == 0
+    model = json.loads((out / "camera_model.json").read_text())
+    assert model["response"] == "pcalib" and len(model["pcalib"]) == 256
+    assert np.allclose(np.loadtxt(out / "calibration" / "pcalib.txt"), model["pcalib"])
+    left = (out / "calibration" / "left.yaml").read_text()
+    assert "image_width: 96" in left
