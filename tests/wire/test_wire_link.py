@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -13,6 +15,7 @@ from wire_fake_device import FakeDevice
 from bracketry.wire import bproto
 from bracketry.wire.errors import DeviceLostError, LinkClosedError, NackError
 from bracketry.wire.link import SerialLink
+from bracketry_testkit import stop_process
 
 
 def wait_for(cond: Callable[[], bool], timeout_s: float = 10.0) -> bool:
@@ -179,6 +182,18 @@ def test_wire_trigger_gaps_and_buttons(device: FakeDevice) -> None:
         assert [f["trigger_seq"] for t, f in got if t == bproto.MSG_TRIGGER] == [0, 1, 2, 5, 6]
 
 
+def test_wire_device_frame_gaps_counted(link: SerialLink, device: FakeDevice) -> None:
+    link.hello(timeout_s=T)
+    before = link.counters["seq_gaps"]
+    device.emit_trigger(1, 0)
+    with device._lock:
+        device._seq = (device._seq + 5) & 0xFFFF  # five device frames "lost on the wire"
+    device.emit_trigger(1, 1)
+    assert wait_for(lambda: link.counters["trigger_events"] == 2)
+    assert link.counters["seq_gaps"] == before + 5
+    assert link.counters["trigger_gaps"] == 0
+
+
 def test_wire_link_survives_garbage(link: SerialLink, device: FakeDevice) -> None:
     device.write_raw(b"\x13\x37noise\x00\xff" * 20 + b"\x01" * 400 + b"\x00")
     assert link.hello(timeout_s=T)["device_kind"] == bproto.DEVICE_TRIGGER
@@ -249,3 +264,24 @@ def _try_hello(link: SerialLink) -> bool:
 def test_wire_open_failure_is_one_line() -> None:
     with pytest.raises(DeviceLostError, match="cannot open serial port /nonexistent/tty"):
         SerialLink("/nonexistent/tty")
+
+
+@pytest.mark.socat
+def test_wire_link_over_socat_pty_pair(tmp_path: Path) -> None:
+    """A socat-made pty pair (as used to bridge a QEMU UART or a remote board): the link works end to end."""
+    dev_end, host_end = tmp_path / "dev", tmp_path / "host"
+    proc = subprocess.Popen(["socat", f"pty,raw,echo=0,link={dev_end}", f"pty,raw,echo=0,link={host_end}"],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        assert wait_for(lambda: dev_end.exists() and host_end.exists(), timeout_s=15)
+        dev = FakeDevice(tty_path=str(dev_end), send_hello_at_boot=False).start()
+        try:
+            with SerialLink(str(host_end)) as link:
+                assert link.hello(timeout_s=T)["device_kind"] == bproto.DEVICE_TRIGGER
+                link.request(bproto.MSG_SET_BRACKETS, {"period_us": 20_000, "exposures_us": [100, 200]}, T)
+                assert dev.brackets == (20_000, [100, 200])
+                assert wait_for(lambda: link.counters["heartbeats_in"] >= 1)
+        finally:
+            dev.close()
+    finally:
+        stop_process(proc)

@@ -22,7 +22,8 @@ from bracketry.wire import bproto
 
 
 class FakeDevice:
-    """A device thread. ``path`` is the pty slave the link opens (or use ``url`` for both kinds).
+    """A device thread. ``path`` is the pty slave the link opens (or use ``url`` for both kinds); with ``tty_path``
+    the device sits on that existing tty (one end of a socat pty pair) and the link opens the other end.
 
     Clock: ``device_time_us = offset_us + (monotonic_ns - t0) * (1 + drift_ppm * 1e-6) / 1000`` (+ a uniform
     ``clock_jitter_us`` and a random 0..``reply_delay_us`` delay before answering a PING).
@@ -30,7 +31,8 @@ class FakeDevice:
 
     def __init__(self, kind: int = bproto.DEVICE_TRIGGER, *, offset_us: int = 5_000_000_000, drift_ppm: float = 0.0,
                  clock_jitter_us: float = 0.0, reply_delay_us: float = 0.0, heartbeat: bool = True,
-                 send_hello_at_boot: bool = True, seed: int = 1, tcp: bool = False) -> None:
+                 send_hello_at_boot: bool = True, seed: int = 1, tcp: bool = False,
+                 tty_path: str | None = None) -> None:
         self.kind = kind
         self.offset_us = offset_us
         self.drift_ppm = drift_ppm
@@ -63,6 +65,11 @@ class FakeDevice:
             self.path = self.url
             self._master = -1
             self._slave = -1
+        elif tty_path is not None:  # one end of an existing pty pair (e.g. made by socat)
+            self._master = os.open(tty_path, os.O_RDWR | os.O_NOCTTY)
+            tty.setraw(self._master)
+            self._slave = -1
+            self.path = self.url = tty_path
         else:
             self._master, self._slave = os.openpty()
             tty.setraw(self._slave)  # no echo / line discipline before the link configures the port

@@ -35,7 +35,7 @@ COUNTER_NAMES = ("frames_in", "frames_out", "crc_errors", "length_errors", "cobs
                  "overflows", "resyncs", "bytes_discarded", "requests", "retries", "timeouts", "nacks", "reboots",
                  "unsolicited_hellos", "heartbeats_in", "heartbeats_out", "peer_lost", "trigger_events",
                  "trigger_gaps", "button_events", "button_duplicates", "bad_payloads", "unknown_types",
-                 "unmatched_replies", "listener_errors", "reconnects", "io_errors")
+                 "unmatched_replies", "listener_errors", "reconnects", "io_errors", "seq_gaps")
 
 
 def open_serial(url: str, baudrate: int = 921600, read_timeout_s: float = 0.05) -> serial.SerialBase:
@@ -116,6 +116,7 @@ class SerialLink:
         self._last_trigger: tuple[int, int] | None = None  # (session_id, trigger_seq)
         self._last_button_event: int | None = None
         self._heard_device = False
+        self._last_device_seq: int | None = None
         self._opened_s = time.monotonic()
         self._last_rx_s = time.monotonic()
         self._closed = threading.Event()
@@ -393,6 +394,7 @@ class SerialLink:
         recv_ns = self._time_ns()
         self._last_rx_s = time.monotonic()
         heard_before, self._heard_device = self._heard_device, True
+        self._count_seq_gap(frame)
         if self.peer_lost and self.connected:
             self.lost_silence_s = None
             self._declare_lost(False)
@@ -427,6 +429,19 @@ class SerialLink:
             with self._lock:
                 self._counters["unmatched_replies"] += 1
             self._emit(t, frame.seq, fields)
+
+    def _count_seq_gap(self, frame: bproto.Frame) -> None:
+        """Frames lost from the device: forward jumps of its own seq (re-sent frames repeat a seq: not gaps)."""
+        with self._lock:
+            last = self._last_device_seq
+            if frame.msg_type == bproto.MSG_HELLO and frame.seq == 0:
+                last = None  # boot: numbering restarts
+            if last is not None:
+                jump = (frame.seq - last) & 0xFFFF
+                if jump == 0 or jump >= 0x8000:  # a repeat or an older frame
+                    return
+                self._counters["seq_gaps"] += jump - 1
+            self._last_device_seq = frame.seq
 
     def _resolve_by_seq(self, acked_seq: int, reply_type: int, fields: dict[str, Any]) -> None:
         with self._lock:
