@@ -172,6 +172,8 @@ class _LinkingRunWriter(RunWriter):
                 except OSError:
                     linked = False
             if not linked:
+                if path.is_file():  # never write through a hard link of an earlier run (--overwrite)
+                    path.unlink()
                 if not cv2.imwrite(str(path), em.to_depth(self.depth)):
                     raise BracketryError(f"cannot write {path}")
                 self._written[key] = path
@@ -472,6 +474,7 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
             child.close()
             procs.append(p)
             conns.append(parent)
+        _preload_plotting()  # the parent is idle while the workers start: import matplotlib now
         _collect(conns, "ready", bar)
         for c0 in range(0, n_seq, chunk):
             idx = list(range(c0, min(n_seq, c0 + chunk)))
@@ -495,6 +498,13 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
                 p.terminate()
                 p.join(timeout=5)
     return runs
+
+
+def _preload_plotting() -> None:
+    import importlib.util
+
+    if importlib.util.find_spec("matplotlib") is not None:
+        import matplotlib.figure  # noqa: F401
 
 
 def _collect(conns: list[Connection], expected: str, bar: Any) -> list[Any]:
