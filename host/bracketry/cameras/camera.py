@@ -288,13 +288,13 @@ class GigECamera:
         image = None
         width = height = 0
         pixel_format = ""
-        if status == "success" or self._keep_pixels:
+        if status == "success" and self._keep_pixels:
             try:
                 width, height = int(buf.get_image_width()), int(buf.get_image_height())
                 code = int(buf.get_image_pixel_format())
                 pixel_format = PIXEL_FORMAT_NAMES.get(code, hex(code))
                 data = buf.get_data()
-                if data and width and height and status == "success":
+                if data and width and height:
                     image = payload_to_image(data, pixel_format, width, height)
             except Exception as exc:
                 log.warning("camera %s: frame %d unreadable: %s", self.side, frame_id, exc)

@@ -37,6 +37,7 @@ class CameraSettings:
         packet_delay_ticks: GevSCPD inter-packet delay in camera ticks (None keeps it).
         exposure_us: initial exposure for cameras that time the exposure themselves (fake), microseconds.
         chunks: chunk names to enable when the camera has chunks.
+        fake_max_frame_rate_hz: fake camera only: its AcquisitionFrameRate, which paces triggered frames too.
     """
 
     profile: str = "basler_ace2"
@@ -51,6 +52,7 @@ class CameraSettings:
     packet_delay_ticks: int | None = None
     exposure_us: float = 1000.0
     chunks: tuple[str, ...] = ("Timestamp", "FrameID", "ExposureTime", "CounterValue")
+    fake_max_frame_rate_hz: float = 500.0
 
 
 @dataclass(frozen=True)
@@ -149,6 +151,8 @@ def aravis_fake_writes(s: CameraSettings) -> list[FeatureWrite]:
     """
     writes = [
         FeatureWrite("AcquisitionMode", "Continuous", "enum"),
+        # the fake paces frames at AcquisitionFrameRate even when triggered: keep it far above the trigger rate
+        FeatureWrite("AcquisitionFrameRate", float(s.fake_max_frame_rate_hz), "float"),
         FeatureWrite("TriggerSelector", "FrameStart", "enum"),
         FeatureWrite("TriggerMode", "On", "enum"),
         FeatureWrite("TriggerSource", "Software", "enum"),

@@ -4,10 +4,13 @@ Model: both cameras are armed before START, so the k-th frame since START on eac
 ``trigger_seq = k``. A camera's frame number is its unwrapped GVSP frame index (``Frame.frame_index``), which also
 advances over frames the camera sent but we never received, so a lost frame does not shift later ones.
 
-Cross-check with timestamps: on a camera, the camera-clock time between two frames must equal the device-clock time
-between their pulses (within ``tolerance_fraction`` of the period). When it does not (a missed trigger, a camera
-reset), the frame is re-assigned to the pulse whose time matches, later frames follow the new offset, and the frame
-is noted ``timestamp_mismatch``; the skipped pulses then show up as drops.
+Cross-check with timestamps: on a camera, ``cam_timestamp - pulse device time`` is constant up to clock drift and
+jitter. Its running median over the last accepted frames is the reference. A frame whose offset differs from it by a
+whole number ``m != 0`` of periods (within ``tolerance_fraction`` of a period) is a candidate shift (the camera missed
+or invented ``m`` pulses); once ``confirm_frames`` consecutive frames agree, those frames move to ``seq + m``, later
+frames follow, the first moved frame is noted ``timestamp_mismatch`` and the skipped pulses show up as drops. A
+single late frame (host scheduling, a jittery fake camera) never moves anything. Sets touched by an unconfirmed
+candidate are held back until it is confirmed or dropped.
 
 A trigger_seq is emitted (``PairedSet``) as soon as the event and every camera's frame are there, or when it falls
 ``window`` pulses behind the newest one seen (then with what is missing counted), or at ``flush()``.
@@ -16,6 +19,8 @@ A trigger_seq is emitted (``PairedSet``) as soon as the event and every camera's
 from __future__ import annotations
 
 import logging
+import statistics
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -57,13 +62,17 @@ class SideCounters:
     timestamp_mismatches: int = 0
     missing_packets: int = 0
     late: int = 0
+    before_start: int = 0
 
 
 @dataclass
 class _SideState:
     offset: int | None = None  # trigger_seq = frame_index + offset
-    ref_seq: int | None = None
-    ref_cam_ns: int | None = None
+    offsets: deque = field(default_factory=lambda: deque(maxlen=15))  # cam ns - device ns of accepted frames
+    candidate: list[int] = field(default_factory=list)  # seqs of frames agreeing on a shift
+    candidate_shift: int = 0
+    recent: dict[int, int] = field(default_factory=dict)  # seq -> offset of recent frames (accepted or not)
+    waiting: list = field(default_factory=list)  # frames before any event (host_time alignment)
 
 
 class Pairer:
@@ -74,14 +83,19 @@ class Pairer:
         on_set: called with each emitted ``PairedSet`` (in trigger_seq order per call of ``add_*``/``flush``).
         window: a trigger_seq is emitted incomplete once it is this many pulses behind the newest seen.
         tolerance_fraction: allowed timestamp disagreement as a fraction of the pulse period.
+        confirm_frames: consecutive frames that must agree on a shift before frames are moved.
+        initial_alignment: ``count`` (first frame = pulse 0) or ``host_time`` (see ``_initial_seq``).
     """
 
     def __init__(self, sides: tuple[str, ...] = ("left", "right"), on_set: Callable[[PairedSet], None] | None = None,
-                 *, window: int = 16, tolerance_fraction: float = 0.4) -> None:
+                 *, window: int = 16, tolerance_fraction: float = 0.3, confirm_frames: int = 3,
+                 initial_alignment: str = "count") -> None:
         self.sides = sides
         self.on_set = on_set or (lambda _s: None)
         self.window = window
         self.tolerance_fraction = tolerance_fraction
+        self.confirm_frames = confirm_frames
+        self.initial_alignment = initial_alignment
         self.counters = {s: SideCounters() for s in sides}
         self.events_received = 0
         self.events_missing = 0
@@ -116,31 +130,33 @@ class Pairer:
         self._last_event_seq = max(seq, self._last_event_seq or 0)
         self._events[seq] = event
         self._touch(seq)
+        for st in self._state.values():
+            waiting, st.waiting = st.waiting, []
+            for frame in waiting:
+                self.add_frame(frame)
 
     def add_frame(self, frame: Any) -> int:
-        """A camera frame; returns the trigger_seq it was assigned to."""
+        """A camera frame; returns the trigger_seq it was assigned to (may move later on a confirmed shift)."""
         side = frame.side
         st = self._state[side]
         c = self.counters[side]
+        if st.offset is None and self.initial_alignment == "host_time" and not self._events:
+            st.waiting.append(frame)  # aligned when the first TRIGGER event arrives
+            return -1
         c.frames += 1
         c.missing_packets += int(getattr(frame, "missing_packets", 0) or 0)
         if frame.status != "success":
             c.incomplete += 1
             log.warning("camera %s: frame id %d incomplete (%s)", side, frame.frame_id, frame.status)
         if st.offset is None:
-            st.offset = -frame.frame_index
+            first = self._initial_seq(frame)
+            if first is None:
+                c.frames -= 1
+                c.before_start += 1
+                log.warning("camera %s: frame id %d precedes every trigger pulse: ignored", side, frame.frame_id)
+                return -1
+            st.offset = first - frame.frame_index
         seq = frame.frame_index + st.offset
-        note = ""
-        checked = self._check_time(side, seq, frame)
-        if checked is not None and checked != seq:
-            log.warning("camera %s: frame id %d timestamps say trigger_seq %d, frame count says %d: re-synced",
-                        side, frame.frame_id, checked, seq)
-            st.offset += checked - seq
-            seq = checked
-            c.timestamp_mismatches += 1
-            note = "timestamp_mismatch"
-        if seq in self._events:
-            st.ref_seq, st.ref_cam_ns = seq, frame.cam_timestamp_ns
         if seq <= self._emitted_upto and seq not in self._pending:
             c.late += 1
             c.unpaired += 1
@@ -154,34 +170,99 @@ class Pairer:
             self._emit_single(seq, side, frame, "duplicate")
             return seq
         slot[side] = frame
-        if note:
-            self._notes.setdefault(seq, {})[side] = note
+        seq = self._check_time(side, seq, frame)
         self._touch(seq)
         return seq
 
-    def _check_time(self, side: str, seq: int, frame: Any) -> int | None:
-        """The trigger_seq the camera timestamp points at, or None when it cannot be checked."""
+    def _initial_seq(self, frame: Any) -> int | None:
+        """trigger_seq of a camera's first frame.
+
+        A CounterValue chunk (a camera counter of trigger pulses reset at START, first pulse = 1) is authoritative.
+        With ``initial_alignment="host_time"`` (cameras whose timestamps are host time, like the Aravis fake camera)
+        it is the latest pulse that started before the frame's timestamp, and None (frame ignored) when no pulse
+        did. Otherwise the first frame is pulse 0 (k-th frame since START).
+        """
+        counter = getattr(frame, "counter_value", None)
+        if counter is not None and counter > 0:
+            return int(counter) - 1
+        if self.initial_alignment == "host_time":
+            started = [e.trigger_seq for e in self._events.values()
+                       if e.t_start_host_ns is not None and e.t_start_host_ns <= frame.cam_timestamp_ns]
+            return max(started) if started else None
+        return 0
+
+    def _check_time(self, side: str, seq: int, frame: Any) -> int:
+        """Timestamp cross-check (see module doc); returns the frame's (possibly moved) trigger_seq."""
         st = self._state[side]
-        if st.ref_seq is None or st.ref_cam_ns is None or self._period_us is None:
-            return None
-        ref_ev = self._events.get(st.ref_seq)
-        if ref_ev is None:
-            return None
-        dt_us = (frame.cam_timestamp_ns - st.ref_cam_ns) / 1000.0
-        target_us = ref_ev.t_start_device_us + dt_us
-        tol_us = self.tolerance_fraction * self._period_us
         ev = self._events.get(seq)
-        if ev is not None:
-            if abs(ev.t_start_device_us - target_us) <= tol_us:
-                return seq
-        else:
-            predicted = st.ref_seq + dt_us / self._period_us
-            if abs(predicted - seq) <= self.tolerance_fraction:
-                return seq
-        best = min(self._events.values(), key=lambda e: abs(e.t_start_device_us - target_us))
-        if abs(best.t_start_device_us - target_us) <= tol_us:
-            return best.trigger_seq
-        return None
+        if ev is None or self._period_us is None or frame.status != "success" or not frame.cam_timestamp_ns:
+            return seq  # incomplete buffers may carry no timestamp
+        period_ns = self._period_us * 1000.0
+        offset = frame.cam_timestamp_ns - ev.t_start_device_us * 1000
+        st.recent[seq] = offset
+        if len(st.recent) > 64:
+            del st.recent[min(st.recent)]
+        if not st.offsets:
+            st.offsets.append(offset)
+            return seq
+        deviation = offset - statistics.median(st.offsets)
+        m = round(deviation / period_ns)
+        if abs(deviation - m * period_ns) > self.tolerance_fraction * period_ns:
+            return seq  # an outlier (late frame): neither accepted as reference nor a shift
+        if m == 0:
+            st.offsets.append(offset)
+            if st.candidate:
+                log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
+            st.candidate = []
+            st.candidate_shift = 0
+            return seq
+        if m != st.candidate_shift:
+            st.candidate = []
+            st.candidate_shift = m
+        st.candidate.append(seq)
+        if len(st.candidate) < self.confirm_frames:
+            return seq
+        return self._apply_shift(side, seq)
+
+    def _apply_shift(self, side: str, seq: int) -> int:
+        st = self._state[side]
+        m = st.candidate_shift
+        # frames right before the candidates that were rejected as outliers but lean towards the shift move too
+        reference = statistics.median(st.offsets)
+        period_ns = (self._period_us or 0.0) * 1000.0
+        prev = min(st.candidate) - 1
+        while prev in st.recent and prev > self._emitted_upto:
+            deviation = st.recent[prev] - reference
+            if abs(deviation - m * period_ns) >= abs(deviation):
+                break
+            st.candidate.append(prev)
+            prev -= 1
+        moved_seq = seq
+        first = True
+        for old in (sorted(st.candidate, reverse=m > 0)):
+            frame = self._pending.get(old, {}).pop(side, None)
+            if frame is None:
+                continue
+            new = old + m
+            if new <= self._emitted_upto or side in self._pending.get(new, {}):
+                self.counters[side].unpaired += 1
+                self._emit_single(new, side, frame, "timestamp_mismatch")
+                continue
+            self._pending.setdefault(new, {})[side] = frame
+            self._newest = max(self._newest, new)
+            if old == min(st.candidate):
+                self._notes.setdefault(new, {})[side] = "timestamp_mismatch"
+            if old == seq:
+                moved_seq = new
+            first = False
+        if not first:
+            log.warning("camera %s: timestamps show a shift of %+d pulses from trigger_seq %d: re-synced",
+                        side, m, min(st.candidate))
+        self.counters[side].timestamp_mismatches += 1
+        st.offset = (st.offset or 0) + m
+        st.candidate = []
+        st.candidate_shift = 0
+        return moved_seq
 
     # -- output ---------------------------------------------------------------------------------------------------
     def _touch(self, seq: int) -> None:
@@ -191,6 +272,8 @@ class Pairer:
 
     def _ready(self, seq: int) -> bool:
         slot = self._pending.get(seq, {})
+        if any(st.candidate and seq >= min(st.candidate) for st in self._state.values()):
+            return False
         return seq in self._events and all(s in slot for s in self.sides)
 
     def _release(self, everything: bool = False) -> None:
@@ -237,12 +320,14 @@ class Pairer:
 
     def _forget_old(self) -> None:
         keep_from = self._emitted_upto - 4 * self.window
-        refs = {st.ref_seq for st in self._state.values()}
-        for seq in [s for s in self._events if s < keep_from and s not in refs]:
+        for seq in [s for s in self._events if s < keep_from]:
             del self._events[seq]
 
     def flush(self) -> None:
         """Emit everything pending (call at STOP)."""
+        for side, st in self._state.items():
+            self.counters[side].before_start += len(st.waiting)
+            st.waiting = []
         self._release(everything=True)
 
     def summary(self) -> dict[str, Any]:

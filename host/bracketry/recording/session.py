@@ -30,6 +30,15 @@ class SoftwareTrigger:
     def __init__(self, cameras: dict[str, Any]) -> None:
         self.cameras = cameras
 
+    def prime(self, settle_s: float = 0.2, exposure_us: int = 77) -> None:
+        """Fire one trigger per camera right after AcquisitionStart: the Aravis 0.8 fake camera loses the first
+        software trigger of each acquisition. A frame it may still give precedes every TRIGGER event, and the
+        pairer (``initial_alignment="host_time"``) ignores it. ``exposure_us`` marks such a frame (not a bracket)."""
+        for cam in self.cameras.values():
+            cam.set_exposure_us(exposure_us)
+            cam.software_trigger()
+        time.sleep(settle_s)
+
     def fire(self, event: TriggerEvent) -> None:
         for cam in self.cameras.values():
             cam.set_exposure_us(event.exposure_us)
@@ -42,21 +51,24 @@ class RecordingSession:
 
     Args:
         window: pairing window in pulses (see ``Pairer``).
+        initial_alignment: how the first frame finds its pulse (see ``Pairer``); ``host_time`` for fake cameras.
         status_period_s: rig status period.
         disk_path: folder whose free space goes into the status.
     """
 
     def __init__(self, cameras: dict[str, Any], recorder: Recorder, *, window: int = 16,
-                 status_period_s: float = 1.0, disk_path: str | Path | None = None, inbox_max_items: int = 256) -> None:
+                 status_period_s: float = 1.0, disk_path: str | Path | None = None, inbox_max_items: int = 256,
+                 initial_alignment: str = "count") -> None:
         self.cameras = cameras
         self.recorder = recorder
-        self.pairer = Pairer(tuple(cameras), self._on_set, window=window)
+        self.pairer = Pairer(tuple(cameras), self._on_set, window=window, initial_alignment=initial_alignment)
         self.status_period_s = status_period_s
         self.disk_path = Path(disk_path) if disk_path else recorder.out_dir
         self.inbox_overflows = 0
         self._inbox: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=inbox_max_items)
         self._thread: threading.Thread | None = None
         self._fps_marks: dict[str, tuple[float, int]] = {}
+        self.frames_received: dict[str, int] = {}
         self._lock = threading.Lock()
 
     def start(self) -> RecordingSession:
@@ -67,6 +79,8 @@ class RecordingSession:
         return self
 
     def _on_frame(self, frame: Any) -> None:
+        with self._lock:
+            self.frames_received[frame.side] = self.frames_received.get(frame.side, 0) + 1
         try:
             self._inbox.put_nowait(("frame", frame))
         except queue.Full:
@@ -129,9 +143,23 @@ class RecordingSession:
             out["free_disk_mb"] = 0
         return out
 
-    def stop(self, drain_s: float = 0.5) -> dict[str, Any]:
-        """Let in-flight frames arrive (``drain_s``), stop cameras, flush pairing, finish the recording."""
-        time.sleep(drain_s)
+    def stop(self, drain_s: float = 0.5, expect_frames: int | None = None) -> dict[str, Any]:
+        """Let in-flight frames arrive, stop cameras, flush pairing, finish the recording.
+
+        Waits ``drain_s``, or, with ``expect_frames`` (pulses fired), until every camera delivered that many buffers
+        or ``drain_s`` passed without any new one.
+        """
+        deadline = time.monotonic() + drain_s
+        last = -1
+        while time.monotonic() < deadline:
+            with self._lock:
+                counts = [self.frames_received.get(s, 0) for s in self.cameras]
+            if expect_frames is not None and min(counts) >= expect_frames:
+                break
+            if sum(counts) != last:
+                last = sum(counts)
+                deadline = time.monotonic() + drain_s if expect_frames is not None else deadline
+            time.sleep(0.02)
         for cam in self.cameras.values():
             cam.stop()
         if self._thread is not None:

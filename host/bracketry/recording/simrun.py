@@ -52,6 +52,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--packet-size", type=int, default=1500)
     ap.add_argument("--chunk-max-age-s", type=float, default=0.4)
     ap.add_argument("--split-s", type=float, default=600.0)
+    ap.add_argument("--lead-s", type=float, default=1.0, help="time between arming the cameras and the first pulse")
     ap.add_argument("--summary", type=Path)
     ap.add_argument("--progress", type=Path)
     args = ap.parse_args(argv)
@@ -74,30 +75,32 @@ def main(argv: list[str] | None = None) -> int:
     cfg = RecorderConfig(chunk_max_age_s=args.chunk_max_age_s, split_s=args.split_s)
     recorder = Recorder(args.out, args.name, cfg, metadata={"brackets_us": ",".join(map(str, brackets)),
                                                              "fps": str(args.fps), "source": "simrun"}).start()
-    session = RecordingSession(cams, recorder).start()
+    session = RecordingSession(cams, recorder, initial_alignment="host_time").start()
+    SoftwareTrigger(cams).prime()  # the fake loses the first software trigger after AcquisitionStart
     SoftwareTrigger(cams)
     progress = open(args.progress, "w", buffering=1) if args.progress else None  # noqa: SIM115
     n = round(args.seconds * args.fps)
-    t0_ns = time.time_ns() + 200_000_000
+    t0_ns = time.time_ns() + int(args.lead_s * 1e9)
     fired = []
     for k in range(n):
         t_ns = t0_ns + k * period_ns
         while (now := time.time_ns()) < t_ns:
             time.sleep(min(0.005, (t_ns - now) / 1e9))
         exposure = brackets[k % len(brackets)]
-        ev = TriggerEvent(session_id=1, trigger_seq=k, bracket_index=k % len(brackets), exposure_us=exposure,
-                          t_start_device_us=(t_ns - t0_ns) // 1000 + 5_000_000, t_start_host_ns=time.time_ns())
         for cam in cams.values():
             cam.set_exposure_us(exposure)
+        fire_ns = time.time_ns()  # the simulated trigger device stamps the pulse when it fires it
         for s, cam in cams.items():
             if (s, k) not in skip:
                 cam.software_trigger()
+        ev = TriggerEvent(session_id=1, trigger_seq=k, bracket_index=k % len(brackets), exposure_us=exposure,
+                          t_start_device_us=(fire_ns - t0_ns) // 1000 + 5_000_000, t_start_host_ns=fire_ns)
         if k not in drop_events:
             session.on_trigger_event(ev)
         fired.append(k)
         if progress:
             progress.write(f"{k} {ev.t_start_host_ns}\n")
-    result = session.stop(drain_s=0.5)
+    result = session.stop(drain_s=2.0, expect_frames=len(fired))
     summary = {"fired": len(fired), "dropped_events": sorted(drop_events), "skipped_triggers": sorted(skip),
                "served_exposures_us": {s: srv.exposures() for s, srv in servers.items()},
                "fill_errors": {s: srv.fill_errors for s, srv in servers.items()}, **result}
