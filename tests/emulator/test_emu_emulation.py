@@ -134,8 +134,7 @@ def test_emu_run_writer_layout(tmp_path: Path) -> None:
     out = tmp_path / "out"
     with RunWriter(out, "constant-6", ds.sides) as writer:
         for step, seq in enumerate(ds.sequences()):
-            imgs = {side: emu.emulate(seq.load(side), 6000.0) for side in ds.sides}
-            writer.write_step(step, seq, imgs, 6000.0)
+            writer.write_step(step, seq, emu.emulate_sequence(seq, 6000.0), 6000.0)
     run = out / "constant-6"
     lines = (run / "times_images_left.txt").read_text().splitlines()
     assert len(lines) == 2

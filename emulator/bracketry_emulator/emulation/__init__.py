@@ -9,7 +9,7 @@ Python API (used by ``bracketry emulate`` and the AE methods)::
     emu = Emulator(EmulatorConfig(selection="highernosat", crf="srgb"))
     with RunWriter(out_dir, "constant-8", ds.sides) as writer:
         for step, seq in enumerate(ds.sequences()):
-            imgs = {side: emu.emulate(seq.load(side), 8000.0) for side in ds.sides}
+            imgs = emu.emulate_sequence(seq, 8000.0)          # {side: EmulatedImage}; or emu.emulate(seq.load(side), t)
             writer.write_step(step, seq, imgs, 8000.0)
 """
 

@@ -26,6 +26,7 @@ from bracketry.errors import BracketryError
 
 from ..crf import Lifting, Response, load_response
 from ..crf.response import Rounding
+from ..dataset.model import BracketSequence
 from .align import Motion
 from .fusion import FusionResult, fuse, fusion_brackets
 from .kernel import LutCache, apply_lut
@@ -163,6 +164,7 @@ class Emulator:
     def emulate(self, images: dict[int, np.ndarray], target_us: float) -> EmulatedImage:
         """Emulate the image at ``target_us`` from ``{exposure_us: uint16 HxW Bayer codes}`` (one sequence).
 
+        Do not modify the bracket arrays in place between calls (fusion caches its irradiance map per array set).
         Raises BracketryError for no brackets, a non-positive target or mismatched image shapes.
         """
         if not images:
@@ -185,6 +187,15 @@ class Emulator:
         else:
             image = apply_lut(self._luts.get(total, self.rounding), src)
         return EmulatedImage(image, float(target_us), int(source), float(total), self.config.selection, (int(source),))
+
+    def emulate_sequence(self, seq: BracketSequence, target_us: float, sides: tuple[str, ...] | None = None
+                         ) -> dict[str, EmulatedImage]:
+        """Load one sequence's brackets and emulate every side at ``target_us``: {side: EmulatedImage}.
+
+        Ready for :meth:`RunWriter.write_step`. Loads the PNGs each call; keep ``seq.load(side)`` yourself and call
+        :meth:`emulate` to emulate several targets from the same brackets.
+        """
+        return {side: self.emulate(seq.load(side), target_us) for side in (sides or seq.sides)}
 
     def _missing_variance(self, source_linear: np.ndarray, factor: float) -> np.ndarray:
         """Variance (DN^2) the target frame has but the scaled source lacks (>= 0), per pixel."""
