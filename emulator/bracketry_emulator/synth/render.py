@@ -94,7 +94,8 @@ class SideRenderer:
         z1 = np.minimum(z0 + _PIECE_M, cyl[self.cyl_parent, 3]) if cyl.size else z0
         #: trunk pieces (M, 5): x, y, radius, z0, z1 (metres); cyl_parent (M,) their trunk
         self.cyl_pieces = np.column_stack([cyl[self.cyl_parent, :3], z0, z1]) if cyl.size else np.zeros((0, 5))
-        self.cyl_pieces32 = self.cyl_pieces.astype(np.float32)
+        #: the pieces as five contiguous float32 columns (x, y, radius, z0, z1)
+        self.cyl_cols = [np.ascontiguousarray(self.cyl_pieces[:, k], dtype=np.float32) for k in range(5)]
         half = 0.5 * (self.cyl_pieces[:, 4] - self.cyl_pieces[:, 3])
         self.cyl_centres = np.column_stack([self.cyl_pieces[:, :2], self.cyl_pieces[:, 3] + half])
         self.cyl_radii = np.hypot(self.cyl_pieces[:, 2], half)
@@ -308,27 +309,42 @@ class SideRenderer:
         if pix.size == 0:
             return None
         piece = keep[piece]
-        p32 = self.cyl_pieces32
-        dx, dy, dz = d[0][pix], d[1][pix], d[2][pix]
-        ocx = np.float32(o[0]) - p32[piece, 0]
-        ocy = np.float32(o[1]) - p32[piece, 1]
-        r = p32[piece, 2]
-        a = dx * dx + dy * dy
-        b = ocx * dx + ocy * dy
-        c = ocx * ocx + ocy * ocy - r * r
-        disc = b * b - a * c
-        t = (-b - np.sqrt(np.maximum(disc, 0.0))) / np.maximum(a, np.float32(1e-12))
-        z = np.float32(o[2]) + t * dz
-        ok = (disc > 0) & (t > 0) & (z >= p32[piece, 3]) & (z < p32[piece, 4])
-        t = np.where(ok, t, np.float32(np.inf))
-        return pix, self.cyl_parent[piece], t, (dx, dy, dz, ocx, ocy, r, z)
+        f32 = np.float32
+        cols = self.cyl_cols
+        # per piece: camera-to-axis offset and the constant term of the quadratic
+        ocx_p = f32(o[0]) - cols[0]
+        ocy_p = f32(o[1]) - cols[1]
+        c_p = ocx_p * ocx_p + ocy_p * ocy_p - cols[2] * cols[2]
+        t_all = np.empty(pix.size, f32)
+        for s0 in range(0, pix.size, _BLOCK_PIXELS):  # cache-sized chunks of (pixel, piece) pairs
+            pp, pc = pix[s0:s0 + _BLOCK_PIXELS], piece[s0:s0 + _BLOCK_PIXELS]
+            dx, dy, dz = d[0][pp], d[1][pp], d[2][pp]
+            a = dx * dx
+            a += dy * dy
+            np.maximum(a, f32(1e-12), out=a)
+            b = ocx_p[pc] * dx
+            b += ocy_p[pc] * dy
+            disc = b * b
+            disc -= a * c_p[pc]
+            t = np.sqrt(np.maximum(disc, 0.0))
+            t += b
+            t /= a
+            np.negative(t, out=t)
+            z = t * dz
+            z += f32(o[2])
+            ok = (disc > 0) & (t > 0) & (z >= cols[3][pc]) & (z < cols[4][pc])
+            t_all[s0:s0 + _BLOCK_PIXELS] = np.where(ok, t, f32(np.inf))
+        return pix, self.cyl_parent[piece], t_all, (piece, d, o)
 
     def _shade_cylinders(self, win: np.ndarray, pix: np.ndarray, obj: np.ndarray, t: np.ndarray,
                          aux: tuple) -> np.ndarray:
-        dx, dy, _dz, ocx, ocy, r, z = (a[win] for a in aux)
-        tw = t[win]
-        nx = (ocx + tw * dx) / r
-        ny = (ocy + tw * dy) / r
+        piece, d, o = aux
+        pw, pcw, tw = pix[win], piece[win], t[win]
+        cols = self.cyl_cols
+        r = cols[2][pcw]
+        nx = (np.float32(o[0]) - cols[0][pcw] + tw * d[0][pw]) / r
+        ny = (np.float32(o[1]) - cols[1][pcw] + tw * d[1][pw]) / r
+        z = np.float32(o[2]) + tw * d[2][pw]
         ch = self.chan[pix[win]]
         prims = self.scene.prims
         ob = obj[win]
