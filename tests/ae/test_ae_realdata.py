@@ -117,3 +117,15 @@ def test_emulate_cli_errors(borealhdr_sequence: Path, tmp_path: Path) -> None:
                        (["--method", "ae50", "--crf", "/nonexistent.txt"], "--crf")):
         res = subprocess.run(base + extra, capture_output=True, text=True, timeout=120, cwd=ROOT)
         assert res.returncode != 0 and msg in res.stderr and "Traceback" not in res.stderr, res.stderr
+
+
+def test_ae50_with_upstream_parity_follows_the_authors_first_steps(borealhdr_sample: Path,
+                                                                     borealhdr_sequence: Path, tmp_path: Path) -> None:
+    """The authors' classical-50 run starts 4.0 -> 6.32 -> 8.17 ms; with their emulation arithmetic we get the same."""
+    from bracketry_emulator.ae import LoopConfig
+
+    emu = EmulatorConfig(selection="upstream", parity="upstream",
+                         crf=str(borealhdr_sample / "calibration" / "pcalib_inside1.txt"))
+    cfg = LoopConfig(emulator=emu, camera="left", write_images=False)
+    run = run_methods(borealhdr_sequence, ["ae50"], tmp_path, workers=1, config=cfg, progress=False)
+    assert run.runs["ae50"].exposures_ms == pytest.approx([4.0, 6.32, 8.17], abs=0.01)

@@ -9,9 +9,19 @@ import click
 from bracketry.errors import BracketryError
 
 
-def _emulator_config(selection: str, crf: str, parity: str, depth: int, gain_db: float) -> object:
+def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str, depth: int,
+                     gain_db: float) -> object:
     from bracketry_emulator.emulation import EmulatorConfig
 
+    if crf is None:
+        crf = "srgb"
+        if parity == "upstream":  # the authors' arithmetic goes with their pcalib: take the dataset's
+            from bracketry_emulator.dataset import open_dataset
+
+            found = open_dataset(dataset).pcalib_path()
+            if found is None:
+                raise BracketryError("--parity upstream needs the authors' pcalib: pass --crf PATH/pcalib_inside1.txt")
+            crf = str(found)
     if crf.lower() != "srgb" and not Path(crf).is_file():
         raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf}")
     if parity == "upstream" and selection == "highernosat":
@@ -30,9 +40,11 @@ def _emulator_config(selection: str, crf: str, parity: str, depth: int, gain_db:
               help="Output folder: one sub-folder per method, summary.json, exposures.csv, exposure_times.png.")
 @click.option("--selection", type=click.Choice(["highernosat", "upstream", "fusion"]), default="highernosat",
               show_default=True, help="Source-bracket selection of the emulator.")
-@click.option("--crf", default="srgb", show_default=True, help="Camera response: 'srgb' or a pcalib.txt file.")
+@click.option("--crf", default=None,
+              help="Camera response: 'srgb' or a pcalib.txt file [default: srgb; with --parity upstream the dataset's "
+                   "calibration/pcalib*.txt].")
 @click.option("--parity", type=click.Choice(["default", "upstream"]), default="default", show_default=True,
-              help="'upstream' reproduces the authors' emulation arithmetic (use with --crf their pcalib).")
+              help="'upstream' reproduces the authors' emulation (their pcalib lifting, truncation, closer_least_sat).")
 @click.option("--camera", type=click.Choice(["left", "right", "both"]), default="both", show_default=True,
               help="Cameras to emulate and write.")
 @click.option("--ae-camera", type=click.Choice(["left", "right"]), default="left", show_default=True,
@@ -55,7 +67,7 @@ def _emulator_config(selection: str, crf: str, parity: str, depth: int, gain_db:
 @click.option("--no-images", is_flag=True, help="Do not write images (exposure trajectories and summaries only).")
 @click.option("--overwrite", is_flag=True, help="Replace the files of an earlier run in the same --out.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
-def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str, parity: str, camera: str,
+def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
             ae_camera: str, depth: str, gain_db: float, init_exposure_ms: float, min_exposure_ms: float,
             max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
             no_images: bool, overwrite: bool, quiet: bool) -> int:
@@ -72,7 +84,7 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     if max_sequences is not None and max_sequences < 1:
         raise BracketryError("--max-sequences must be >= 1")
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
-    emu = _emulator_config(selection, crf, parity, int(depth), gain_db)
+    emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db)
     cfg = LoopConfig(emulator=emu, camera=camera, ae_side=ae_camera,  # type: ignore[arg-type]
                      init_exposure_us=init_exposure_ms * 1000.0, min_exposure_us=min_exposure_ms * 1000.0,
                      max_exposure_us=max_exposure_ms * 1000.0, seed=seed,

@@ -1,0 +1,96 @@
+"""The closed-loop runner on a tiny synthetic BorealHDR tree: layout, links, overwrite, sides, bounds, plugins."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+from ae_scenes import irradiance, render
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.ae import run_methods
+
+EXPOSURES_MS = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)
+
+
+def tiny_tree(root: Path, n_seq: int = 3) -> Path:
+    """A BorealHDR tree of ``n_seq`` complete sequences of 48x64 frames (right camera 1.5x brighter)."""
+    rec = root / "rec"
+    irr = irradiance(48, 64, seed=2)
+    t_ns = 1_700_000_000_000_000_000
+    for _ in range(n_seq):
+        for ms in EXPOSURES_MS:
+            for side, gain in (("left", 1.0), ("right", 1.5)):
+                d = rec / f"camera_{side}" / f"{ms:.1f}"
+                d.mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(d / f"{t_ns}.png"), render(irr * gain, ms * 1000))
+            t_ns += 46_000_000
+    return rec
+
+
+PLUGIN = ("class Doubler:\n    name = 'doubler'\n    def reset(self, t):\n        pass\n"
+          "    def next_exposure_us(self, image, t, meta):\n        return 2 * t\n")
+
+
+def test_layout_links_and_plot(tmp_path: Path) -> None:
+    rec = tiny_tree(tmp_path)
+    s = run_methods(rec, ["fix", "ae50", "ae70", "constant-3"], tmp_path / "out", workers=1, progress=False)
+    assert s.n_sequences == 3 and s.sides == ("left", "right")
+    for m in ("fix", "ae50", "ae70", "constant-3"):
+        d = tmp_path / "out" / m
+        assert len(list((d / "images_left").glob("*.png"))) == 3
+        assert len(list((d / "images_right").glob("*.png"))) == 3
+        assert len((d / "times_images_left.txt").read_text().splitlines()) == 3
+        assert len((d / "ae.csv").read_text().splitlines()) == 4
+    # fix and ae50 take the same classical-50 steps: identical images are hard links, decoded pixels equal
+    a = sorted((tmp_path / "out" / "fix" / "images_left").glob("*.png"))
+    b = sorted((tmp_path / "out" / "ae50" / "images_left").glob("*.png"))
+    assert [p.name for p in a] == [p.name for p in b]
+    assert all(p.stat().st_ino == q.stat().st_ino for p, q in zip(a, b))
+    c = sorted((tmp_path / "out" / "ae70" / "images_left").glob("*.png"))
+    assert c[0].stat().st_ino == a[0].stat().st_ino  # step 0: every method at 4 ms
+    assert c[1].stat().st_ino != a[1].stat().st_ino
+    assert s.runs["constant-3"].exposures_ms == [3.0, 3.0, 3.0]
+    assert (tmp_path / "out" / "exposure_times.png").stat().st_size > 1000
+    doc = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert doc["init_exposure_ms"] == 4.0 and list(doc["methods"]) == ["fix", "ae50", "ae70", "constant-3"]
+
+
+def test_overwrite_does_not_write_through_links(tmp_path: Path) -> None:
+    rec = tiny_tree(tmp_path, 2)
+    out = tmp_path / "out"
+    run_methods(rec, ["fix", "ae50"], out, workers=1, progress=False)
+    fix_first = sorted((out / "fix" / "images_left").glob("*.png"))[0]
+    before = cv2.imread(str(fix_first), cv2.IMREAD_UNCHANGED)
+    with pytest.raises(BracketryError, match="already holds a run"):
+        run_methods(rec, ["ae50"], out, workers=1, progress=False)
+    run_methods(rec, ["ae50"], out, workers=1, progress=False, overwrite=True, init_exposure_us=1000.0)
+    assert np.array_equal(cv2.imread(str(fix_first), cv2.IMREAD_UNCHANGED), before)
+
+
+def test_right_camera_drives_and_bounds_clamp(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    rec = tiny_tree(tmp_path, 3)
+    (tmp_path / "ae_runner_plugin.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    left = run_methods(rec, ["ae50"], tmp_path / "l", workers=1, progress=False, write_images=False)
+    right = run_methods(rec, ["ae50", "ae_runner_plugin:Doubler"], tmp_path / "r", workers=2, progress=False,
+                        camera="right", ae_side="right", max_exposure_us=10_000.0)
+    assert right.sides == ("right",)
+    assert not (tmp_path / "r" / "ae50" / "images_left").exists()
+    # the right camera is brighter, so AE50 driven by it chooses a shorter exposure
+    assert right.runs["ae50"].exposures_ms[1] < left.runs["ae50"].exposures_ms[1]
+    assert right.runs["ae_runner_plugin:Doubler"].exposures_ms == [4.0, 8.0, 10.0]
+    assert (tmp_path / "r" / "ae_runner_plugin-Doubler" / "steps.csv").is_file()
+
+
+def test_bad_settings(tmp_path: Path) -> None:
+    rec = tiny_tree(tmp_path, 1)
+    with pytest.raises(BracketryError, match="outside the bounds"):
+        run_methods(rec, ["ae50"], tmp_path / "o", progress=False, init_exposure_us=100_000.0)
+    with pytest.raises(BracketryError, match="camera"):
+        run_methods(rec, ["ae50"], tmp_path / "o", progress=False, camera="middle")
+    with pytest.raises(BracketryError, match="unknown AE method"):
+        run_methods(rec, ["nope"], tmp_path / "o", progress=False)
