@@ -182,6 +182,18 @@ def test_wire_trigger_gaps_and_buttons(device: FakeDevice) -> None:
         assert [f["trigger_seq"] for t, f in got if t == bproto.MSG_TRIGGER] == [0, 1, 2, 5, 6]
 
 
+def test_wire_fire_and_forget_send(link: SerialLink, device: FakeDevice) -> None:
+    """send() does not wait; the device's ACK/NACK of it is counted, not taken for a stray reply."""
+    link.hello(timeout_s=T)
+    fields = {"cam_left": 2, "cam_right": 2, "trigger": 1, "imu": 0, "lidar": 0, "gnss": 0, "free_disk_mb": 10,
+              "fps_left_centi": 1000, "fps_right_centi": 1000, "rec_seconds": 1, "message": "REC"}
+    seq = link.send(bproto.MSG_PANEL_STATE, fields)
+    link.send(bproto.MSG_BUTTON, {"button": 1, "action": 1, "event_seq": 0})  # not a device command: NACK
+    assert wait_for(lambda: link.counters["send_acks"] == 1 and link.counters["send_nacks"] == 1)
+    assert device.frames_of(bproto.MSG_PANEL_STATE)[-1].seq == seq
+    assert link.counters["unmatched_replies"] == 0
+
+
 def test_wire_device_frame_gaps_counted(link: SerialLink, device: FakeDevice) -> None:
     link.hello(timeout_s=T)
     before = link.counters["seq_gaps"]

@@ -15,6 +15,7 @@ import contextlib
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -35,7 +36,8 @@ COUNTER_NAMES = ("frames_in", "frames_out", "crc_errors", "length_errors", "cobs
                  "overflows", "resyncs", "bytes_discarded", "requests", "retries", "timeouts", "nacks", "reboots",
                  "unsolicited_hellos", "heartbeats_in", "heartbeats_out", "peer_lost", "trigger_events",
                  "trigger_gaps", "button_events", "button_duplicates", "bad_payloads", "unknown_types",
-                 "unmatched_replies", "listener_errors", "reconnects", "io_errors", "seq_gaps")
+                 "unmatched_replies", "listener_errors", "reconnects", "io_errors", "seq_gaps", "send_acks",
+                 "send_nacks")
 
 
 def open_serial(url: str, baudrate: int = 921600, read_timeout_s: float = 0.05) -> serial.SerialBase:
@@ -117,6 +119,7 @@ class SerialLink:
         self._last_button_event: int | None = None
         self._heard_device = False
         self._last_device_seq: int | None = None
+        self._sent_seqs: deque[int] = deque(maxlen=64)  # seqs of recent fire-and-forget sends (their ACKs are fine)
         self._opened_s = time.monotonic()
         self._last_rx_s = time.monotonic()
         self._closed = threading.Event()
@@ -171,10 +174,17 @@ class SerialLink:
             return seq
 
     def send(self, msg_type: int, fields: dict[str, Any] | None = None, seq: int | None = None) -> int:
-        """Send one message without waiting for a reply (PANEL_STATE, ACK of a BUTTON, ...); returns its seq."""
+        """Send one message without waiting for a reply (PANEL_STATE, ACK of a BUTTON, ...); returns its seq.
+
+        A later ACK of it counts in ``send_acks``, a NACK in ``send_nacks`` (and is logged).
+        """
         if seq is None:
             seq = self.next_seq()
-        self._write(bproto.encode_message(msg_type, seq, fields or {}))
+        frame = bproto.encode_message(msg_type, seq, fields or {})
+        if msg_type not in (bproto.MSG_ACK, bproto.MSG_NACK, bproto.MSG_HEARTBEAT):
+            with self._lock:
+                self._sent_seqs.append(seq)
+        self._write(frame)
         return seq
 
     def request(self, msg_type: int, fields: dict[str, Any] | None = None, timeout_s: float = 0.1,
@@ -446,6 +456,12 @@ class SerialLink:
     def _resolve_by_seq(self, acked_seq: int, reply_type: int, fields: dict[str, Any]) -> None:
         with self._lock:
             p = self._pending.get(acked_seq)
+            if p is None and acked_seq in self._sent_seqs:
+                self._counters["send_acks" if reply_type == bproto.MSG_ACK else "send_nacks"] += 1
+                if reply_type == bproto.MSG_NACK:
+                    log.warning("%s: device NACKed sent frame seq %d: %s", self.name, acked_seq,
+                                bproto.NACK_NAMES.get(fields["code"], fields["code"]))
+                return
             if p is None or (p.msg_type in (bproto.MSG_HELLO, bproto.MSG_PING) and reply_type == bproto.MSG_ACK):
                 self._counters["unmatched_replies"] += 1
                 return
