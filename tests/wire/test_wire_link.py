@@ -51,6 +51,8 @@ def test_wire_link_hello_over_pty(link: SerialLink) -> None:
     info = link.hello(timeout_s=T)
     assert info["device_kind"] == bproto.DEVICE_TRIGGER and info["uid"] == b"FAKE-DEVICE1"
     assert link.device_info == info
+    port = link._port
+    assert port is not None and port.dtr is False and port.rts is False  # ESP32 boards reset when these toggle
 
 
 def test_wire_link_ack_and_device_state(link: SerialLink, device: FakeDevice) -> None:
