@@ -188,6 +188,40 @@ def c_pass(exe: Path, blob: bytes) -> tuple[int, list[tuple[int, ...]], float, s
     return proc.returncode, rows, dt, proc.stderr.decode()[-2000:]
 
 
+_MPY_TIMER = """
+import time
+import bproto
+with open("/stream.bin", "rb") as fh:
+    data = fh.read()
+dec = bproto.Decoder()
+t0 = time.ticks_us()
+n = 0
+for i in range(0, len(data), 256):
+    n += len(dec.feed(data[i:i + 256]))
+dt = time.ticks_diff(time.ticks_us(), t0)
+print("MPY", n, dt)
+"""
+
+
+def micropython_rate(stream: bytes, tmp: Path) -> tuple[int, float] | None:
+    """(frames, seconds) of the real MicroPython WebAssembly runtime decoding ``stream`` in 256-byte reads."""
+    node = shutil.which("node")
+    mjs = paths.micropython_module_path()
+    runner = Path(__file__).resolve().parents[1] / "tests" / "wire" / "wire_mpy_run.mjs"
+    if node is None or not mjs.exists() or not runner.exists():
+        return None
+    (tmp / "stream.bin").write_bytes(stream)
+    (tmp / "timer.py").write_text(_MPY_TIMER)
+    cmd = [node, str(runner), str(mjs), str(tmp / "timer.py"), bproto.__file__, str(tmp / "stream.bin")]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    for line in proc.stdout.splitlines():
+        if line.startswith("MPY "):
+            _, n, dt_us = line.split()
+            return int(n), int(dt_us) / 1e6
+    print("MicroPython run failed:", proc.stderr[-500:])
+    return None
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="20,000 records, one Python repeat")
@@ -268,6 +302,8 @@ def main() -> int:
         for _ in range(repeats):
             _rc, _rows, dt, _err = c_pass(fast, blob)
             c_times.append(dt)
+        mpy_valid = [r for r, k in zip(records, kinds) if k == "valid"][:3000]
+        mpy = micropython_rate(b"".join(mpy_valid), Path(tmp))
     c_med = statistics.median(c_times)
 
     py_rows = [(*s, _fnv(f)) for s, f in zip(py_stats, py_frames)]
@@ -298,6 +334,9 @@ def main() -> int:
           f"({len(valid_stream) / st_med / 1e6:.1f} MB/s)")
     print(f"  Python, continuous stream, pure-Python CRC+COBS (MicroPython code path): {n_valid / pure_med:>10,.0f}"
           " frames/s")
+    if mpy is not None:
+        print(f"  MicroPython (WebAssembly runtime, Node), continuous stream: {mpy[0] / mpy[1]:>10,.0f} frames/s"
+              f"  ({mpy[0]} frames)")
     print(f"  C -O2 (incl. process + re-encode check): {n / c_med:>12,.0f} frames/s")
     print(f"  ratio C / Python (per record):     {py_med / c_med:.1f}x")
     ok = rc == 0 and py_crash == 0 and disagree == 0 and valid_lost == 0 and sum(undetected.values()) == 0
