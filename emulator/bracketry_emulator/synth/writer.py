@@ -76,11 +76,12 @@ def write_common(world: World, out_dir: Path, extra: dict) -> None:
     world.camera.write_json(out_dir / "camera_model.json", info)
 
 
-def tum_line(t_s: float, T: np.ndarray) -> str:
-    """One TUM trajectory line of a 4x4 camera-to-frame pose."""
+def tum_line(t_ns: int, T: np.ndarray) -> str:
+    """One TUM trajectory line of a 4x4 camera-to-frame pose at ``t_ns`` (seconds written exactly from the ns)."""
     q = quat_from_matrix(T[:3, :3])
     tx, ty, tz = T[:3, 3]
-    return f"{t_s:.9f} {tx:.9f} {ty:.9f} {tz:.9f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
+    stamp = f"{t_ns // 1_000_000_000}.{t_ns % 1_000_000_000:09d}"
+    return " ".join([stamp, *(f"{x:.9f}" for x in (tx, ty, tz, *q))])
 
 
 def write_trajectory(world: World, out_dir: Path, seconds: float = 10.0,
@@ -120,7 +121,7 @@ def write_trajectory(world: World, out_dir: Path, seconds: float = 10.0,
             if progress is not None:
                 progress(done, total)
         T = world.pose(t_s) if start_s == 0.0 else np.linalg.inv(world.pose(start_s)) @ world.pose(t_s)
-        gt_lines.append(tum_line(t_ns / 1e9, T))
+        gt_lines.append(tum_line(t_ns, T))
     (out_dir / "groundtruth.txt").write_text("\n".join(gt_lines) + "\n")
     summary = {"frames": n_frames, "cycles": cycles, "sides": list(sides), "fps": fps,
                "brackets_ms": [float(b) for b in brackets_ms], "t0_ns": t0_ns, "start_s": start_s,
