@@ -227,6 +227,9 @@ class Frame:
         return (isinstance(other, Frame) and self.ver == other.ver and self.msg_type == other.msg_type
                 and self.seq == other.seq and self.payload == other.payload)
 
+    def __hash__(self):
+        return hash((self.ver, self.msg_type, self.seq, self.payload))
+
     def __repr__(self):
         return "Frame(ver={}, msg_type=0x{:02x} {}, seq={}, payload={!r})".format(
             self.ver, self.msg_type, MSG_NAMES.get(self.msg_type, "?"), self.seq, self.payload)
