@@ -1,0 +1,1 @@
+"""``bracketry demo``: the whole pipeline on the embedded default (simulated rig -> recording -> benchmark)."""
