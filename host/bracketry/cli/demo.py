@@ -19,8 +19,9 @@ def command(out_dir: Path, seconds: float | None, quick: bool) -> int:
 
     summary = run(plan(out_dir, seconds, quick), echo=lambda s: click.echo(s, err=True))
     click.echo("")
+    verdict = "verified clean" if summary["recording_verified"] else "HAS PROBLEMS"
     click.echo(f"bracketry demo: {summary['frames']['left']} + {summary['frames']['right']} frames recorded, "
-               f"drops {summary['drops']}, recording {'verified clean' if summary['recording_verified'] else 'HAS PROBLEMS'}")
+               f"drops {summary['drops']}, recording {verdict}")
     for metric, best in summary["best"].items():
         click.echo(f"  best {metric:<32} {best['method']:<8} {best['value']}")
     report = summary["report"].get("report.html") or summary["report"].get("report.md")
