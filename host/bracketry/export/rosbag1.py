@@ -10,6 +10,7 @@ Topics: ``/stereo/left|right/image_raw`` (sensor_msgs/Image, bayer_rggb16), ``/s
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 from bracketry.errors import BracketryError
 from bracketry.recording import topics as T
@@ -48,20 +49,20 @@ def export_rosbag1(recording: str | Path, out_bag: str | Path) -> dict[str, int]
     Header = store.types["std_msgs/msg/Header"]
     Time = store.types["builtin_interfaces/msg/Time"]
     Meta = store.types[UPSTREAM_METADATA_TYPE]
-    def header(msg_header: object, seq: int = 0) -> object:
+    def header(msg_header: Any, seq: int = 0) -> Any:
         st = msg_header.stamp  # type: ignore[attr-defined]
         return Header(seq=seq, stamp=Time(sec=st.sec, nanosec=st.nanosec),
                       frame_id=msg_header.frame_id)  # type: ignore[attr-defined]
 
     with Writer(out) as writer:
-        conns: dict[str, object] = {}
+        conns: dict[str, Any] = {}
 
-        def conn(topic: str, msgtype: str) -> object:
+        def conn(topic: str, msgtype: str) -> Any:
             if topic not in conns:
                 conns[topic] = writer.add_connection(topic, msgtype, typestore=store)
             return conns[topic]
 
-        def write(topic: str, msgtype: str, t_ns: int, msg: object) -> None:
+        def write(topic: str, msgtype: str, t_ns: int, msg: Any) -> None:
             writer.write(conn(topic, msgtype), t_ns, store.serialize_ros1(msg, msgtype))
             counts[topic] = counts.get(topic, 0) + 1
 

@@ -96,7 +96,7 @@ def encode_image(t_ns: int, frame_id: str, image: np.ndarray, encoding: str) -> 
     tail_pre = b"\x00" * _pad(off + 1, 4)
     body_end = struct.pack("<B", 0) + tail_pre + struct.pack("<II", step, arr.nbytes)
     prefix = b"\x00\x01\x00\x00" + head + s1 + pad + dims + s2 + body_end
-    return [prefix, memoryview(arr).cast("B")]
+    return [prefix, memoryview(arr.view(np.uint8).reshape(-1))]  # type: ignore[arg-type]
 
 
 @dataclass
@@ -135,6 +135,7 @@ def decode_image(data: bytes | memoryview) -> DecodedImage:
     step, n = struct.unpack_from("<II", buf, off)
     off += 8
     pixels = np.frombuffer(buf[off:off + n], dtype=np.uint8)
+    img: np.ndarray
     if encoding.endswith("16") and n == height * width * 2:
         img = pixels.view("<u2").reshape(height, width).astype(np.uint16)
     else:

@@ -145,13 +145,16 @@ class Recorder:
         return self
 
     # -- producers --------------------------------------------------------------------------------------------------
-    def _put(self, kind: str, item: Any, what: str) -> bool:
+    def _put(self, kind: str, item: Any, what: str, timeout_s: float | None = None) -> bool:
         if self._failed.is_set():
             with self._lock:
                 self.summary.lost_after_error += 1
             return False
         try:
-            self._queue.put_nowait((kind, item))
+            if timeout_s is None:
+                self._queue.put_nowait((kind, item))
+            else:
+                self._queue.put((kind, item), timeout=timeout_s)
             return True
         except queue.Full:
             with self._lock:
@@ -159,9 +162,10 @@ class Recorder:
             log.error("recorder queue full: %s dropped", what)
             return False
 
-    def put_set(self, pset: PairedSet) -> bool:
-        """Queue a paired set (its frames, frame metas and camera infos)."""
-        return self._put("set", pset, f"trigger_seq {pset.trigger_seq}")
+    def put_set(self, pset: PairedSet, timeout_s: float | None = None) -> bool:
+        """Queue a paired set (its frames, frame metas and camera infos); never blocks unless ``timeout_s`` is given
+        (offline tools and benchmarks may wait for room; the live path must not)."""
+        return self._put("set", pset, f"trigger_seq {pset.trigger_seq}", timeout_s)
 
     def put_event(self, event: TriggerEvent) -> bool:
         return self._put("event", event, f"trigger event {event.trigger_seq}")

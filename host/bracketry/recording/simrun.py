@@ -11,6 +11,7 @@ one line ``<trigger_seq> <host_ns>`` per fired trigger (flushed), for kill -9 te
 from __future__ import annotations
 
 import argparse
+import functools
 import json
 import logging
 import sys
@@ -65,8 +66,7 @@ def main(argv: list[str] | None = None) -> int:
     skip = {(p.split(":")[0], int(p.split(":")[1])) for p in args.skip_trigger.split(",") if p}
     period_ns = int(1e9 / args.fps)
 
-    servers = {s: FakeCameraServer(addresses[s], f"SIM-{s.upper()}",
-                                   image_source=lambda e, w, h, side=s: sim_pixels(side, e, w, h),
+    servers = {s: FakeCameraServer(addresses[s], f"SIM-{s.upper()}", image_source=functools.partial(sim_pixels, s),
                                    lost_packet_ratio=args.lost_ratio).start() for s in sides}
     cams = {s: GigECamera(addresses[s], side=s) for s in sides}
     for cam in cams.values():
