@@ -217,3 +217,17 @@ def test_emu_fusion_unbiased_near_black() -> None:
     # the continuous sRGB inverse reads every dark code ~0.05 level low (floor encoding): the bin means do not
     cont = 4095 * srgb_eotf(imgs[2000] / 4095.0)
     assert SRGB.icrf[imgs[2000]].mean() - cont.mean() > 0.04
+
+
+def test_emu_fusion_deghost_keeps_reference_where_brackets_disagree() -> None:
+    irr = np.full((40, 40), 0.05)
+    imgs = {2000: render(irr, 2000), 4000: render(irr, 4000)}
+    moved = imgs[2000].copy()
+    moved[:, :20] = render(irr * 3, 2000)[:, :20]  # an object moved into the left half of the 2 ms bracket only
+    imgs[2000] = moved
+    plain = Emulator(EmulatorConfig(selection="fusion")).emulate(imgs, 3000.0)
+    dg = Emulator(EmulatorConfig(selection="fusion", deghost_sigma=4.0)).emulate(imgs, 3000.0)
+    truth = render(irr, 3000)  # the reference (HigherNoSat: 4 ms) view
+    assert plain.source_exposure_us == 4000
+    assert np.array_equal(dg.image, truth)
+    assert not np.array_equal(plain.image[:, :20], truth[:, :20])

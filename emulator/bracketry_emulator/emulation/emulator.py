@@ -53,6 +53,8 @@ class EmulatorConfig:
         sat_count: HigherNoSat saturation count: "over" (code >= saturated code) or "both" (also code 0).
         fusion_brackets: "bounding" (the pair around the target) or "all".
         motion: fusion motion compensation between brackets: "none", "translation" or "homography".
+        deghost_sigma: fusion: drop a non-reference bracket's pixel that disagrees with the reference bracket by more
+            than this many noise standard deviations (None = off).
         noise: camera noise model (linear DN); used by fusion weights and gain emulation.
         add_noise: add the noise the emulated image lacks (default: only when gain_db != 0).
         seed: seed of the added noise (deterministic per call).
@@ -67,6 +69,7 @@ class EmulatorConfig:
     sat_count: SatCount = "over"
     fusion_brackets: Literal["bounding", "all"] = "bounding"
     motion: Motion = "none"
+    deghost_sigma: float | None = None
     noise: NoiseModel = field(default_factory=NoiseModel)
     add_noise: bool | None = None
     seed: int = 0
@@ -216,7 +219,8 @@ class Emulator:
                 break
         if result is None:
             result = fuse(images, target_us, self.response, self.config.noise, reference_us=ref,
-                          brackets=self.config.fusion_brackets, motion=self.config.motion)
+                          brackets=self.config.fusion_brackets, motion=self.config.motion,
+                          deghost_sigma=self.config.deghost_sigma)
             self._fusion_cache.append((key, ref, result))
             del self._fusion_cache[:-4]
         linear = result.irradiance * (target_us * self.gain)

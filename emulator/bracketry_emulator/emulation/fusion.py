@@ -56,12 +56,14 @@ def _quant_var_table(response: Response) -> np.ndarray:
 
 
 def fuse(images: dict[int, np.ndarray], target_us: float, response: Response, noise: NoiseModel,
-         reference_us: int, brackets: Literal["bounding", "all"] = "bounding", motion: Motion = "none"
-         ) -> FusionResult:
+         reference_us: int, brackets: Literal["bounding", "all"] = "bounding", motion: Motion = "none",
+         deghost_sigma: float | None = None) -> FusionResult:
     """Fused irradiance map of one sequence (see the module docstring).
 
     ``images``: {exposure_us: uint16 HxW Bayer codes}; ``reference_us``: the bracket whose geometry the result has
-    (added to the fused set when missing).
+    (added to the fused set when missing). ``deghost_sigma``: when set, a pixel of another bracket whose irradiance
+    differs from the reference bracket's by more than this many noise standard deviations gets zero weight (moving
+    objects, residual misalignment: the reference alone is used there).
     """
     used = fusion_brackets(list(images), target_us, brackets)
     if reference_us not in used:
@@ -96,10 +98,21 @@ def fuse(images: dict[int, np.ndarray], target_us: float, response: Response, no
         num += np.where(valid[e], lin[e], 0.0)
         den += np.where(valid[e], np.float32(e), 0.0)
     e0 = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
-    wsum = np.zeros_like(num)
-    wacc = np.zeros_like(num)
     r2 = np.float32(noise.read_dn ** 2)
     k = np.float32(noise.dn_per_e)
+    if deghost_sigma is not None:
+        t_ref = np.float32(reference_us)
+        var_ref = (r2 + k * e0 * t_ref + qv[reference_us]) / (t_ref * t_ref)
+        irr_ref = lin[reference_us] / t_ref
+        for e in used:
+            if e == reference_us:
+                continue
+            t = np.float32(e)
+            var_e = (r2 + k * e0 * t + qv[e]) / (t * t)
+            ghost = valid[reference_us] & (np.abs(lin[e] / t - irr_ref) > deghost_sigma * np.sqrt(var_e + var_ref))
+            valid[e] = valid[e] & ~ghost
+    wsum = np.zeros_like(num)
+    wacc = np.zeros_like(num)
     for e in used:
         t = np.float32(e)
         w = np.where(valid[e], t * t / (r2 + k * e0 * t + qv[e]), 0.0).astype(np.float32)
