@@ -20,7 +20,7 @@ def _parse_ms_list(text: str, what: str) -> tuple[float, ...]:
 
 
 def _make_world(preset: str, seed: int, resolution: str, response: str, calibration: Path | None,
-                speed_kmh: float):
+                speed_kmh: float, motion_blur: bool = False):
     from bracketry_emulator.synth import CameraModel, LoopTrajectory, World, parse_resolution
     from bracketry_emulator.synth.calibration import load_calibration
 
@@ -35,7 +35,8 @@ def _make_world(preset: str, seed: int, resolution: str, response: str, calibrat
     calib = load_calibration(calibration, *size) if calibration is not None else None
     if speed_kmh <= 0 or speed_kmh > 20:
         raise BracketryError("--speed-kmh must be in (0, 20]")
-    return World(preset, seed, size, calibration=calib, camera=camera, trajectory=LoopTrajectory(speed_kmh=speed_kmh))
+    return World(preset, seed, size, calibration=calib, camera=camera, trajectory=LoopTrajectory(speed_kmh=speed_kmh),
+                 motion_blur=motion_blur)
 
 
 def _out_dir(out: Path, force: bool) -> Path:
@@ -93,9 +94,11 @@ def command() -> None:
 @click.option("--fps", type=float, default=22.0, show_default=True, help="Frame rate (one bracket per frame).")
 @click.option("--speed-kmh", type=float, default=2.0, show_default=True, help="Walking speed.")
 @click.option("--start-s", type=float, default=0.0, show_default=True, help="Start time along the walk.")
+@click.option("--motion-blur", is_flag=True,
+              help="Integrate the motion over each exposure (up to 4 renders per long frame; slower).")
 def trajectory_cmd(out: Path, preset: str, seed: int, response: str, calibration: Path | None, force: bool,
                    quiet: bool, seconds: float, resolution: str, brackets_ms: str, fps: float, speed_kmh: float,
-                   start_s: float) -> int:
+                   start_s: float, motion_blur: bool) -> int:
     """A stereo walk along a loop: BorealHDR tree + groundtruth.txt + calibration/ + camera_model.json."""
     from bracketry_emulator.synth import write_trajectory
 
@@ -104,7 +107,7 @@ def trajectory_cmd(out: Path, preset: str, seed: int, response: str, calibration
         raise BracketryError("--seconds must be in (0, 3600]")
     if fps <= 0 or fps > 200:
         raise BracketryError("--fps must be in (0, 200]")
-    world = _make_world(preset, seed, resolution, response, calibration, speed_kmh)
+    world = _make_world(preset, seed, resolution, response, calibration, speed_kmh, motion_blur)
     out = _out_dir(out, force)
     bar, update = _progress("synth trajectory", quiet)
     try:

@@ -63,12 +63,15 @@ class World:
         camera: the camera model (default :class:`CameraModel`: sRGB-encoded 12-bit codes like the real sample).
         trajectory: the walk (default :class:`LoopTrajectory`, 2 km/h).
         detail: ground texture resolution factor (1.0: 4 cm texels near the path).
+        motion_blur: integrate the moving scene over each exposure (slices of ``blur_slice_us``, at most
+            ``blur_max`` renders per frame); off by default (frames are instantaneous at their timestamp).
     """
 
     def __init__(self, preset: str = "forest-winter", seed: int = 0,
                  resolution: tuple[int, int] = DEFAULT_RESOLUTION, calibration: StereoCalibration | None = None,
                  camera: CameraModel | None = None, trajectory: LoopTrajectory | None = None,
-                 detail: float = 1.0, cache_size: int = 4) -> None:
+                 detail: float = 1.0, cache_size: int = 8, motion_blur: bool = False,
+                 blur_slice_us: float = 8000.0, blur_max: int = 4) -> None:
         if preset not in PRESETS:
             raise BracketryError(f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
         w, h = int(resolution[0]), int(resolution[1])
@@ -76,6 +79,9 @@ class World:
             raise BracketryError(f"resolution {w}x{h}: width and height must be even and >= 16")
         self.preset = preset
         self.seed = int(seed)
+        self.motion_blur = bool(motion_blur)
+        self.blur_slice_us = float(blur_slice_us)
+        self.blur_max = max(1, int(blur_max))
         self.resolution = (w, h)
         self.calibration = calibration if calibration is not None else default_calibration(w, h)
         if self.calibration.size != (w, h):
@@ -148,10 +154,27 @@ class World:
             self._cache.popitem(last=False)
         return res
 
-    def rate_e_per_us(self, side: str, t_s: float) -> np.ndarray:
-        """Expected photo-electrons per microsecond of every pixel (radiance x QE x vignetting), float32 (H, W)."""
-        res = self.radiance(side, t_s)
-        return res.radiance * self._gain[side]
+    def blur_times_s(self, t_s: float, exposure_us: float) -> list[float]:
+        """Instants averaged for a frame exposed from ``t_s`` for ``exposure_us``: [t_s] without motion blur, else
+        the centres of n equal slices of the exposure, n = ceil(exposure / blur_slice_us) (at most blur_max)."""
+        if not self.motion_blur or exposure_us <= self.blur_slice_us:
+            return [float(t_s)]
+        n = min(self.blur_max, int(np.ceil(exposure_us / self.blur_slice_us)))
+        return [float(t_s) + (k + 0.5) / n * exposure_us * 1e-6 for k in range(n)]
+
+    def rate_e_per_us(self, side: str, t_s: float, exposure_us: float | None = None) -> np.ndarray:
+        """Expected photo-electrons per microsecond of every pixel (radiance x QE x vignetting), float32 (H, W).
+
+        With ``motion_blur`` and an ``exposure_us``, the rate is averaged over the exposure (see
+        :meth:`blur_times_s`)."""
+        times = [float(t_s)] if exposure_us is None else self.blur_times_s(t_s, exposure_us)
+        rad = self.radiance(side, times[0]).radiance
+        if len(times) > 1:
+            rad = rad.copy()
+            for t in times[1:]:
+                rad += self.radiance(side, t).radiance
+            rad *= np.float32(1.0 / len(times))
+        return rad * self._gain[side]
 
     def frame_rng(self, side: str, t_s: float, exposure_us: float) -> np.random.Generator:
         """The deterministic noise generator of one frame (from the seed, the side, the time and the exposure)."""
@@ -164,8 +187,9 @@ class World:
         start of the walk) exposed ``exposure_us`` microseconds.
 
         ``rng`` draws the noise; None uses :meth:`frame_rng` (so the same call gives the same frame).
-        ``noise=False`` gives the exact noise-free image."""
-        rate = self.rate_e_per_us(side, t_s)
+        ``noise=False`` gives the exact noise-free image. With ``motion_blur`` the scene is integrated over the
+        exposure, which starts at ``t_s`` (the frame timestamp and the time of its ground-truth pose)."""
+        rate = self.rate_e_per_us(side, t_s, exposure_us)
         if not noise:
             return self.camera.expose(rate, exposure_us, None)
         return self.camera.expose(rate, exposure_us, rng if rng is not None else self.frame_rng(side, t_s,
@@ -187,4 +211,6 @@ class World:
                     "elevation_deg": float(np.degrees(np.arcsin(lt.sun_dir[2]))),
                     "disk_radiance": lt.disk_radiance},
             "groundtruth_frame": "left camera optical frame (x right, y down, z forward) at t = 0",
+            "motion_blur": {"enabled": self.motion_blur, "slice_us": self.blur_slice_us, "max_slices": self.blur_max,
+                            "exposure_start": "frame timestamp"},
         }
