@@ -123,3 +123,25 @@ def test_wire_cli_subprocess_pipe_and_no_traceback() -> None:
     bad = subprocess.run([*exe, "encode", "BUTTON", "button=300", "action=1", "event_seq=9"], capture_output=True,
                          text=True, timeout=120)
     assert bad.returncode == 2 and "Traceback" not in bad.stderr and bad.stderr.startswith("error: ")
+
+
+def test_wire_cli_ping(capsys: pytest.CaptureFixture[str]) -> None:
+    with FakeDevice(drift_ppm=50.0) as dev:
+        rc, out, err = run(capsys, "ping", dev.path, "--count", "20", "--interval", "0.005", "--timeout", "1.0",
+                           "--json")
+    assert rc == 0, err
+    result = json.loads(out)
+    assert result["device"]["device_kind"] == 1 and result["device"]["uid"] == b"FAKE-DEVICE1".hex()
+    assert result["clock"]["samples"] == 20
+    assert result["rtt_us"]["min"] <= result["rtt_us"]["median"] <= result["rtt_us"]["max"]
+    with FakeDevice() as dev:
+        rc, out, _ = run(capsys, "ping", dev.path, "--count", "3", "--timeout", "1.0")
+    assert rc == 0 and out.startswith("device: trigger fw 1.2.3") and "clock model: residual" in out
+
+
+def test_wire_cli_ping_silent_device(capsys: pytest.CaptureFixture[str]) -> None:
+    dev = FakeDevice(heartbeat=False, send_hello_at_boot=False)
+    dev.silent = True
+    with dev:
+        rc, _, err = run(capsys, "ping", dev.path, "--count", "1", "--timeout", "0.05")
+    assert rc == 2 and "no reply to HELLO" in err and err.count("\n") == 1

@@ -178,3 +178,54 @@ def encode(msg_type: str, fields: tuple[str, ...], seq: int, payload_hex: str | 
         finally:
             ser.close()
     return 0
+
+
+@command.command("ping")
+@click.argument("port")
+@click.option("--baud", default=921600, show_default=True, help="Baud rate.")
+@click.option("--count", default=32, show_default=True, help="Number of PING/PONG exchanges.")
+@click.option("--interval", "interval_s", default=0.02, show_default=True, help="Seconds between PINGs.")
+@click.option("--timeout", "timeout_s", default=0.1, show_default=True, help="Reply timeout per attempt (s).")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
+def ping(port: str, baud: int, count: int, interval_s: float, timeout_s: float, as_json: bool) -> int:
+    """Check a live link: HELLO, then COUNT PINGs; print round trips, the clock model and the link counters."""
+    import statistics
+
+    from bracketry.wire.link import SerialLink
+
+    if count < 1:
+        raise BracketryError("--count must be >= 1")
+    try:
+        link = SerialLink(port, baud, heartbeat_period_s=None, reconnect=False, name=port)
+    except WireError as exc:
+        raise BracketryError(str(exc)) from exc
+    rtts_us: list[float] = []
+    try:
+        info = link.hello(timeout_s=timeout_s)
+        for _ in range(count):
+            t0 = time.perf_counter()
+            link.ping(timeout_s=timeout_s)
+            rtts_us.append((time.perf_counter() - t0) * 1e6)
+            time.sleep(interval_s)
+        clock = link.clock.summary()
+        counters = link.counters
+    except WireError as exc:
+        raise BracketryError(str(exc)) from exc
+    finally:
+        link.close()
+    rtt = {"min": min(rtts_us), "median": statistics.median(rtts_us), "max": max(rtts_us)}
+    nonzero = {k: v for k, v in counters.items() if v}
+    result = {"device": {k: (v.hex() if isinstance(v, bytes) else v) for k, v in info.items()},
+              "rtt_us": rtt, "clock": clock, "counters": nonzero}
+    if as_json:
+        click.echo(json.dumps(result, indent=2))
+        return 0
+    kind = {bproto.DEVICE_TRIGGER: "trigger", bproto.DEVICE_PANEL: "panel"}.get(info["device_kind"], "unknown")
+    click.echo(f"device: {kind} fw {info['fw_major']}.{info['fw_minor']}.{info['fw_patch']} "
+               f"uid {info['uid'].hex()} proto 1.{info['proto_minor']}")
+    click.echo(f"round trip: min {rtt['min']:.0f} us, median {rtt['median']:.0f} us, max {rtt['max']:.0f} us "
+               f"({count} pings)")
+    click.echo(f"clock model: residual {clock['residual_us']:.1f} us, drift {clock['drift_ppm']:+.1f} ppm "
+               f"({clock['fit_samples']} of {clock['samples']} samples)")
+    click.echo("counters: " + " ".join(f"{k}={v}" for k, v in sorted(nonzero.items())))
+    return 0
