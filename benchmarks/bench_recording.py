@@ -97,7 +97,7 @@ def run_ours(out: Path, frames: dict, n_sets: int, compression: str) -> dict[str
     c0, t0 = cpu_s(), time.perf_counter()
     rec.start()
     for pset in sets:
-        rec.put_event(pset.event)  # type: ignore[arg-type]
+        assert rec.put_event(pset.event, timeout_s=60.0)  # type: ignore[arg-type]
         assert rec.put_set(pset, timeout_s=60.0)  # wait for room: measure the sustained rate, never drop
     summary = rec.stop()
     wall, cpu = time.perf_counter() - t0, cpu_s() - c0

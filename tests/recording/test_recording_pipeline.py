@@ -173,6 +173,20 @@ def test_packet_loss_dropped_events_and_missed_trigger_are_all_reported(tmp_path
     assert 50 in right.seqs["drops"]  # the pulse the right camera never saw
 
 
+def test_with_the_stm32_trigger_simulator(tmp_path: Path) -> None:
+    """TRIGGER events from the trigger simulator (wire protocol on a pty, TriggerClient, clock model)."""
+    pytest.importorskip("bracketry.trigger.simulator")
+    rec, summary = run_sim(tmp_path, "--trigger", "simulator", "--seconds", "4", "--width", "160", "--height", "100")
+    report = verify_recording(rec)
+    assert summary["fired"] == report.events == 4 * FPS
+    for side in ("left", "right"):
+        sr = report.sides[side]
+        assert sr.frames == produced(summary, side) and sr.drops == summary["fired"] - sr.frames
+        assert sr.incomplete == sr.bracket_order_breaks == 0
+    if fake_was_exact(summary):
+        assert report.ok, report.problems
+
+
 def test_kill_9_loses_at_most_one_second(tmp_path: Path) -> None:
     need_netns()
     out, summary, progress = tmp_path / "rec", tmp_path / "s.json", tmp_path / "progress.txt"

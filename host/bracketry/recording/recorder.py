@@ -167,8 +167,9 @@ class Recorder:
         (offline tools and benchmarks may wait for room; the live path must not)."""
         return self._put("set", pset, f"trigger_seq {pset.trigger_seq}", timeout_s)
 
-    def put_event(self, event: TriggerEvent) -> bool:
-        return self._put("event", event, f"trigger event {event.trigger_seq}")
+    def put_event(self, event: TriggerEvent, timeout_s: float | None = None) -> bool:
+        """Queue a TRIGGER event (non-blocking unless ``timeout_s``)."""
+        return self._put("event", event, f"trigger event {event.trigger_seq}", timeout_s)
 
     def put_status(self, status: dict[str, Any]) -> bool:
         """Queue a rig status (keys of ``STATUS_FIELDS``; missing ones are 0/NaN) stamped ``t_ns`` or now."""

@@ -17,6 +17,7 @@ import logging
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -37,6 +38,66 @@ def sim_pixels(side: str, exposure_us: int, width: int, height: int) -> np.ndarr
     return value.astype(np.uint16)
 
 
+def run_internal(cams: dict[str, GigECamera], session: RecordingSession, brackets: list[int], period_ns: int,
+                 n: int, lead_s: float, drop_events: set[int], skip: set[tuple[str, int]], progress: Any) -> list[int]:
+    """Generate ``n`` pulses here (the simulated device stamps each when it fires the cameras)."""
+    t0_ns = time.time_ns() + int(lead_s * 1e9)
+    fired = []
+    for k in range(n):
+        t_ns = t0_ns + k * period_ns
+        while (now := time.time_ns()) < t_ns:
+            time.sleep(min(0.005, (t_ns - now) / 1e9))
+        exposure = brackets[k % len(brackets)]
+        for cam in cams.values():
+            cam.set_exposure_us(exposure)
+        fire_ns = time.time_ns()  # the simulated trigger device stamps the pulse when it fires it
+        for s, cam in cams.items():
+            if (s, k) not in skip:
+                cam.software_trigger()
+        ev = TriggerEvent(session_id=1, trigger_seq=k, bracket_index=k % len(brackets), exposure_us=exposure,
+                          t_start_device_us=(fire_ns - t0_ns) // 1000 + 5_000_000, t_start_host_ns=fire_ns)
+        if k not in drop_events:
+            session.on_trigger_event(ev)
+        fired.append(k)
+        if progress:
+            progress.write(f"{k} {ev.t_start_host_ns}\n")
+    return fired
+
+
+def run_with_trigger_simulator(cams: dict[str, GigECamera], session: RecordingSession, brackets: list[int],
+                               period_us: int, n: int, drop_events: set[int], skip: set[tuple[str, int]],
+                               progress: Any) -> list[int]:
+    """Drive the STM32 trigger simulator through ``TriggerClient``; fire the cameras at each TRIGGER event."""
+    from bracketry.trigger.client import TriggerClient
+    from bracketry.trigger.simulator import SimConfig, simulate_on_pty
+
+    sim, path = simulate_on_pty(config=SimConfig(drop_seqs=frozenset(drop_events)))
+    fired: list[int] = []
+    try:
+        with TriggerClient.open(path) as client:
+            client.hello()
+            client.sync_clock()
+            client.configure(period_us, brackets)
+            client.start(session_id=1)
+            for ev in client.events(timeout_s=2.0):
+                if ev.trigger_seq >= n:
+                    break
+                for cam in cams.values():
+                    cam.set_exposure_us(ev.exposure_us)
+                for side, cam in cams.items():
+                    if (side, ev.trigger_seq) not in skip:
+                        cam.software_trigger()
+                session.on_trigger_event(ev)
+                fired.append(ev.trigger_seq)
+                if progress:
+                    progress.write(f"{ev.trigger_seq} {ev.t_start_host_ns}\n")
+            client.stop()
+    finally:
+        sim.close()
+    # pulses whose events the simulator dropped were never seen here, so the cameras were not fired for them
+    return list(range(max(fired) + 1)) if fired else []
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--out", required=True, type=Path)
@@ -53,6 +114,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--packet-size", type=int, default=1500)
     ap.add_argument("--chunk-max-age-s", type=float, default=0.4)
     ap.add_argument("--split-s", type=float, default=600.0)
+    ap.add_argument("--trigger", choices=["internal", "simulator"], default="internal",
+                    help="internal: events generated here; simulator: the STM32 trigger simulator on a pty, driven "
+                         "through TriggerClient (wire protocol, clock model); cameras fired at each TRIGGER event")
     ap.add_argument("--lead-s", type=float, default=1.0, help="time between arming the cameras and the first pulse")
     ap.add_argument("--summary", type=Path)
     ap.add_argument("--progress", type=Path)
@@ -80,26 +144,10 @@ def main(argv: list[str] | None = None) -> int:
     SoftwareTrigger(cams)
     progress = open(args.progress, "w", buffering=1) if args.progress else None  # noqa: SIM115
     n = round(args.seconds * args.fps)
-    t0_ns = time.time_ns() + int(args.lead_s * 1e9)
-    fired = []
-    for k in range(n):
-        t_ns = t0_ns + k * period_ns
-        while (now := time.time_ns()) < t_ns:
-            time.sleep(min(0.005, (t_ns - now) / 1e9))
-        exposure = brackets[k % len(brackets)]
-        for cam in cams.values():
-            cam.set_exposure_us(exposure)
-        fire_ns = time.time_ns()  # the simulated trigger device stamps the pulse when it fires it
-        for s, cam in cams.items():
-            if (s, k) not in skip:
-                cam.software_trigger()
-        ev = TriggerEvent(session_id=1, trigger_seq=k, bracket_index=k % len(brackets), exposure_us=exposure,
-                          t_start_device_us=(fire_ns - t0_ns) // 1000 + 5_000_000, t_start_host_ns=fire_ns)
-        if k not in drop_events:
-            session.on_trigger_event(ev)
-        fired.append(k)
-        if progress:
-            progress.write(f"{k} {ev.t_start_host_ns}\n")
+    if args.trigger == "simulator":
+        fired = run_with_trigger_simulator(cams, session, brackets, period_ns // 1000, n, drop_events, skip, progress)
+    else:
+        fired = run_internal(cams, session, brackets, period_ns, n, args.lead_s, drop_events, skip, progress)
     result = session.stop(drain_s=2.0, expect_frames=len(fired))
     summary = {"fired": len(fired), "dropped_events": sorted(drop_events), "skipped_triggers": sorted(skip),
                "served_exposures_us": {s: srv.exposures() for s, srv in servers.items()},
