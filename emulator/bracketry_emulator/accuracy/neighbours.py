@@ -29,8 +29,8 @@ def align_to(images: dict[int, np.ndarray], ref_us: int, ref: np.ndarray, respon
              ) -> tuple[dict[int, np.ndarray], np.ndarray]:
     """Warp every bracket in ``images`` onto the geometry of ``ref`` (a uint16 frame at ``ref_us``).
 
-    Returns (aligned uint16 codes per exposure, bool valid mask HxW). Saturated pixels stay saturated (any
-    saturated source pixel touching the interpolation marks the output saturated).
+    Returns (aligned uint16 codes per exposure, bool valid mask HxW). Saturated pixels stay saturated (an output
+    pixel is saturated when saturated source pixels carry at least half of its interpolation weight).
     """
     valid = np.ones(ref.shape, dtype=bool)
     if motion == "none":
@@ -44,7 +44,7 @@ def align_to(images: dict[int, np.ndarray], ref_us: int, ref: np.ndarray, respon
         half_ok = ok[0::2, 0::2] & ok[1::2, 1::2]
         h = estimate_motion(np.where(ok, lin / e, 0.0), np.where(ok, ref_irr, 0.0), motion, half_ok)
         warped = warp_mosaic(lin, h)
-        sat = warp_mosaic((img >= sat_code).astype(np.float32), h, border_value=0.0) > 0
+        sat = warp_mosaic((img >= sat_code).astype(np.float32), h, border_value=0.0) >= 0.5
         inside = ~np.isnan(warped)
         codes = response.encode(np.nan_to_num(warped), "round")
         codes[sat] = sat_code
