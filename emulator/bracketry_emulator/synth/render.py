@@ -151,15 +151,31 @@ class SideRenderer:
                 c += f32(offset)
             return c
 
-        u0, u1, u2 = (coords(lv, X, at.x0, float(at.col_off[lv])) for lv in range(3))
-        v0, v1, v2 = (coords(lv, Y, at.y0, 0.0) for lv in range(3))
         row_off = ch * f32(at.row_stride)
-        va = np.where(upper, v1, v0)
-        va += row_off
-        vb = np.where(upper, v2, v1)
+        n_up = int(np.count_nonzero(upper))
+        if n_up == 0:
+            pair = (0, 1)  # the whole block blends L0 and L1
+        elif n_up == upper.size:
+            pair = (1, 2)
+        else:
+            pair = None
+        if pair is not None:
+            lo, hi = pair
+            ua, va = coords(lo, X, at.x0, float(at.col_off[lo])), coords(lo, Y, at.y0, 0.0)
+            va += row_off
+            val = _remap_flat(at.image, ua, va)
+            if pair == (0, 1) and float(fp.max()) <= 1.0:
+                return val, t  # magnified ground: the finest level alone
+            ub, vb = coords(hi, X, at.x0, float(at.col_off[hi])), coords(hi, Y, at.y0, 0.0)
+        else:
+            u0, u1, u2 = (coords(lv, X, at.x0, float(at.col_off[lv])) for lv in range(3))
+            v0, v1, v2 = (coords(lv, Y, at.y0, 0.0) for lv in range(3))
+            va = np.where(upper, v1, v0)
+            va += row_off
+            val = _remap_flat(at.image, np.where(upper, u1, u0), va)
+            ub, vb = np.where(upper, u2, u1), np.where(upper, v2, v1)
         vb += row_off
-        val = _remap_flat(at.image, np.where(upper, u1, u0), va)
-        val_b = _remap_flat(at.image, np.where(upper, u2, u1), vb)
+        val_b = _remap_flat(at.image, ub, vb)
         val_b -= val
         val_b *= frac
         val += val_b
