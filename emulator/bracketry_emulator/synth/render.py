@@ -109,6 +109,15 @@ class SideRenderer:
         self.sun_rgb = np.asarray(lt.sun_rgb, np.float32)
         self.sky_rgb = np.asarray(lt.sky_rgb, np.float32)
 
+        def per_pixel(rgb: tuple[float, float, float] | np.ndarray) -> np.ndarray:
+            return np.asarray(rgb, np.float32)[self.chan]
+
+        hor = np.asarray(lt.horizon_rgb, np.float32)
+        #: channel-dependent constants as per-pixel maps (flat float32), sliced instead of gathered
+        self.chan_maps = {"sun": per_pixel(self.sun_rgb), "sky": per_pixel(self.sky_rgb), "hor": per_pixel(hor),
+                          "zen_minus_hor": per_pixel(np.asarray(lt.zenith_rgb, np.float32) - hor),
+                          "halo": per_pixel(lt.halo_rgb), "treeline": per_pixel(scene.treeline_albedo)}
+
     # ------------------------------------------------------------------ helpers
     def _light(self, nx: np.ndarray, ny: np.ndarray, nz: np.ndarray, ch: np.ndarray) -> np.ndarray:
         s = self.sun
@@ -183,8 +192,10 @@ class SideRenderer:
 
     # ------------------------------------------------------------------ sky and treeline
     def _far(self, o: np.ndarray, dx: np.ndarray, dy: np.ndarray, dz: np.ndarray,
-             chan: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Radiance and range (inf for sky) of rays that miss the ground: the far treeline or the sky."""
+             sl: slice) -> tuple[np.ndarray, np.ndarray]:
+        """Radiance and range (inf for sky) of rays that miss the ground (the far treeline or the sky), for the
+        flat pixel range ``sl`` whose world directions are dx, dy, dz."""
+        cm = {k: v[sl] for k, v in self.chan_maps.items()}
         sc = self.scene
         lt = sc.lighting
         f32 = np.float32
@@ -209,15 +220,15 @@ class SideRenderer:
             shade = f32(0.6) + f32(0.4) * np.clip(hz / top, 0.0, 1.0)
             inv_a = f32(1.0) / np.sqrt(a)
             ndots = np.maximum(-(dx * self.sun[0] + dy * self.sun[1]) * inv_a, 0.0)
-            light = self.sun_rgb[chan] * ndots + self.sky_rgb[chan] * f32(0.5)
-            tree_rad = np.asarray(sc.treeline_albedo, f32)[chan] * streak * shade * light
+            light = cm["sun"] * ndots
+            light += cm["sky"] * f32(0.5)
+            tree_rad = cm["treeline"] * streak * shade * light
         # sky: horizon-to-zenith gradient, halo and solar disk
-        hor = np.asarray(lt.horizon_rgb, f32)[chan]
-        zen = np.asarray(lt.zenith_rgb, f32)[chan]
-        sky = hor + (zen - hor) * np.sqrt(np.clip(dz, 0.0, 1.0))
+        sky = cm["zen_minus_hor"] * np.sqrt(np.clip(dz, 0.0, 1.0))
+        sky += cm["hor"]
         cosang = dx * self.sun[0] + dy * self.sun[1] + dz * self.sun[2]
         ang = np.sqrt(np.maximum(f32(2.0) * (f32(1.0) - cosang), 0.0))
-        sky += np.asarray(lt.halo_rgb, f32)[chan] * np.exp(-ang * f32(1.0 / lt.halo_rad))
+        sky += cm["halo"] * np.exp(-ang * f32(1.0 / lt.halo_rad))
         sky[ang < lt.disk_rad] = lt.disk_radiance
         if not may_hit:
             return sky, np.full(sky.shape, np.inf, f32)
@@ -492,7 +503,7 @@ class SideRenderer:
             if n_g:
                 rad[a:b], rng_buf[a:b] = self._ground(o, d[0, a:b], d[1, a:b], dz[a:b], self.chan_f[a:b], dz_max)
             if n_g < b - a:
-                far_rad, far_rng = self._far(o, d[0, a:b], d[1, a:b], dz[a:b], self.chan[a:b])
+                far_rad, far_rng = self._far(o, d[0, a:b], d[1, a:b], dz[a:b], slice(a, b))
                 if n_g:
                     rad[a:b] = np.where(g, rad[a:b], far_rad)
                     rng_buf[a:b] = np.where(g, rng_buf[a:b], far_rng)
