@@ -140,6 +140,7 @@ class Emulator:
         # fused irradiance per (bracket images, reference): independent of the target, reused across targets. The
         # cache holds the arrays themselves so their ids stay unique while cached.
         self._fusion_cache: list[tuple[tuple[np.ndarray, ...], int, FusionResult]] = []
+        self._sat_cache: list[tuple[np.ndarray, str, float]] = []
 
     @property
     def gain(self) -> float:
@@ -154,12 +155,21 @@ class Emulator:
     def select(self, images: dict[int, np.ndarray], target_us: float) -> int:
         """The source bracket (exposure_us) of a single-bracket selection mode for ``target_us``."""
         exps = sorted(images)
-        sat = self.response.saturated_code
+        count: SatCount = "both" if self.config.selection == "upstream" else self.config.sat_count
+        fractions = {e: self._saturation(images[e], count) for e in exps}
         if self.config.selection == "upstream":
-            both = {e: saturation_fraction(images[e], sat, "both") for e in exps}
-            return select_upstream(exps, target_us, both)
-        over = {e: saturation_fraction(images[e], sat, self.config.sat_count) for e in exps}
-        return select_highernosat(exps, target_us, over, self.config.alpha)
+            return select_upstream(exps, target_us, fractions)
+        return select_highernosat(exps, target_us, fractions, self.config.alpha)
+
+    def _saturation(self, image: np.ndarray, count: SatCount) -> float:
+        """Saturated fraction of one bracket, cached per array (the cache holds the array, so ids stay unique)."""
+        for arr, cached_count, value in self._sat_cache:
+            if arr is image and cached_count == count:
+                return value
+        value = saturation_fraction(image, self.response.saturated_code, count)
+        self._sat_cache.append((image, count, value))
+        del self._sat_cache[:-32]
+        return value
 
     def _rng(self, target_us: float, source_us: int) -> np.random.Generator:
         return np.random.default_rng([self.config.seed, round(target_us * 1000), int(source_us)])
