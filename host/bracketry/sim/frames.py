@@ -98,6 +98,6 @@ class FrameSchedule:
 
         lines = ["# bracketry simulated rig ground truth (TUM): t_s tx ty tz qx qy qz qw, left camera, host time"]
         for i, t_ns in enumerate(stamps_ns):
-            lines.append(tum_line(t_ns / 1e9, self.world.pose(self.t_s(first_k + i))))
+            lines.append(tum_line(int(t_ns), self.world.pose(self.t_s(first_k + i))))
         path.write_text("\n".join(lines) + "\n")
         return len(stamps_ns)
