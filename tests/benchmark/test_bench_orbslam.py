@@ -64,3 +64,26 @@ def test_bench_import_orbslam_segments(toy: Path, tmp_path: Path) -> None:
     assert m["time_before_failure_s"] == pytest.approx(4 / ToyWorld().fps, abs=1e-3)
     assert m["windows"][0]["n_pairs"] > 0 and np.isfinite(m["rte_pct"])
     assert np.isnan(m["matches_mean"])  # ORB-SLAM's trajectories carry no per-frame feature counts
+
+
+def test_bench_cli_export_and_external_trajectories(toy: Path, tmp_path: Path) -> None:
+    import json
+    import shutil
+
+    from bracketry.cli import main as cli_main
+
+    name = toy.name
+    assert cli_main(["benchmark", str(toy), "--methods", "ae50", "--out", str(tmp_path / "a"), "--windows", "1",
+                     "--export-orbslam"]) == 0
+    assert (tmp_path / "a" / "orbslam" / name / "ae50" / "settings.yaml").is_file()
+    # stand-in for ORB-SLAM run on that export: our own trajectory file
+    slam = tmp_path / "slam" / name / "ae50"
+    slam.mkdir(parents=True)
+    shutil.copy(tmp_path / "a" / "vo" / name / "ae50" / "CameraTrajectory0.txt", slam)
+    assert cli_main(["benchmark", str(toy), "--methods", "ae50", "--out", str(tmp_path / "b"), "--windows", "1",
+                     "--slam-trajectories", str(tmp_path / "slam")]) == 0
+    a = json.loads((tmp_path / "a" / "report" / "results.json").read_text())[0]
+    b = json.loads((tmp_path / "b" / "report" / "results.json").read_text())[0]
+    assert b["success"] and b["rte_pct"] == pytest.approx(a["rte_pct"], rel=1e-6)
+    assert cli_main(["benchmark", str(toy), "--methods", "ae50", "--out", str(tmp_path / "c"),
+                     "--slam-trajectories", str(tmp_path / "nowhere")]) == 2

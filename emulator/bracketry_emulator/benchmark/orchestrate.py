@@ -77,11 +77,13 @@ def _run_dask(tasks: list[dict], scheduler: str, on_done: Callable[[dict], None]
 def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str | list[str], out_dir: str | Path,
                   reference: str = "ae50", scheduler: str | None = None, workers: int = 1,
                   windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, max_frames: int | None = None,
-                  alpha: float = 0.05, report: bool = True,
+                  alpha: float = 0.05, report: bool = True, export_orbslam: bool = False,
+                  slam_dir: str | Path | None = None,
                   on_done: Callable[[dict], None] | None = None) -> BenchmarkResult:
     """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
     ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``).
+    ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
     """
     paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
     specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
@@ -90,7 +92,10 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
         raise BracketryError(f"reference method {reference!r} is not among the benchmarked methods {method_ids}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    tasks = [make_task(s, m, out, windows_m, max_frames) for s in specs for m in method_ids]
+    slam = Path(slam_dir).resolve() if slam_dir else None
+    if slam is not None and not slam.is_dir():
+        raise BracketryError(f"--slam-trajectories folder not found: {slam}")
+    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam) for s in specs for m in method_ids]
     results = _run_dask(tasks, scheduler, on_done) if scheduler else _run_local(tasks, workers, on_done)
     results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
     files: dict[str, Path] = {}

@@ -4,6 +4,7 @@ Output layout under the benchmark folder ``out``::
 
     runs/<trajectory>/<method>/...        emulated run (RunWriter layout), unless the dataset already had it
     vo/<trajectory>/<method>/frames.csv   VO per-frame log + CameraTrajectory<n>.txt segments
+    orbslam/<trajectory>/<method>/        with export_orbslam: the run in ORB-SLAM's stereo-example layout
     cache/<trajectory>/<method>.json      the task's result (metrics); present = done
 
 A task whose cache file exists with the same key (dataset path, method, VO/metric settings) is not recomputed, so an
@@ -26,8 +27,13 @@ CACHE_VERSION = 1
 
 
 def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M,
-              max_frames: int | None = None) -> dict:
-    """A picklable task description."""
+              max_frames: int | None = None, export_orbslam: bool = False, slam_dir: Path | None = None) -> dict:
+    """A picklable task description.
+
+    ``export_orbslam``: also write the run in ORB-SLAM's stereo-example layout to
+    ``out/orbslam/<trajectory>/<method>/``. ``slam_dir``: evaluate external SLAM trajectories
+    ``slam_dir/<trajectory>/<method>/CameraTrajectory*.txt`` instead of running the built-in VO.
+    """
     task = {
         "trajectory": spec.name, "subset": spec.subset, "method": method,
         "dataset": str(spec.path), "out": str(out_dir),
@@ -35,9 +41,10 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
         "calibration": str(spec.calibration_dir()) if spec.calibration_dir() else None,
         "existing_run": str(spec.existing_run(method)) if spec.existing_run(method) else None,
         "windows_m": [float(w) for w in windows_m], "max_frames": max_frames,
+        "export_orbslam": bool(export_orbslam), "slam_dir": str(slam_dir) if slam_dir else None,
     }
     key_src = json.dumps({k: task[k] for k in ("dataset", "method", "groundtruth", "calibration", "existing_run",
-                                               "windows_m", "max_frames")}, sort_keys=True)
+                                               "windows_m", "max_frames", "slam_dir")}, sort_keys=True)
     task["key"] = hashlib.sha256(f"v{CACHE_VERSION}:{key_src}".encode()).hexdigest()[:16]
     return task
 
@@ -89,8 +96,18 @@ def run_task(task: dict) -> dict:
         run_dir = Path(task["existing_run"])
     else:
         run_dir = emulate_run(Path(task["dataset"]), task["method"], out / "runs" / task["trajectory"])
+    if task.get("export_orbslam"):
+        from bracketry_emulator.vo.orbslam import export_orbslam
+
+        export_orbslam(run_dir, task["calibration"], out / "orbslam" / task["trajectory"] / task["method"])
     vo_dir = out / "vo" / task["trajectory"] / task["method"]
-    run_vo(run_dir, task["calibration"], vo_dir, max_frames=task["max_frames"])
+    if task.get("slam_dir"):
+        from bracketry_emulator.vo.orbslam import import_orbslam
+
+        slam = Path(task["slam_dir"]) / task["trajectory"] / task["method"]
+        import_orbslam(slam, run_dir / "times_images_left.txt", vo_dir)
+    else:
+        run_vo(run_dir, task["calibration"], vo_dir, max_frames=task["max_frames"])
     metrics = evaluate_run(vo_dir, task["groundtruth"], tuple(task["windows_m"]))
     result = {"trajectory": task["trajectory"], "subset": task["subset"], "method": task["method"],
               "key": task["key"], "run_dir": str(run_dir), "vo_dir": str(vo_dir), **metrics}

@@ -39,8 +39,14 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--alpha", default=0.05, show_default=True, type=click.FloatRange(0, 1, min_open=True, max_open=True),
               help="Significance level before the Bonferroni correction.")
 @click.option("--max-frames", default=None, type=click.IntRange(2), help="Only the first N frames of each run.")
+@click.option("--export-orbslam", is_flag=True,
+              help="Also export each run for ORB-SLAM2/3's stereo examples to OUT/orbslam/<trajectory>/<method>/.")
+@click.option("--slam-trajectories", "slam_dir", default=None, type=click.Path(file_okay=False),
+              help="Evaluate external SLAM output DIR/<trajectory>/<method>/CameraTrajectory*.txt instead of the "
+                   "built-in VO.")
 def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: str, scheduler: str | None,
-            workers: int, windows_text: str, alpha: float, max_frames: int | None) -> int:
+            workers: int, windows_text: str, alpha: float, max_frames: int | None, export_orbslam: bool,
+            slam_dir: str | None) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
     Per (trajectory, method): run the closed loop (unless the dataset already holds that method's emulated run),
@@ -62,6 +68,7 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
                    f"matches {r['matches_mean']:.0f}")
 
     result = run_benchmark(list(datasets), methods, out_dir, reference=reference, scheduler=scheduler,
-                           workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha, on_done=done)
+                           workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
+                           export_orbslam=export_orbslam, slam_dir=slam_dir, on_done=done)
     click.echo(f"report: {result.report_files.get('report.html')}")
     return 0
