@@ -57,28 +57,38 @@ def c_kernel() -> ctypes._CFuncPtr | None:  # type: ignore[name-defined]
         return None
     cc = shutil.which(os.environ.get("CC", "cc")) or shutil.which("gcc")
     digest = hashlib.sha256(_C_SOURCE.encode()).hexdigest()[:16]
-    lib_path = _cache_dir() / f"lut12-{digest}.so"
-    try:
-        if not lib_path.is_file():
-            if cc is None:
-                return None
-            lib_path.parent.mkdir(parents=True, exist_ok=True)
-            with tempfile.TemporaryDirectory() as tmp:
-                src = Path(tmp) / "lut12.c"
-                src.write_text(_C_SOURCE)
-                tmp_lib = Path(tmp) / "lut12.so"
-                subprocess.run([cc, "-O3", "-shared", "-fPIC", "-o", str(tmp_lib), str(src)], check=True,
-                               capture_output=True, timeout=60)
-                part = lib_path.with_suffix(f".{os.getpid()}.part")
-                shutil.copy(tmp_lib, part)
-                os.replace(part, lib_path)
-        fn = ctypes.CDLL(str(lib_path)).bracketry_lut12
-    except (OSError, subprocess.SubprocessError, AttributeError):
+    for folder in (_cache_dir(), Path(tempfile.gettempdir()) / f"bracketry-{os.getuid()}"):
+        lib_path = folder / f"lut12-{digest}.so"
+        try:
+            if not lib_path.is_file():
+                if cc is None:
+                    return None
+                _compile(cc, lib_path)
+            fn = ctypes.CDLL(str(lib_path)).bracketry_lut12
+            break
+        except (OSError, subprocess.SubprocessError, AttributeError):
+            continue
+    else:
         return None
     fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t]
     fn.restype = None
     _CKERNEL = fn
     return fn
+
+
+def _compile(cc: str, lib_path: Path) -> None:
+    """Compile the C gather into ``lib_path`` (atomically: build in a temp dir, then rename)."""
+    lib_path.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory() as tmp:
+        src = Path(tmp) / "lut12.c"
+        src.write_text(_C_SOURCE)
+        tmp_lib = Path(tmp) / "lut12.so"
+        subprocess.run([cc, "-O3", "-shared", "-fPIC", "-o", str(tmp_lib), str(src)], check=True,
+                       capture_output=True, timeout=60)
+        part = lib_path.with_suffix(f".{os.getpid()}.part")
+        shutil.copy(tmp_lib, part)
+        os.replace(part, lib_path)
+
 
 #: Pixels per chunk: small enough for the cache, large enough to amortise the call.
 CHUNK_PIXELS = 1 << 18
