@@ -84,6 +84,8 @@ class SideRenderer:
         cell = np.array(BAYER_RGGB, dtype=np.int8)
         self.chan = np.tile(cell, (h // 2 + 1, w // 2 + 1))[:h, :w].ravel().copy()
         self.chan_f = self.chan.astype(np.float32)
+        #: row offset of each pixel's channel plane in the ground atlas
+        self.atlas_row_off = self.chan_f * np.float32(scene.ground.row_stride)
         # angular size of a pixel (rad), per pixel: ~ 1/f scaled by the local ray density
         self.pix_rad = np.float32(1.0 / np.sqrt(intr.fx * intr.fy))
         cyl = scene.prims.cylinders
@@ -125,10 +127,10 @@ class SideRenderer:
         return self.sun_rgb[ch] * ndots + self.sky_rgb[ch] * (0.5 + 0.5 * nz)
 
     # ------------------------------------------------------------------ ground
-    def _ground(self, o: np.ndarray, dx: np.ndarray, dy: np.ndarray, dz: np.ndarray, ch: np.ndarray,
+    def _ground(self, o: np.ndarray, dx: np.ndarray, dy: np.ndarray, dz: np.ndarray, sl: slice,
                 dz_max: float) -> tuple[np.ndarray, np.ndarray]:
-        """Ground radiance and range for a block of rays (flat float32 arrays; rays with dz >= dz_max are treated
-        as dz_max and give values the caller discards).
+        """Ground radiance and range for the flat pixel range ``sl`` whose world directions are dx, dy, dz (rays
+        with dz >= dz_max are treated as dz_max and give values the caller discards).
 
         Two atlas lookups per ray, blended linearly in the pixel footprint between the levels (L0 at a footprint of
         one finest texel, L1 at 4, L2 at texel_L2 / texel_L0)."""
@@ -160,7 +162,7 @@ class SideRenderer:
                 c += f32(offset)
             return c
 
-        row_off = ch * f32(at.row_stride)
+        row_off = self.atlas_row_off[sl]
         n_up = int(np.count_nonzero(upper))
         if n_up == 0:
             pair = (0, 1)  # the whole block blends L0 and L1
@@ -501,7 +503,7 @@ class SideRenderer:
             g = is_ground[a:b]
             n_g = int(np.count_nonzero(g))
             if n_g:
-                rad[a:b], rng_buf[a:b] = self._ground(o, d[0, a:b], d[1, a:b], dz[a:b], self.chan_f[a:b], dz_max)
+                rad[a:b], rng_buf[a:b] = self._ground(o, d[0, a:b], d[1, a:b], dz[a:b], slice(a, b), dz_max)
             if n_g < b - a:
                 far_rad, far_rng = self._far(o, d[0, a:b], d[1, a:b], dz[a:b], slice(a, b))
                 if n_g:
