@@ -33,7 +33,6 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.records import (
     Channel,
-    Chunk,
     ChunkIndex,
     DataEnd,
     Footer,
@@ -50,16 +49,34 @@ MAGIC = b"\x89MCAP0\r\n"
 COMPRESSIONS = ("zstd", "lz4", "none")
 
 
-def _compress(data: bytes, compression: str, level: int) -> bytes:
+def _compress_parts(parts: list[Any], compression: str, level: int) -> tuple[list[bytes], int]:
+    """Compress the concatenation of ``parts`` without joining them; returns (compressed pieces, CRC32 of the input)."""
+    crc = 0
+    out: list[bytes] = []
     if compression == "zstd":
         import zstandard
 
-        return zstandard.ZstdCompressor(level=level).compress(data)
-    if compression == "lz4":
+        cobj = zstandard.ZstdCompressor(level=level).compressobj()
+        for p in parts:
+            crc = zlib.crc32(p, crc)
+            piece = cobj.compress(p)
+            if piece:
+                out.append(piece)
+        out.append(cobj.flush())
+    elif compression == "lz4":
         import lz4.frame
 
-        return bytes(lz4.frame.compress(data, compression_level=max(0, level)))
-    return data
+        comp = lz4.frame.LZ4FrameCompressor(compression_level=max(0, level))
+        out.append(comp.begin())
+        for p in parts:
+            crc = zlib.crc32(p, crc)
+            out.append(comp.compress(p))
+        out.append(comp.flush())
+    else:
+        for p in parts:
+            crc = zlib.crc32(p, crc)
+        out = [bytes(p) if not isinstance(p, bytes) else p for p in parts]
+    return out, crc
 
 
 @dataclass
@@ -204,16 +221,12 @@ class ChunkedMcapWriter:
         if oc.n_messages == 0:
             return
         self._open = _OpenChunk()
-        payload = b"".join(oc.parts)
-        future = self._pool.submit(self._compress_job, payload)
-        self._in_flight.append(_ClosedChunk(future, oc.start_time, oc.end_time, len(payload), dict(oc.indices)))
-        self.uncompressed_bytes += len(payload)
+        future = self._pool.submit(_compress_parts, oc.parts, self.compression, self.level)
+        self._in_flight.append(_ClosedChunk(future, oc.start_time, oc.end_time, oc.size, dict(oc.indices)))
+        self.uncompressed_bytes += oc.size
         while len(self._in_flight) > self._max_in_flight:
             self._drain_one()
         self._drain(block=False)
-
-    def _compress_job(self, payload: bytes) -> tuple[bytes, int]:
-        return _compress(payload, self.compression, self.level), zlib.crc32(payload)
 
     def _drain(self, block: bool) -> None:
         while self._in_flight and (block or self._in_flight[0].future.done()):
@@ -221,11 +234,18 @@ class ChunkedMcapWriter:
 
     def _drain_one(self) -> None:
         cc = self._in_flight.popleft()
-        compressed, crc = cc.future.result()
-        chunk = Chunk(compression="" if self.compression == "none" else self.compression, data=compressed,
-                      message_start_time=cc.start_time, message_end_time=cc.end_time, uncompressed_crc=crc,
-                      uncompressed_size=cc.uncompressed_size)
-        chunk_start = self._write_record(chunk)
+        pieces, crc = cc.future.result()
+        compressed_size = sum(len(p) for p in pieces)
+        compression = "" if self.compression == "none" else self.compression
+        name = compression.encode()
+        body_len = 8 + 8 + 8 + 4 + 4 + len(name) + 8 + compressed_size
+        chunk_start = self.bytes_written
+        # Chunk record written field by field so the compressed pieces are not copied again
+        self._write(struct.pack("<BQQQQI", Opcode.CHUNK, body_len, cc.start_time, cc.end_time,
+                                cc.uncompressed_size, crc) + struct.pack("<I", len(name)) + name
+                    + struct.pack("<Q", compressed_size))
+        for piece in pieces:
+            self._write(piece)
         chunk_length = self.bytes_written - chunk_start
         index_start = self.bytes_written
         offsets: dict[int, int] = {}
@@ -238,7 +258,7 @@ class ChunkedMcapWriter:
         self._chunk_indexes.append(ChunkIndex(
             message_start_time=cc.start_time, message_end_time=cc.end_time, chunk_start_offset=chunk_start,
             chunk_length=chunk_length, message_index_offsets=offsets, message_index_length=len(index_data),
-            compression=chunk.compression, compressed_size=len(compressed), uncompressed_size=cc.uncompressed_size))
+            compression=compression, compressed_size=compressed_size, uncompressed_size=cc.uncompressed_size))
         self._f.flush()
         now = time.monotonic()
         if self.fsync_interval_s is not None and now - self._last_fsync >= self.fsync_interval_s:
