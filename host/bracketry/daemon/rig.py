@@ -102,7 +102,9 @@ class RigDaemon:
         self._backoff = {name: _Backoff(*self.options.backoff_s) for name in ("trigger", "left", "right", "panel")}
         self._last_frames: dict[str, tuple[float, int]] = {}
         self._trigger_reboots_seen = 0
-        self._delivering = False
+        self._deliver_lock = threading.Lock()
+        self._soft_failed: set[str] = set()
+        self._pump_paused = threading.Event()
         self._last_soft_trigger = 0.0
         self._fired = 0
 
@@ -304,7 +306,7 @@ class RigDaemon:
             free = free_mb(self.config.output_dir)
             self.state.set_free_disk_mb(free)
             if free < self.config.min_free_mb:
-                self.state.set_message(f"DISK LOW {free // 1024}GB")
+                self.state.set_message(f"DISK LOW {free // 1024}GB" if free >= 1024 else f"DISK LOW {free}MB")
                 log.error("recording refused: %d MB free < min_free_mb %d", free, self.config.min_free_mb)
                 return False
             if not self.sensors_on:
@@ -315,7 +317,8 @@ class RigDaemon:
             self.segment_index = 0
             self.state.set_recording(str(self.config.output_dir / self.rec_name))
             started = self._segment_start()
-            self.state.set_message("RECORDING" if started else "REC WAITING")
+            if not started:
+                self.state.set_message("REC WAITING")
             return started
 
     def stop_recording(self) -> dict[str, Any] | None:
@@ -358,6 +361,7 @@ class RigDaemon:
 
             SoftwareTrigger(dict(self.cameras)).prime()  # the fake loses the first trigger after AcquisitionStart
         self._fired = 0
+        self._soft_failed = set()
         self._session_id = (self._session_id + 1) & 0xFFFFFFFF or 1
         self._recorder, self._session = recorder, session
         self._last_frames = {}
@@ -371,6 +375,8 @@ class RigDaemon:
         for side in self.cameras:
             self.state.set_state(CAM_SENSOR[side], SensorState.REC)
         self.state.set_state("trigger", SensorState.REC)
+        missing = [cc.side for cc in self.config.cameras if cc.side not in self.cameras]
+        self.state.set_message(f"REC: {missing[0].upper()} CAM ERR" if missing else "RECORDING")
         log.info("segment %s started: sides=%s session_id=%d", name, cfg.sides, self._session_id)
         return True
 
@@ -384,10 +390,15 @@ class RigDaemon:
             except Exception as exc:
                 log.warning("trigger STOP failed: %s", exc)
         deadline = time.monotonic() + 2.0
-        while (not self._events.empty() or self._delivering) and time.monotonic() < deadline:
+        while not self._events.empty() and time.monotonic() < deadline:
             time.sleep(0.02)  # the pump delivers the last events (and fires their software triggers)
-        self._session = self._recorder = None
-        self._drain_events(session)
+        self._pump_paused.set()
+        try:
+            with self._deliver_lock:  # an event the pump holds reaches this session before it stops
+                self._session = self._recorder = None
+            self._drain_events(session)
+        finally:
+            self._pump_paused.clear()
         status = session.stop(drain_s=1.0, expect_frames=self._fired)
         rsum = recorder.summary
         summary = {"dir": str(recorder.out_dir), "files": list(rsum.files), "frames_written": dict(rsum.frames_written),
@@ -429,31 +440,41 @@ class RigDaemon:
             if wait_s > 0:
                 time.sleep(wait_s)
             self._last_soft_trigger = time.monotonic()
-            for cam in list(session.cameras.values()):
-                with contextlib.suppress(Exception):
-                    cam.set_exposure_us(ev.exposure_us)
-            for cam in list(session.cameras.values()):
-                with contextlib.suppress(Exception):
-                    cam.software_trigger()
+            # a camera that fails a GVCP write is gone (each further write would wait for GVCP timeouts and hold
+            # up the other camera): it is skipped until the next segment; the stall check takes it down
+            cams = {side: cam for side, cam in session.cameras.items() if side not in self._soft_failed}
+            for step in ("set_exposure_us", "software_trigger"):
+                for side, cam in cams.items():
+                    if side in self._soft_failed:
+                        continue
+                    try:
+                        if step == "set_exposure_us":
+                            cam.set_exposure_us(ev.exposure_us)
+                        else:
+                            cam.software_trigger()
+                    except Exception as exc:
+                        self._soft_failed.add(side)
+                        log.warning("camera %s: software trigger failed: %s", side, exc)
             self._fired += 1
         session.on_trigger_event(ev)
         self.state.count("trigger_events")
 
     def _pump_events(self) -> None:
+        """Deliver TRIGGER events to the open session; paused while a segment closes (it drains the queue)."""
         while not self._stop.is_set():
-            try:
-                ev = self._events.get(timeout=0.2)
-            except queue.Empty:
+            if self._pump_paused.is_set():
+                time.sleep(0.01)
                 continue
-            if ev is None:
-                return
-            session = self._session
-            if session is not None:
-                self._delivering = True
+            with self._deliver_lock:
                 try:
+                    ev = self._events.get(timeout=0.05)
+                except queue.Empty:
+                    continue
+                if ev is None:
+                    return
+                session = self._session
+                if session is not None:
                     self._deliver(ev, session)
-                finally:
-                    self._delivering = False
 
     # ------------------------------------------------------------------------------------------------ supervision
     def _supervise(self) -> None:
@@ -515,9 +536,23 @@ class RigDaemon:
                 self.state.set_fps(side, fps)
             if now - self._last_frames[side][0] > self.options.camera_stall_s:
                 log.error("camera %s: no frame for %.1f s", side, now - self._last_frames[side][0])
-                self._camera_down(side, SensorState.ERR, "no frames")
-                self._restart_segment(f"camera {side} lost")
+                self._camera_lost(side, session)
                 return
+
+    def _camera_lost(self, side: str, session: Any) -> None:
+        """A recording camera stalled: ERR, the segment closes without it, a new one starts with what works.
+
+        The session stops every camera it holds with AcquisitionStop, which a camera gone from the network answers
+        only after GVCP timeouts (seconds): the lost camera leaves the session first and is closed in the
+        background once the segment is closed (its stream thread no longer used by the pairing thread)."""
+        cam = self.cameras.pop(side, None)
+        session.cameras = {s: c for s, c in session.cameras.items() if s != side}  # rebind: readers keep the old
+        self.state.set_state(CAM_SENSOR[side], SensorState.ERR, "no frames")
+        self.state.set_fps(side, 0.0)
+        self._backoff[side].failed()
+        self._restart_segment(f"camera {side} lost")
+        if cam is not None:
+            threading.Thread(target=_close_quietly, args=(cam,), name=f"close-{side}", daemon=True).start()
 
     def _reconnect(self) -> None:
         if not self.sensors_on:
@@ -546,6 +581,11 @@ class RigDaemon:
             self.on_button(str(button), bool(request.get("long", False)))
             return {"ok": True}
         return {"ok": False, "error": f"unknown cmd {cmd!r}"}
+
+
+def _close_quietly(cam: Any) -> None:
+    with contextlib.suppress(Exception):
+        cam.close()
 
 
 def install_signal_handlers(daemon: RigDaemon) -> Callable[[], None]:

@@ -1,0 +1,323 @@
+"""Scripted sessions of the simulated rig with fault injection, for tests and demos; each writes a JSON result.
+
+Run as ``python -m bracketry.sim.faults --scenario NAME --out DIR --result FILE`` inside a private network namespace
+(:func:`scenario_argv` builds the whole command line: ``unshare -n`` and, for ``disk``, a private mount namespace with
+a small tmpfs as the recording disk). The test process stays outside and asserts on the JSON result and the files.
+
+Scenarios (panel buttons pressed through the panel firmware simulator, states read from the screen file and the
+status socket):
+
+- ``e2e``: SENSORS -> IDLE, RECORD -> REC, ``--seconds`` of recording, RECORD -> IDLE, SIGTERM -> exit code; then
+  the one-shot ``bracketry record --config F --duration D`` on the same simulated devices.
+- ``faults``: while recording: trigger simulator killed and restarted, right camera stopped and restarted, panel
+  rebooted (its simulator killed and restarted), then SIGKILL of the daemon (``t_kill_ns`` in the result).
+- ``disk``: recording on a small tmpfs that a ballast file fills: the daemon stops cleanly below ``stop_free_mb``
+  and refuses RECORD below ``min_free_mb``; the segments are verified inside (the tmpfs dies with the namespace).
+
+The result holds ``steps`` (name, monotonic time, screen lines, sensor states, message, counters at each checkpoint),
+``served`` (exposure of every frame each fake camera served, in order, across restarts, with ``served_at`` counts per
+step), ``segments`` and, when the scenario failed, ``error`` with a traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import json
+import os
+import shlex
+import signal
+import subprocess
+import sys
+import time
+import traceback
+from pathlib import Path
+from typing import Any
+
+from bracketry.errors import BracketryError
+from bracketry.sim.rig import CAMERA_ADDRESSES, NETNS_ENV, SimOptions, SimulatedRig
+
+ALL = ("cam_left", "cam_right", "trigger")
+SCENARIOS = ("e2e", "faults", "disk")
+#: exposure the daemon's priming trigger uses at each segment start (not a bracket; see SoftwareTrigger.prime)
+PRIMING_EXPOSURE_US = 77
+
+
+def scenario_argv(scenario: str, out: Path, result: Path, *args: str, tmpfs_mb: int | None = None) -> list[str]:
+    """The command running ``scenario`` in a private network namespace (and, with ``tmpfs_mb``, a private mount
+    namespace where ``out/disk`` is a tmpfs of that many MiB)."""
+    from bracketry.cameras.netns import netns_argv
+
+    inner = [sys.executable, "-m", "bracketry.sim.faults", "--scenario", scenario, "--out", str(out),
+             "--result", str(result), *args]
+    argv = netns_argv(inner, tuple(CAMERA_ADDRESSES.values()))
+    if tmpfs_mb is None:
+        return argv
+    disk = out / "disk"
+    script = (f"mkdir -p {shlex.quote(str(disk))} && mount -t tmpfs -o size={int(tmpfs_mb)}m bracketry-sim "
+              f"{shlex.quote(str(disk))} && exec \"$@\"")
+    return ["unshare", "--mount", "--propagation", "private", "sh", "-c", script, "mountns", *argv]
+
+
+class Session:
+    """One scripted run: the rig, checkpoints and the served-frame bookkeeping across camera restarts."""
+
+    def __init__(self, rig: SimulatedRig) -> None:
+        self.rig = rig
+        self.t0 = time.monotonic()
+        self.steps: list[dict[str, Any]] = []
+        self._served_done: dict[str, list[int]] = {"left": [], "right": []}
+
+    def served(self) -> dict[str, list[int]]:
+        """Exposure (µs) of every frame each side's fake camera served so far, restarts included."""
+        out = {}
+        for side in ("left", "right"):
+            cam = self.rig.cameras.get(side)
+            out[side] = self._served_done[side] + (cam.exposures() if cam is not None else [])
+        return out
+
+    def stop_camera(self, side: str) -> None:
+        cam = self.rig.cameras.get(side)
+        if cam is not None:
+            self._served_done[side] += cam.exposures()
+        self.rig.stop_camera(side)
+
+    def step(self, name: str, **extra: Any) -> dict[str, Any]:
+        """Record a checkpoint: screen, daemon state (if it answers), served frame counts."""
+        reply = self.rig._status_or_none()
+        state = reply["state"] if reply else None
+        entry = {"name": name, "t_s": round(time.monotonic() - self.t0, 2), "t_ns": time.time_ns(),
+                 "screen": self.rig.screen(), "states": state["states"] if state else None,
+                 "message": state["message"] if state else None, "counters": state["counters"] if state else None,
+                 "recording": state["recording"] if state else None, "segments": reply["segments"] if reply else None,
+                 "panel": reply.get("panel") if reply else None,
+                 "served_at": {s: len(v) for s, v in self.served().items()}, **extra}
+        self.steps.append(entry)
+        self.rig.o.echo(f"[{entry['t_s']:6.1f} s] {name}: states={entry['states']} message={entry['message']!r}")
+        return entry
+
+    def wait_message(self, text: str, timeout_s: float) -> None:
+        """Wait until the daemon's message line contains ``text``."""
+        deadline = time.monotonic() + timeout_s
+        last = None
+        while time.monotonic() < deadline:
+            reply = self.rig._status_or_none()
+            if reply is not None:
+                last = reply["state"]["message"]
+                if text in last:
+                    return
+            self.rig.check_alive()
+            time.sleep(0.2)
+        raise BracketryError(f"timeout waiting for message {text!r}: daemon says {last!r}")
+
+    def wait_segments(self, n: int, timeout_s: float) -> None:
+        """Wait until the daemon has closed ``n`` recording segments."""
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            reply = self.rig._status_or_none()
+            if reply is not None and reply["segments"] >= n:
+                return
+            self.rig.check_alive()
+            time.sleep(0.2)
+        raise BracketryError(f"the daemon did not close {n} segments within {timeout_s:g} s")
+
+    def wait_recorded_events(self, n: int, timeout_s: float) -> None:
+        """Wait until the daemon has delivered ``n`` more trigger events than now (recording makes progress)."""
+        start = self._events()
+        deadline = time.monotonic() + timeout_s
+        while time.monotonic() < deadline:
+            if self._events() >= start + n:
+                return
+            self.rig.check_alive()
+            time.sleep(0.2)
+        raise BracketryError(f"the recording made no progress ({n} events) within {timeout_s:g} s")
+
+    def _events(self) -> int:
+        reply = self.rig._status_or_none()
+        return int(reply["state"]["counters"].get("trigger_events", 0)) if reply else 0
+
+
+def _screen_has(rig: SimulatedRig, text: str) -> bool:
+    return any(text in line for line in rig.screen())
+
+
+def _sensors_and_record(s: Session) -> None:
+    rig = s.rig
+    rig.wait_screen("READY", 30.0)
+    s.step("ready")
+    rig.press("sensors")
+    rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
+    rig.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
+    s.step("idle")
+    rig.press("record")
+    rig.wait_states({k: "REC" for k in ALL}, 60.0)
+    rig.wait_screen("L:REC R:REC TRIG:REC", 20.0)
+    s.step("rec")
+
+
+def run_e2e(s: Session, seconds: float, record_s: float) -> dict[str, Any]:
+    """Buttons end to end, SIGTERM, then ``bracketry record`` one-shot."""
+    rig = s.rig
+    _sensors_and_record(s)
+    rig.run_for(seconds)
+    s.step("before_stop")
+    rig.press("record")
+    rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
+    rig.wait_screen("SAVED", 20.0)
+    rig.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
+    s.step("stopped")
+    rc = rig.stop_daemon(signal.SIGTERM)
+    s.step("sigterm", daemon_exit_code=rc)
+    out: dict[str, Any] = {"daemon_exit_code": rc}
+    if record_s > 0:
+        w, h = rig.o.resolution
+        cmd = [sys.executable, "-m", "bracketry", "record", "--config", str(rig.config_path), "--duration",
+               f"{record_s:g}s", "--software-trigger", "--roi", f"{w}x{h}"]
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=120 + record_s)
+        s.step("record_oneshot", exit_code=res.returncode)
+        out["record"] = {"exit_code": res.returncode, "stdout": res.stdout[-4000:], "stderr": res.stderr[-4000:]}
+    return out
+
+
+def run_faults(s: Session, seconds: float) -> dict[str, Any]:
+    """Trigger, camera and panel faults while recording, then SIGKILL of the daemon."""
+    rig = s.rig
+    _sensors_and_record(s)
+    s.wait_recorded_events(round(seconds * rig.o.fps), 60.0)
+    # 1. trigger simulator killed: ERR on the panel, segment closed; restarted: a new segment records
+    s.step("trigger_kill")
+    rig.stop_trigger(signal.SIGKILL)
+    rig.wait_states({"trigger": "ERR"}, 30.0)
+    rig.wait_screen("TRIG:ERR", 20.0)
+    s.step("trigger_err")
+    rig.start_trigger()
+    rig.wait_states({k: "REC" for k in ALL}, 60.0)
+    rig.wait_screen("TRIG:REC", 20.0)
+    s.step("trigger_back")
+    s.wait_recorded_events(round(seconds * rig.o.fps), 60.0)
+    # 2. right camera off the network: ERR, left goes on recording; back: a new segment with both
+    s.step("camera_stop")
+    s.stop_camera("right")
+    rig.wait_states({"cam_right": "ERR"}, 30.0)
+    rig.wait_screen("R:ERR", 20.0)
+    s.step("camera_err")
+    s.wait_segments(2, 60.0)  # trigger fault + camera fault closed two segments; the third records the left camera
+    s.wait_recorded_events(round(rig.o.fps), 60.0)
+    s.step("camera_err_recording")
+    rig.start_camera("right")
+    rig.wait_states({k: "REC" for k in ALL}, 60.0)
+    rig.wait_screen("R:REC", 20.0)
+    s.step("camera_back")
+    s.wait_recorded_events(round(seconds * rig.o.fps), 60.0)
+    # 3. panel rebooted: the daemon records on; the new panel shows the state again
+    s.step("panel_kill")
+    rig.stop_panel(signal.SIGKILL)
+    rig.screen_file.unlink(missing_ok=True)  # whatever is shown next comes from the rebooted panel
+    s.wait_recorded_events(round(rig.o.fps), 60.0)
+    s.step("panel_down")
+    rig.start_panel()
+    rig.wait_screen("L:REC R:REC TRIG:REC", 60.0)
+    s.step("panel_back")
+    s.wait_recorded_events(round(seconds * rig.o.fps), 60.0)
+    # 4. SIGKILL of the daemon mid-recording
+    before = s.step("before_kill")
+    proc = rig.procs.pop("daemon")
+    t_kill_ns = time.time_ns()
+    proc.send_signal(signal.SIGKILL)
+    rc = proc.wait(timeout=30)
+    s.step("killed", daemon_exit_code=rc)
+    return {"daemon_exit_code": rc, "t_kill_ns": t_kill_ns, "events_before_kill": before["counters"]}
+
+
+def run_disk(s: Session, ballast_mb: int) -> dict[str, Any]:
+    """Fill the recording disk with a ballast file while recording; the daemon must stop cleanly and refuse."""
+    rig = s.rig
+    from bracketry.daemon.disk import free_mb
+
+    disk = rig.rec_dir
+    _sensors_and_record(s)
+    s.wait_recorded_events(round(2 * rig.o.fps), 60.0)
+    s.step("filling", free_mb=free_mb(disk))
+    ballast = disk / "ballast.bin"
+    block = b"\xa5" * (1 << 20)
+    written = 0
+    with open(ballast, "wb") as f:
+        while written < ballast_mb and free_mb(disk) > rig.o.stop_free_mb - 4:
+            f.write(block)
+            f.flush()
+            written += 1
+            time.sleep(0.02)
+    s.step("filled", free_mb=free_mb(disk), ballast_mb=written)
+    s.wait_message("DISK FULL", 30.0)
+    rig.wait_states({k: "IDLE" for k in ALL}, 30.0)
+    rig.wait_screen("DISK FULL", 20.0)
+    s.step("disk_full")
+    rig.press("record")
+    s.wait_message("DISK LOW", 30.0)
+    rig.wait_screen("DISK LOW", 20.0)
+    s.step("refused")
+    rc = rig.stop_daemon(signal.SIGTERM)
+    s.step("sigterm", daemon_exit_code=rc)
+    from bracketry.recording.verify import verify_recording
+
+    reports = [verify_recording(seg).as_dict() for seg in rig.recordings()]
+    return {"daemon_exit_code": rc, "ballast_mb": written, "verify": reports}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--scenario", choices=SCENARIOS, required=True)
+    ap.add_argument("--out", type=Path, required=True)
+    ap.add_argument("--result", type=Path, required=True)
+    ap.add_argument("--seconds", type=float, default=10.0, help="e2e: recording time; faults: time between faults")
+    ap.add_argument("--record-seconds", type=float, default=10.0, help="e2e: duration of `bracketry record` (0: skip)")
+    ap.add_argument("--resolution", default="320x200")
+    ap.add_argument("--fps", type=float, default=22.0)
+    ap.add_argument("--world", action="store_true", help="serve the synthetic world (default: a test pattern)")
+    ap.add_argument("--min-free-mb", type=int, default=64)
+    ap.add_argument("--stop-free-mb", type=int, default=16)
+    ap.add_argument("--ballast-mb", type=int, default=4096)
+    ap.add_argument("--quiet", action="store_true")
+    args = ap.parse_args(argv)
+    from bracketry.cli.simulate import parse_resolution
+
+    os.environ[NETNS_ENV] = "1"
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    opts = SimOptions(out_dir=out, resolution=parse_resolution(args.resolution), fps=args.fps, world_seconds=3.0,
+                      world=args.world, min_free_mb=args.min_free_mb, stop_free_mb=args.stop_free_mb,
+                      output_dir=out / "disk" if args.scenario == "disk" else None,
+                      echo=(lambda _s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True)))
+    rig = SimulatedRig(opts)
+    session = Session(rig)
+    result: dict[str, Any] = {"scenario": args.scenario, "config": str(rig.config_path),
+                              "daemon_log": str(out / "daemon.log"), "screen_file": str(rig.screen_file)}
+    t0 = time.monotonic()
+    try:
+        rig.prepare_frames()
+        rig.start()
+        if args.scenario == "e2e":
+            result.update(run_e2e(session, args.seconds, args.record_seconds))
+        elif args.scenario == "faults":
+            result.update(run_faults(session, args.seconds))
+        else:
+            result.update(run_disk(session, args.ballast_mb))
+    except Exception as exc:
+        result["error"] = f"{type(exc).__name__}: {exc}"
+        result["traceback"] = traceback.format_exc()
+        with contextlib.suppress(Exception):
+            session.step("error")
+    finally:
+        for side in list(rig.cameras):
+            session.stop_camera(side)
+        rig.close()
+        result["served"] = session.served()
+        result["steps"] = session.steps
+        result["segments"] = [str(p) for p in rig.recordings()]
+        result["runtime_s"] = round(time.monotonic() - t0, 1)
+        args.result.write_text(json.dumps(result, indent=1, default=str))
+    return 1 if "error" in result else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
