@@ -25,6 +25,7 @@ from bracketry.errors import BracketryError
 
 N_LEVELS = 4096
 SATURATED_CODE = 4094
+_CHUNK = 65536
 #: RGGB: channel index (0 R, 1 G, 2 B) of the Bayer cell (row % 2, col % 2).
 BAYER_RGGB = ((0, 1), (1, 2))
 
@@ -168,20 +169,31 @@ class CameraModel:
             raise BracketryError(f"exposure must be > 0 us (got {exposure_us})")
         if rng is None:
             return self.noise_free_codes(rate_e_per_us, exposure_us)
-        mean_e = np.minimum(rate_e_per_us * np.float32(exposure_us), np.float32(2.0 * self.full_well_e))
-        if self.poisson:
-            e = rng.poisson(mean_e.astype(np.float64)).astype(np.float32)
-            if self.read_noise_e > 0:
-                e += rng.standard_normal(mean_e.shape, dtype=np.float32) * np.float32(self.read_noise_e)
-        else:
-            sigma = np.sqrt(mean_e + np.float32(self.read_noise_e ** 2))
-            e = rng.standard_normal(mean_e.shape, dtype=np.float32)
-            e *= sigma
-            e += mean_e
-        level = e * np.float32(1.0 / self.gain_e_per_dn)
-        level += np.float32(self.black_level_dn + 0.5)
-        np.clip(level, 0.0, N_LEVELS - 1, out=level)
-        return np.take(self._lut, level.astype(np.uint16))
+        f32 = np.float32
+        rate = np.ascontiguousarray(rate_e_per_us, dtype=np.float32)
+        flat = rate.reshape(-1)
+        out = np.empty(flat.shape, np.uint16)
+        read_var = f32(self.read_noise_e ** 2)
+        inv_gain = f32(1.0 / self.gain_e_per_dn)
+        offset = f32(self.black_level_dn + 0.5)
+        for s0 in range(0, flat.size, _CHUNK):  # cache-sized chunks; the noise is drawn in pixel order
+            mean_e = flat[s0:s0 + _CHUNK] * f32(exposure_us)
+            np.minimum(mean_e, f32(2.0 * self.full_well_e), out=mean_e)
+            if self.poisson:
+                e = rng.poisson(mean_e.astype(np.float64)).astype(np.float32)
+                if self.read_noise_e > 0:
+                    e += rng.standard_normal(mean_e.shape, dtype=np.float32) * f32(self.read_noise_e)
+            else:
+                e = rng.standard_normal(mean_e.shape, dtype=np.float32)
+                sigma = mean_e + read_var
+                np.sqrt(sigma, out=sigma)
+                e *= sigma
+                e += mean_e
+            e *= inv_gain
+            e += offset
+            np.clip(e, 0.0, N_LEVELS - 1, out=e)
+            np.take(self._lut, e.astype(np.uint16), out=out[s0:s0 + _CHUNK])
+        return out.reshape(rate.shape)
 
     def to_dict(self) -> dict:
         """JSON-serialisable parameters, plus derived constants and the formula."""
