@@ -8,9 +8,12 @@ rays into the world (one 3x3 x 3xN product), then:
   vertically stacked channel planes, so one single-channel remap serves the mosaic);
 - rays that miss the ground within the far treeline radius hit the treeline cylinder or the sky (gradient, halo,
   solar disk);
-- primitives (vertical cylinders, spheres, boxes) are culled by clipping their bounding boxes to the view, every
-  (pixel, object) pair inside an object's screen rectangle is intersected in one flat batch per primitive type, the
-  nearest hit per pixel is kept (``np.minimum.at``) and only the winners are shaded.
+- primitives (vertical cylinders, spheres, boxes) are culled by clipping their bounding boxes to the view (tree
+  trunks are cut into 1 m pieces, frustum-culled by bounding spheres, so that the screen rectangles follow the lean
+  of the projected trunk), every (pixel, object) pair inside an object's screen rectangle is intersected in one flat
+  batch per primitive type, the nearest hit per pixel is kept (``np.minimum.at``) and only the winners are shaded.
+
+The per-pixel passes run in row blocks of about 50k pixels so that their temporaries stay in the CPU cache.
 """
 
 from __future__ import annotations
@@ -86,7 +89,7 @@ class SideRenderer:
         self.chan_f = self.chan.astype(np.float32)
         #: row offset of each pixel's channel plane in the ground atlas
         self.atlas_row_off = self.chan_f * np.float32(scene.ground.row_stride)
-        # angular size of a pixel (rad), per pixel: ~ 1/f scaled by the local ray density
+        # angular size of a pixel (rad) at the image centre (drives the ground texture level)
         self.pix_rad = np.float32(1.0 / np.sqrt(intr.fx * intr.fy))
         cyl = scene.prims.cylinders
         n_pieces = np.maximum(np.ceil(cyl[:, 3] / _PIECE_M), 1).astype(np.int64) if cyl.size else np.zeros(0, int)
