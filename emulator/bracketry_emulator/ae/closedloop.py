@@ -17,7 +17,9 @@ emulation extrapolates more than one stop above any recorded frame). The first t
 Parallelism: the methods are split over ``workers`` forked processes (balanced by an estimated cost); the
 sequences are processed in chunks that fit ``memory_budget_bytes``: each chunk's PNGs are decoded ONCE (split over
 the workers) into one shared anonymous memory map, then every worker runs its methods through the chunk. Within a
-worker, identical emulations (same sequence, side and target) are computed once. ``workers`` <= 1 runs in-process.
+worker, identical emulations (same sequence, side and target) are computed once and identical output images are
+hard links (see :class:`_LinkingRunWriter`). ``workers`` <= 1 runs in-process. With ``write_images=False`` only
+the exposure trajectories (ae.csv, summaries, plot) are written.
 
 Outputs in ``out_dir``: ``<method>/`` (images_left|right/, times_images_*.txt, steps.csv, plus ``ae.csv``: step,
 timestamp_ns, exposure_ms, next_exposure_ms, ae_ms, and ``summary.json``), ``exposures.csv`` (one column per
@@ -312,7 +314,7 @@ class _Worker:
         self.emu.clear()
         for slot, seq_i in enumerate(seq_indices):
             seq = self.sequences[seq_i]
-            self.emu.emulator.clear()  # saturation keys use array identity: valid while this slot's views live
+            self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
             brackets = {side: {e: self._view(slot, si, ei) for ei, e in enumerate(seq.exposures_us)}
                         for si, side in enumerate(self.emu_sides)}
             for spec, method in self.methods.items():

@@ -11,7 +11,8 @@ from the paper (``Metric shim``, helper ``shim2018``), and so do we, with their 
 - fit a degree-5 polynomial M(gamma) through the 7 points, gamma* = argmax on 100 points linspace(1/1.9, 1.9);
 - linear update (2014, the one the authors use): t_next = (1 + a Kp (1 - gamma*)) t, a = 1/2 if gamma* >= 1 else 1,
   Kp = 0.2 (at most about +9.5 % / -9 % per step). Sign: I^gamma with gamma < 1 brightens, so gamma* < 1 means
-  "brighter is better" -> longer exposure.
+  "brighter is better" -> longer exposure. The authors' code also holds the 2018 non-linear update (d = 0.75)
+  but does not use it; neither do we.
 
 Deliberate deviations:
 - Quirk FIXED: the authors' Sobel uses an unsigned 16-bit output on a [0, 1] float image, so gradients are rounded

@@ -9,8 +9,10 @@ On I = gray / 16 (8-bit scale):
   W(i) = 1 / (1 + a e^{b (63.5 - i)}) - 0.001 for i <= 127, else 1 / (1 + a e^{b (i - 191.5)}) - 0.001,
   a = 0.25, b = 0.2 (Wang's code; the benchmark authors use a = 5, b = 1/5, available as parameters);
 - search (n = 3 iterations): synthesise the ORIGINAL image through the CRF at gamma alpha and gamma beta
-  (alpha = 0.5, beta = 2, gamma = 1 at start); when the better side beats ``accept_ratio`` (1.1) x the current best
-  quality, move there (gamma *= that factor) and pull the other factor towards 1 ((1 + x) / 2); otherwise pull both;
+  (alpha = 0.5, beta = 2, gamma = 1 at start); when the better side beats ``accept_ratio`` x the current best
+  quality (1.1, Wang's paper; no threshold is documented for the authors' code: ``accept_ratio=1.0`` moves on any
+  improvement), move there (gamma *= that factor) and pull the other factor towards 1 ((1 + x) / 2); otherwise
+  pull both;
 - t_s = t (1 + k (gamma - 1)), k = 0.5 (the benchmark authors; Wang's paper uses 0.1);
 - refinement at t_s on the synthesised image I_s: d = sum W 2 (grad I_s . grad (1 / (t_s g'(I_s)))) / sum W, with the
   per-pixel term replaced by +2 where I_s < 30 and -2 where I_s > 225; t_next = t_s + zeta d, zeta = 0.001 ms.
