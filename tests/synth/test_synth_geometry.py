@@ -194,3 +194,18 @@ def test_synth_loop_is_closed(world: World) -> None:
     # the gait phase differs after one loop; the centre line is closed
     _R1, p1 = tr.pose(period_s)
     assert np.linalg.norm(p1[:2] - p0[:2]) < 0.05
+
+
+def test_synth_campus_buildings_and_crowns_reproject() -> None:
+    """Boxes (buildings) and spheres (tree crowns) of the campus world obey the same geometry."""
+    world = World("campus-summer", seed=5, resolution=(W, H))
+    rng = np.random.default_rng(1)
+    right = {"K": world.calibration.right.K, "D": world.calibration.right.D}
+    fracs = []
+    for t_s in (0.0, 30.0, 70.0):
+        _, pts = _surface_points(world, "left", t_s, 300, rng, max_range_m=60.0)
+        fracs.append(_check_lands(world, "right", t_s, pts - np.array([0.18, 0.0, 0.0]), right))
+    assert min(fracs) > 0.9
+    # the views do contain buildings and crowns
+    res = world.radiance("left", 30.0)
+    assert np.isfinite(res.range_m).mean() > 0.5
