@@ -109,6 +109,8 @@ class SideRenderer:
         y0, y1 = self.fov_yn
         planes = np.array([[1.0, 0.0, -x0], [-1.0, 0.0, x1], [0.0, 1.0, -y0], [0.0, -1.0, y1], [0.0, 0.0, 1.0]])
         self.frustum = planes / np.linalg.norm(planes, axis=1, keepdims=True)
+        self.cyl_albedo_flat = np.ascontiguousarray(scene.prims.cyl_albedo, dtype=np.float32).ravel()
+        self.bark_flat = np.ascontiguousarray(scene.bark, dtype=np.float32).ravel()
         lt = scene.lighting
         self.sun = lt.sun_dir.astype(np.float32)
         self.sun_rgb = np.asarray(lt.sun_rgb, np.float32)
@@ -377,22 +379,33 @@ class SideRenderer:
         nx = (np.float32(o[0]) - cols[0][pcw] + tw * d[0][pw]) / r
         ny = (np.float32(o[1]) - cols[1][pcw] + tw * d[1][pw]) / r
         z = np.float32(o[2]) + tw * d[2][pw]
-        ch = self.chan[pix[win]]
+        ch = self.chan[pw]
         prims = self.scene.prims
         ob = obj[win]
         bark = self.scene.bark
         nu, nv = bark.shape[1], bark.shape[0]
         u = np.minimum((pseudo_angle(nx, ny) * np.float32(nu / 4.0)).astype(np.int32), nu - 1)
-        v = ((z * np.float32(4.0)).astype(np.int32) + (ob * 37) % nv) % nv
-        tex = bark[v, u]
+        v = (z * np.float32(4.0)).astype(np.int32)
+        v += (ob * 37) % nv
+        v %= nv
+        v *= nu
+        v += u
+        tex = self.bark_flat[v]
         birch = np.nonzero(prims.cyl_kind[ob] == 1)[0]
         if birch.size:
             ob_b = ob[birch]
             marks = ((z[birch] * np.float32(3.1) + ob_b * np.float32(0.37)) % np.float32(1.0) < 0.12) \
                 & (((u[birch] >> 4) + ob_b) % 3 != 0)
             tex[birch[marks]] = np.float32(0.15)
-        albedo = prims.cyl_albedo[ob, ch] * tex
-        return albedo * self._light(nx, ny, np.zeros_like(nx), ch)
+        tex *= self.cyl_albedo_flat[ob * 3 + ch]
+        # Lambert: horizontal normal (n_z = 0)
+        light = nx * self.sun[0]
+        light += ny * self.sun[1]
+        np.maximum(light, 0.0, out=light)
+        light *= self.chan_maps["sun"][pw]
+        light += np.float32(0.5) * self.chan_maps["sky"][pw]
+        tex *= light
+        return tex
 
     def _spheres(self, o: np.ndarray, d: np.ndarray, R: np.ndarray) -> tuple | None:
         sph = self.scene.prims.spheres
