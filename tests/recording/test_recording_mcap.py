@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import time
 from pathlib import Path
@@ -29,7 +30,8 @@ def image(seq: int, side: str) -> np.ndarray:
     return rng.integers(0, 4096, size=(H, W), dtype=np.uint16)
 
 
-def make_set(k: int, *, drop: str | None = None, status: str = "success", event: bool = True) -> PairedSet:
+def make_set(k: int, *, drop: str | None = None, status: str = "success", event: bool = True,
+             reported_us: float | None = None) -> PairedSet:
     ev = TriggerEvent(7, k, k % 6, BRACKETS[k % 6], 1_000_000 + k * 45_454, 1_700_000_000_000_000_000 + k * 45_454_000)
     frames = {}
     for side in T.SIDES:
@@ -39,7 +41,8 @@ def make_set(k: int, *, drop: str | None = None, status: str = "success", event:
         frames[side] = SimpleNamespace(side=side, frame_id=k + 1, frame_index=k, skipped_ids=0, status=status,
                                        image=image(k, side) if status == "success" else None,
                                        cam_timestamp_ns=k * 45_454_000, host_receive_ns=ev.t_start_host_ns + 9_000_000,
-                                       missing_packets=0 if status == "success" else 3, exposure_us_reported=None)
+                                       missing_packets=0 if status == "success" else 3,
+                                       exposure_us_reported=reported_us)
     return PairedSet(k, ev if event else None, frames, ev.t_start_host_ns)
 
 
@@ -147,7 +150,9 @@ def test_verify_clean_and_problems_and_cli_exit_codes(tmp_path: Path, capsys) ->
                    metadata={"brackets_us": ",".join(map(str, BRACKETS)), "fps": "22.0"}).start()
     for k in range(60):
         pset = make_set(k, drop="left" if k == 10 else None, status="missing_packets" if k == 20 else "success",
-                        event=k != 30)
+                        event=k != 30, reported_us=BRACKETS[k % 6] * (1.5 if k == 40 else 1.01))
+        if k == 50:  # the trigger repeated a bracket: the cycle is broken
+            pset.event = dataclasses.replace(pset.event, bracket_index=0)
         if pset.event is not None:
             rec.put_event(pset.event)
         rec.put_set(pset)
@@ -159,7 +164,8 @@ def test_verify_clean_and_problems_and_cli_exit_codes(tmp_path: Path, capsys) ->
     assert r.sides["left"].seqs["incomplete"] == [20] and r.sides["right"].seqs["incomplete"] == [20]
     assert r.sides["left"].missing_packets == 3
     assert r.events_missing_seqs == [30]
-    assert r.sides["left"].bracket_order_breaks == 0
+    assert r.sides["left"].seqs["bracket_order_breaks"][0] == 50 == r.sides["right"].seqs["bracket_order_breaks"][0]
+    assert r.sides["left"].seqs["exposure_mismatches"] == [40] == r.sides["right"].seqs["exposure_mismatches"]
 
     assert cli_main(["verify", str(clean)]) == 0
     capsys.readouterr()

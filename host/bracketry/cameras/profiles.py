@@ -55,6 +55,20 @@ class CameraSettings:
     fake_max_frame_rate_hz: float = 500.0
 
 
+def settings_from_config(camera: Any, *, width: int | None = None, height: int | None = None) -> CameraSettings:
+    """CameraSettings from a rig config camera entry (``bracketry.daemon.config.CameraConfig`` or alike: profile,
+    pixel_format, trigger_line, trigger_activation, packet_size_bytes, packet_delay_ticks)."""
+    profile = getattr(camera, "profile", "basler_ace2")
+    pixel_format = getattr(camera, "pixel_format", "BayerRG12p")
+    if profile == "aravis_fake" and pixel_format in ("BayerRG12p", "BayerRG12"):
+        pixel_format = "Mono16"  # the fake has no 12-bit Bayer pixels: Mono16 carries the 12-bit codes
+    return CameraSettings(profile=profile, pixel_format=pixel_format, width=width, height=height,
+                          trigger_source=getattr(camera, "trigger_line", "Line3"),
+                          trigger_activation=getattr(camera, "trigger_activation", "FallingEdge"),
+                          packet_size_bytes=getattr(camera, "packet_size_bytes", None),
+                          packet_delay_ticks=getattr(camera, "packet_delay_ticks", None))
+
+
 @dataclass(frozen=True)
 class FeatureWrite:
     """One feature to write: ``kind`` enum|int|float|bool|command; ``required`` ones must exist and read back."""
