@@ -87,6 +87,8 @@ class SideRenderer:
         cell = np.array(BAYER_RGGB, dtype=np.int8)
         self.chan = np.tile(cell, (h // 2 + 1, w // 2 + 1))[:h, :w].ravel().copy()
         self.chan_f = self.chan.astype(np.float32)
+        #: flat index of every pixel, (H, W) int32: rectangles of it list the pixels of a screen rectangle
+        self.pixel_index = np.arange(h * w, dtype=np.int32).reshape(h, w)
         #: row offset of each pixel's channel plane in the ground atlas
         self.atlas_row_off = self.chan_f * np.float32(scene.ground.row_stride)
         # angular size of a pixel (rad) at the image centre (drives the ground texture level)
@@ -308,16 +310,10 @@ class SideRenderer:
         area = hgt * wid
         keep = np.nonzero(area > 0)[0]
         if keep.size == 0:
-            return np.zeros(0, np.int64), np.zeros(0, np.int64)
-        area, wid = area[keep], wid[keep]
-        total = int(area.sum())
-        obj = np.repeat(keep, area)
-        starts = np.cumsum(area) - area
-        local = np.arange(total, dtype=np.int64) - np.repeat(starts, area)
-        w_rep = np.repeat(wid, area)
-        row = rects[obj, 0] + local // w_rep
-        col = rects[obj, 2] + local % w_rep
-        return row * self.shape[1] + col, obj
+            return np.zeros(0, np.int32), np.zeros(0, np.int64)
+        index = self.pixel_index
+        pix = np.concatenate([index[r0:r1, c0:c1].ravel() for r0, r1, c0, c1 in rects[keep].tolist()])
+        return pix, np.repeat(keep, area[keep])
 
     def _cylinders(self, o: np.ndarray, d: np.ndarray, R: np.ndarray) -> tuple | None:
         if self.cyl_pieces.size == 0:
