@@ -84,6 +84,7 @@ class StereoRectifier:
     identity: bool
     _maps: list = field(default_factory=list, repr=False)
     _valid: np.ndarray | None = field(default=None, repr=False)
+    row_correction: tuple[float, float] = (0.0, 0.0)
 
     @classmethod
     def from_camera_info(cls, left: CameraInfo, right: CameraInfo, width_px: int | None = None,
@@ -132,6 +133,28 @@ class StereoRectifier:
             return image
         m1, m2 = self._maps[0 if side == "left" else 1]
         return cv2.remap(image, m1, m2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+
+    def correct_rows(self, offset_px: float, slope: float) -> None:
+        """Shift the right rectified image vertically by ``offset_px + slope * (x - cx)`` pixels.
+
+        For camera_info files that are not a rectified pair (the BorealHDR sample: R = identity in both files and
+        P with different cy), rows of the two rectified images disagree by a roughly constant offset and a small roll.
+        After this correction a point at row y in the left image is at row y in the right one; x (the disparity, so
+        the depth scale) is unchanged. ``offset_px``/``slope`` are the measured ``y_right - y_left`` model.
+        """
+        if self.identity:
+            m1, m2 = np.meshgrid(np.arange(self.width_px, dtype=np.float32),
+                                 np.arange(self.height_px, dtype=np.float32))
+            self._maps = [(m1, m2), (m1.copy(), m2.copy())]
+            self.identity = False
+        xs, ys = np.meshgrid(np.arange(self.width_px, dtype=np.float32), np.arange(self.height_px, dtype=np.float32))
+        ys_src = (ys + offset_px + slope * (xs - self.cx)).astype(np.float32)
+        m1, m2 = self._maps[1]
+        self._maps[1] = (cv2.remap(m1, xs, ys_src, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE),
+                         cv2.remap(m2, xs, ys_src, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE))
+        c0, c1 = self.row_correction
+        self.row_correction = (c0 + offset_px, c1 + slope)
+        self._valid = None
 
     def valid_mask(self, margin_px: int = 6) -> np.ndarray:
         """uint8 HxW, 255 where both rectified images hold real pixels (eroded by ``margin_px``), else 0.

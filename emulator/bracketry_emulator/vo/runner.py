@@ -11,6 +11,7 @@ numbers its maps).
 from __future__ import annotations
 
 import csv
+import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import numpy as np
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.features.demosaic import to_gray8
+from bracketry_emulator.features.orb import OrbExtractor, OrbSettings
 from bracketry_emulator.vo.calibration import StereoRectifier
 from bracketry_emulator.vo.tracker import FrameResult, StereoVO, VOSettings
 from bracketry_emulator.vo.tum import write_tum
@@ -67,9 +69,45 @@ class VORun:
         return len({f.segment for f in self.frames if f.tracked})
 
 
+def estimate_row_offset(rect: StereoRectifier, left_gray8: np.ndarray, right_gray8: np.ndarray,
+                        extractor: OrbExtractor | None = None) -> tuple[float, float, int]:
+    """Measure the row disagreement ``y_right - y_left = a + b (x - cx)`` of a rectified pair from ORB matches.
+
+    Brute-force matches (ratio 0.7, Hamming < 50, positive disparity), then a least-squares line on the matches
+    within 3 px of the median. Returns (a px, b, number of matches used); (0, 0, n) when fewer than 50 matches.
+    """
+    ex = extractor or OrbExtractor(OrbSettings(n_features=2000))
+    mask = rect.valid_mask()
+    fl = ex.detect_and_compute(rect.rectify(left_gray8, "left"), mask)
+    fr = ex.detect_and_compute(rect.rectify(right_gray8, "right"), mask)
+    if len(fl) < 2 or len(fr) < 2:
+        return 0.0, 0.0, 0
+    knn = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(fl.descriptors, fr.descriptors, k=2)
+    pairs = [(p[0].queryIdx, p[0].trainIdx) for p in knn
+             if len(p) == 2 and p[0].distance < 50 and p[0].distance < 0.7 * p[1].distance]
+    if len(pairs) < 50:
+        return 0.0, 0.0, len(pairs)
+    li, ri = np.array(pairs).T
+    ok = fl.xy_px[li, 0] > fr.xy_px[ri, 0]
+    li, ri = li[ok], ri[ok]
+    dy = (fr.xy_px[ri, 1] - fl.xy_px[li, 1]).astype(np.float64)
+    x = fl.xy_px[li, 0].astype(np.float64) - rect.cx
+    near = np.abs(dy - np.median(dy)) < 3.0
+    if near.sum() < 50:
+        return 0.0, 0.0, int(near.sum())
+    a, b = np.linalg.lstsq(np.c_[np.ones(near.sum()), x[near]], dy[near], rcond=None)[0]
+    return float(a), float(b), int(near.sum())
+
+
 def run_vo(run_dir: str | Path, calibration_dir: str | Path, out_dir: str | Path,
-           settings: VOSettings | None = None, bayer: bool = True, max_frames: int | None = None) -> VORun:
-    """Track a whole run; write ``frames.csv`` and ``CameraTrajectory<n>.txt`` to ``out_dir``."""
+           settings: VOSettings | None = None, bayer: bool = True, max_frames: int | None = None,
+           fix_rows: bool = True) -> VORun:
+    """Track a whole run; write ``frames.csv``, ``CameraTrajectory<n>.txt`` and ``rectification.json``.
+
+    ``fix_rows``: measure the row disagreement of the rectified pair on the first frame
+    (:func:`estimate_row_offset`) and correct the right image when it exceeds 0.5 px anywhere in the image
+    (:meth:`StereoRectifier.correct_rows`); the measurement is written to ``rectification.json``.
+    """
     left = list_side_images(run_dir, "left")
     right = list_side_images(run_dir, "right")
     if not left or len(left) != len(right):
@@ -78,10 +116,19 @@ def run_vo(run_dir: str | Path, calibration_dir: str | Path, out_dir: str | Path
         left, right = left[:max_frames], right[:max_frames]
     first = read_gray8(left[0][1], bayer)
     rect = StereoRectifier.from_dir(calibration_dir, first.shape[1], first.shape[0])
-    vo = StereoVO(rect, settings)
-    frames = [vo.track(tl, read_gray8(pl, bayer), read_gray8(pr, bayer)) for (tl, pl), (_tr, pr) in zip(left, right)]
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    info: dict = {"fx_px": rect.fx, "cx_px": rect.cx, "cy_px": rect.cy, "baseline_m": rect.baseline_m,
+                  "row_offset_px": 0.0, "row_slope": 0.0, "row_matches": 0, "row_corrected": False}
+    if fix_rows:
+        a, b, n = estimate_row_offset(rect, first, read_gray8(right[0][1], bayer))
+        info.update(row_offset_px=a, row_slope=b, row_matches=n)
+        if abs(a) + abs(b) * rect.width_px / 2 > 0.5:
+            rect.correct_rows(a, b)
+            info["row_corrected"] = True
+    (out / "rectification.json").write_text(json.dumps(info, indent=1))
+    vo = StereoVO(rect, settings)
+    frames = [vo.track(tl, read_gray8(pl, bayer), read_gray8(pr, bayer)) for (tl, pl), (_tr, pr) in zip(left, right)]
     write_frames_csv(out / "frames.csv", frames)
     for seg in sorted({f.segment for f in frames if f.tracked}):
         seg_frames = [f for f in frames if f.tracked and f.segment == seg]
