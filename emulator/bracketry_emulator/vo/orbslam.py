@@ -12,7 +12,8 @@ Export layout (``out_dir``), what ``stereo_euroc`` of ORB-SLAM2 and ORB-SLAM3 re
     run_orbslam.sh               the command lines (ORB-SLAM2: stereo_euroc VOC settings LEFT RIGHT times.txt)
 
 Images are converted with :func:`~bracketry_emulator.features.demosaic.to_gray8` (RGGB demosaic, luma, / 16) and
-rectified here, so ORB-SLAM sees exactly the pixels our VO sees.
+rectified here (with the same row correction as :func:`~bracketry_emulator.vo.runner.run_vo`), so ORB-SLAM sees
+exactly the pixels our VO sees.
 
 Import: ``CameraTrajectory*.txt`` (TUM, seconds; one per map as the authors' fork writes them, or a single
 ``CameraTrajectory.txt``) are copied as our segments, and a ``frames.csv`` is derived from ``times.txt``: a frame whose
@@ -31,7 +32,7 @@ from bracketry.errors import BracketryError
 from bracketry_emulator.features.orb import OrbSettings
 from bracketry_emulator.metrics.evaluate import read_segments
 from bracketry_emulator.vo.calibration import StereoRectifier
-from bracketry_emulator.vo.runner import FRAME_FIELDS, list_side_images, read_gray8
+from bracketry_emulator.vo.runner import FRAME_FIELDS, estimate_row_offset, list_side_images, read_gray8
 from bracketry_emulator.vo.tum import write_tum
 
 
@@ -85,6 +86,9 @@ def export_orbslam(run_dir: str | Path, calibration_dir: str | Path, out_dir: st
         gl, gr = read_gray8(pl, bayer), read_gray8(pr, bayer)
         if rect is None:
             rect = StereoRectifier.from_dir(calibration_dir, gl.shape[1], gl.shape[0])
+            a, b, _n = estimate_row_offset(rect, gl, gr)  # same row correction as run_vo
+            if abs(a) + abs(b) * rect.width_px / 2 > 0.5:
+                rect.correct_rows(a, b)
         cv2.imwrite(str(cam0 / f"{t_ns}.png"), rect.rectify(gl, "left"))
         cv2.imwrite(str(cam1 / f"{t_ns}.png"), rect.rectify(gr, "right"))
     assert rect is not None
