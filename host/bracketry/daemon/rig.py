@@ -33,6 +33,8 @@ from bracketry.events import TriggerEvent
 log = logging.getLogger("bracketry.daemon")
 
 CAM_SENSOR = {"left": "cam_left", "right": "cam_right"}
+#: a recording camera is stalled when this many pulses reached it without a frame (and camera_stall_s passed)
+STALL_PULSES = 3
 
 
 @dataclass
@@ -100,7 +102,8 @@ class RigDaemon:
         self._pump: threading.Thread | None = None
         self._supervisor: threading.Thread | None = None
         self._backoff = {name: _Backoff(*self.options.backoff_s) for name in ("trigger", "left", "right", "panel")}
-        self._last_frames: dict[str, tuple[float, int]] = {}
+        self._last_frames: dict[str, tuple[float, int, int]] = {}  # side -> (t_s, frames, pulses) at last frame
+        self._pulses: dict[str, int] = {}  # side -> pulses delivered to it in this segment
         self._trigger_reboots_seen = 0
         self._deliver_lock = threading.Lock()
         self._soft_failed: set[str] = set()
@@ -365,6 +368,7 @@ class RigDaemon:
         self._session_id = (self._session_id + 1) & 0xFFFFFFFF or 1
         self._recorder, self._session = recorder, session
         self._last_frames = {}
+        self._pulses = {}
         try:
             self.trigger.start(self._session_id)
         except Exception as exc:
@@ -434,6 +438,9 @@ class RigDaemon:
     def _deliver(self, ev: TriggerEvent, session: Any) -> None:
         if ev.session_id != self._session_id:
             return
+        for side in session.cameras:
+            if side not in self._soft_failed:
+                self._pulses[side] = self._pulses.get(side, 0) + 1
         if self.options.software_trigger:
             # the fake camera polls its trigger register (~1 kHz): two triggers closer than that would merge
             wait_s = self._last_soft_trigger + 0.004 - time.monotonic()
@@ -528,14 +535,19 @@ class RigDaemon:
         status = session.pairer.counters
         for side in list(self.cameras):
             frames = status[side].frames if side in status else 0
-            t0, n0 = self._last_frames.get(side, (now, frames))
+            pulses = self._pulses.get(side, 0)
+            t0, n0, _p0 = self._last_frames.get(side, (now, frames, pulses))
             if frames != n0 or side not in self._last_frames:
-                self._last_frames[side] = (now, frames)
+                self._last_frames[side] = (now, frames, pulses)
             fps = (frames - n0) / (now - t0) if now > t0 else 0.0
             if now > t0:
                 self.state.set_fps(side, fps)
-            if now - self._last_frames[side][0] > self.options.camera_stall_s:
-                log.error("camera %s: no frame for %.1f s", side, now - self._last_frames[side][0])
+            t_last, _, pulses_then = self._last_frames[side]
+            # stalled: no frame for camera_stall_s although pulses reached it (a camera nobody triggered, e.g.
+            # while the trigger pump waited on the other camera, is not blamed), or it failed a GVCP write
+            if now - t_last > self.options.camera_stall_s and (side in self._soft_failed or
+                                                              pulses - pulses_then >= STALL_PULSES):
+                log.error("camera %s: no frame for %.1f s (%d pulses)", side, now - t_last, pulses - pulses_then)
                 self._camera_lost(side, session)
                 return
 
