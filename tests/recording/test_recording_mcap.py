@@ -21,6 +21,8 @@ from bracketry.recording.reader import RecordingReader, UnreadableRecordingError
 from bracketry.recording.recorder import Recorder, RecorderConfig
 from bracketry.recording.verify import repair_recording, verify_recording
 
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning:mcap_ros2.reader")
+
 H, W = 24, 32
 BRACKETS = [1000, 2000, 4000, 8000, 16000, 32000]
 

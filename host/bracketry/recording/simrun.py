@@ -139,7 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     cfg = RecorderConfig(chunk_max_age_s=args.chunk_max_age_s, split_s=args.split_s)
     recorder = Recorder(args.out, args.name, cfg, metadata={"brackets_us": ",".join(map(str, brackets)),
                                                              "fps": str(args.fps), "source": "simrun"}).start()
-    session = RecordingSession(cams, recorder, initial_alignment="host_time").start()
+    session = RecordingSession(cams, recorder, initial_alignment="host_time",
+                               window=max(3, round(0.35 * args.fps))).start()
     SoftwareTrigger(cams).prime()  # the fake loses the first software trigger after AcquisitionStart
     SoftwareTrigger(cams)
     progress = open(args.progress, "w", buffering=1) if args.progress else None  # noqa: SIM115
