@@ -105,17 +105,22 @@ def assert_intact(report: VerifyReport) -> None:
 def test_simulated_rig_buttons_record_verify_sigterm_and_oneshot_record(tmp_path: Path) -> None:
     result = run_scenario(tmp_path, "e2e", "--seconds", "10", "--record-seconds", "10")
     # panel screen buffer: SENSORS -> IDLE, RECORD -> REC (free disk and FPS shown), RECORD -> IDLE + SAVED
-    assert step(result, "ready")["screen"][0] == "L:OFF R:OFF TRIG:OFF"
-    assert step(result, "idle")["screen"][0] == "L:IDL R:IDL TRIG:IDL"
-    assert step(result, "rec")["screen"][0] == "L:REC R:REC TRIG:REC"
+    assert step(result, "ready")["seen"][0] == "L:OFF R:OFF TRIG:OFF"
+    assert step(result, "idle")["seen"][0] == "L:IDL R:IDL TRIG:IDL"
+    assert step(result, "rec")["seen"][0] == "L:REC R:REC TRIG:REC"
     rec_screen = step(result, "before_stop")["screen"]
     assert rec_screen[0] == "L:REC R:REC TRIG:REC" and rec_screen[3].startswith("RECORDING")
     fps = re.match(r"\s*([\d.]+)/\s*([\d.]+)", rec_screen[2])
     assert fps, rec_screen
     fps_left, fps_right = float(fps.group(1)), float(fps.group(2))
     assert fps_left > 3 and fps_right > 3  # 10 fps nominal; loose on a loaded machine
+    cli = step(result, "before_stop")["status_cli"]  # `bracketry status` asks the running daemon
+    assert cli["exit_code"] == 0 and "cam_left=REC  cam_right=REC  trigger=REC" in cli["stdout"], cli
+    assert "recording: " in cli["stdout"] and "message: RECORDING" in cli["stdout"]
+    cli_json = json.loads(step(result, "before_stop")["status_cli_json"]["stdout"])
+    assert cli_json["ok"] and cli_json["state"]["states"]["trigger"] == "REC" and cli_json["state"]["free_disk_mb"] > 0
     stopped = step(result, "stopped")
-    assert stopped["screen"][0] == "L:IDL R:IDL TRIG:IDL" and stopped["screen"][3].startswith("SAVED")
+    assert stopped["seen"][0] == "L:IDL R:IDL TRIG:IDL" and stopped["seen"][3].startswith("SAVED")
     assert stopped["states"]["cam_left"] == stopped["states"]["trigger"] == "IDLE" and stopped["recording"] is None
     # SIGTERM: clean exit
     assert result["daemon_exit_code"] == 0
@@ -148,20 +153,21 @@ def test_simulated_rig_faults_trigger_camera_panel_and_sigkill(tmp_path: Path) -
 
     # trigger simulator killed: ERR on panel and status, segment closed; restarted: REC again in a new segment
     err = step(result, "trigger_err")
-    assert err["states"]["trigger"] == "ERR" and "TRIG:ERR" in err["screen"][0]
+    assert err["states"]["trigger"] == "ERR" and "TRIG:ERR" in err["seen"][0]
     assert logged(log, "trigger lost", "ERROR")
     back = step(result, "trigger_back")
     assert back["states"] == {**back["states"], "cam_left": "REC", "cam_right": "REC", "trigger": "REC"}
-    assert back["screen"][0] == "L:REC R:REC TRIG:REC"
+    assert back["seen"][0] == "L:REC R:REC TRIG:REC"
     seg1 = verify_recording(segments[0])  # the segment before the fault verifies (against what the fakes served)
     assert_matches_served(seg1, {s: served_real(result, s, "idle", "trigger_err") for s in ("left", "right")})
 
     # right camera off the network: ERR, the left camera records on in its own segment; back: both again
     cam_err = step(result, "camera_err")
     assert cam_err["states"]["cam_right"] == "ERR" and cam_err["states"]["cam_left"] == "REC"
-    assert "R:ERR" in cam_err["screen"][0]
+    assert "R:ERR" in cam_err["seen"][0]
+    assert "error cam_right: no frames" in cam_err["status_cli"]["stdout"], cam_err["status_cli"]
     assert logged(log, "camera right: no frame", "ERROR")
-    assert step(result, "camera_back")["screen"][0] == "L:REC R:REC TRIG:REC"
+    assert step(result, "camera_back")["seen"][0] == "L:REC R:REC TRIG:REC"
     seg2, seg3 = verify_recording(segments[1]), verify_recording(segments[2])
     assert_intact(seg2)
     assert seg3.sides.keys() == {"left"}  # recording continued with what still works
@@ -171,7 +177,7 @@ def test_simulated_rig_faults_trigger_camera_panel_and_sigkill(tmp_path: Path) -
     # panel rebooted: the daemon recorded on, the rebooted panel shows the state again
     down = step(result, "panel_down")
     assert down["states"]["cam_left"] == down["states"]["cam_right"] == down["states"]["trigger"] == "REC"
-    assert step(result, "panel_back")["screen"][0] == "L:REC R:REC TRIG:REC"
+    assert step(result, "panel_back")["seen"][0] == "L:REC R:REC TRIG:REC"
     assert step(result, "panel_back")["segments"] == step(result, "panel_kill")["segments"]  # no new segment
     assert step(result, "panel_back")["panel"]["hellos"] >= 1  # the rebooted panel said HELLO
     assert logged(log, "(re)booted")
@@ -213,9 +219,9 @@ def test_simulated_rig_disk_filling_stops_cleanly_and_refuses(tmp_path: Path) ->
     assert step(result, "filling")["free_mb"] > 32
     full = step(result, "disk_full")
     assert full["states"]["cam_left"] == full["states"]["trigger"] == "IDLE" and full["recording"] is None
-    assert "DISK FULL" in full["screen"][3]
+    assert "DISK FULL" in full["seen"][3]
     refused = step(result, "refused")
-    assert "DISK LOW" in refused["screen"][3] and refused["recording"] is None
+    assert "DISK LOW" in refused["seen"][3] and refused["recording"] is None
     log = daemon_log(result)
     assert logged(log, "stop_free_mb 16: stopping the recording", "ERROR")
     assert logged(log, "recording refused", "ERROR")

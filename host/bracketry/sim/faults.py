@@ -67,6 +67,7 @@ class Session:
         self.t0 = time.monotonic()
         self.steps: list[dict[str, Any]] = []
         self._served_done: dict[str, list[int]] = {"left": [], "right": []}
+        self.seen: list[str] = []
 
     def served(self) -> dict[str, list[int]]:
         """Exposure (µs) of every frame each side's fake camera served so far, restarts included."""
@@ -87,7 +88,7 @@ class Session:
         reply = self.rig._status_or_none()
         state = reply["state"] if reply else None
         entry = {"name": name, "t_s": round(time.monotonic() - self.t0, 2), "t_ns": time.time_ns(),
-                 "screen": self.rig.screen(), "states": state["states"] if state else None,
+                 "screen": self.rig.screen(), "seen": self.seen, "states": state["states"] if state else None,
                  "message": state["message"] if state else None, "counters": state["counters"] if state else None,
                  "recording": state["recording"] if state else None, "segments": reply["segments"] if reply else None,
                  "panel": reply.get("panel") if reply else None,
@@ -95,6 +96,12 @@ class Session:
         self.steps.append(entry)
         self.rig.o.echo(f"[{entry['t_s']:6.1f} s] {name}: states={entry['states']} message={entry['message']!r}")
         return entry
+
+    def wait_screen(self, text: str, timeout_s: float) -> list[str]:
+        """Wait until ``text`` is on the panel screen; the screen as matched goes into the next step as ``seen``
+        (the firmware blinks ERR slots, so a later look may miss it)."""
+        self.seen = self.rig.wait_screen(text, timeout_s)
+        return self.seen
 
     def wait_message(self, text: str, timeout_s: float) -> None:
         """Wait until the daemon's message line contains ``text``."""
@@ -109,6 +116,12 @@ class Session:
             self.rig.check_alive()
             time.sleep(0.2)
         raise BracketryError(f"timeout waiting for message {text!r}: daemon says {last!r}")
+
+    def status_cli(self, *args: str) -> dict[str, Any]:
+        """``bracketry status --socket S [ARGS]``: exit code and output."""
+        res = subprocess.run([sys.executable, "-m", "bracketry", "status", "--socket", str(self.rig.socket_path),
+                              *args], capture_output=True, text=True, timeout=60)
+        return {"exit_code": res.returncode, "stdout": res.stdout, "stderr": res.stderr}
 
     def wait_segments(self, n: int, timeout_s: float) -> None:
         """Wait until the daemon has closed ``n`` recording segments."""
@@ -143,15 +156,15 @@ def _screen_has(rig: SimulatedRig, text: str) -> bool:
 
 def _sensors_and_record(s: Session) -> None:
     rig = s.rig
-    rig.wait_screen("READY", 30.0)
+    s.wait_screen("READY", 30.0)
     s.step("ready")
     rig.press("sensors")
     rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
-    rig.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
+    s.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
     s.step("idle")
     rig.press("record")
     rig.wait_states({k: "REC" for k in ALL}, 60.0)
-    rig.wait_screen("L:REC R:REC TRIG:REC", 20.0)
+    s.wait_screen("L:REC R:REC TRIG:REC", 20.0)
     s.step("rec")
 
 
@@ -160,11 +173,11 @@ def run_e2e(s: Session, seconds: float, record_s: float) -> dict[str, Any]:
     rig = s.rig
     _sensors_and_record(s)
     rig.run_for(seconds)
-    s.step("before_stop")
+    s.step("before_stop", status_cli=s.status_cli(), status_cli_json=s.status_cli("--json"))
     rig.press("record")
     rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
-    rig.wait_screen("SAVED", 20.0)
-    rig.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
+    s.wait_screen("SAVED", 20.0)
+    s.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
     s.step("stopped")
     rc = rig.stop_daemon(signal.SIGTERM)
     s.step("sigterm", daemon_exit_code=rc)
@@ -188,25 +201,25 @@ def run_faults(s: Session, seconds: float) -> dict[str, Any]:
     s.step("trigger_kill")
     rig.stop_trigger(signal.SIGKILL)
     rig.wait_states({"trigger": "ERR"}, 30.0)
-    rig.wait_screen("TRIG:ERR", 20.0)
+    s.wait_screen("TRIG:ERR", 20.0)
     s.step("trigger_err")
     rig.start_trigger()
     rig.wait_states({k: "REC" for k in ALL}, 60.0)
-    rig.wait_screen("TRIG:REC", 20.0)
+    s.wait_screen("TRIG:REC", 20.0)
     s.step("trigger_back")
     s.wait_recorded_events(round(seconds * rig.o.fps), 60.0)
     # 2. right camera off the network: ERR, left goes on recording; back: a new segment with both
     s.step("camera_stop")
     s.stop_camera("right")
     rig.wait_states({"cam_right": "ERR"}, 30.0)
-    rig.wait_screen("R:ERR", 20.0)
-    s.step("camera_err")
+    s.wait_screen("R:ERR", 20.0)
+    s.step("camera_err", status_cli=s.status_cli())
     s.wait_segments(2, 60.0)  # trigger fault + camera fault closed two segments; the third records the left camera
     s.wait_recorded_events(round(rig.o.fps), 60.0)
     s.step("camera_err_recording")
     rig.start_camera("right")
     rig.wait_states({k: "REC" for k in ALL}, 60.0)
-    rig.wait_screen("R:REC", 20.0)
+    s.wait_screen("R:REC", 20.0)
     s.step("camera_back")
     s.wait_recorded_events(round(seconds * rig.o.fps), 60.0)
     # 3. panel rebooted: the daemon records on; the new panel shows the state again
@@ -216,7 +229,7 @@ def run_faults(s: Session, seconds: float) -> dict[str, Any]:
     s.wait_recorded_events(round(rig.o.fps), 60.0)
     s.step("panel_down")
     rig.start_panel()
-    rig.wait_screen("L:REC R:REC TRIG:REC", 60.0)
+    s.wait_screen("L:REC R:REC TRIG:REC", 60.0)
     s.step("panel_back")
     s.wait_recorded_events(round(seconds * rig.o.fps), 60.0)
     # 4. SIGKILL of the daemon mid-recording
@@ -250,11 +263,11 @@ def run_disk(s: Session, ballast_mb: int) -> dict[str, Any]:
     s.step("filled", free_mb=free_mb(disk), ballast_mb=written)
     s.wait_message("DISK FULL", 30.0)
     rig.wait_states({k: "IDLE" for k in ALL}, 30.0)
-    rig.wait_screen("DISK FULL", 20.0)
+    s.wait_screen("DISK FULL", 20.0)
     s.step("disk_full")
     rig.press("record")
     s.wait_message("DISK LOW", 30.0)
-    rig.wait_screen("DISK LOW", 20.0)
+    s.wait_screen("DISK LOW", 20.0)
     s.step("refused")
     rc = rig.stop_daemon(signal.SIGTERM)
     s.step("sigterm", daemon_exit_code=rc)
