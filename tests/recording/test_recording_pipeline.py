@@ -249,7 +249,10 @@ def test_clean_two_minute_run_has_no_false_positives(tmp_path: Path) -> None:
     assert summary["fired"] == 120 * FPS
     for side in ("left", "right"):
         sr = report.sides[side]
-        assert sr.frames == produced(summary, side) and sr.drops == summary["fired"] - sr.frames
+        assert sr.frames + sr.drops == summary["fired"]
         assert sr.incomplete == sr.bracket_order_breaks == sr.missing_packets == 0
+        # no false positives: every drop is a pulse the fake camera did not answer, or (when the loaded machine made
+        # the fake merge two triggers) the one pulse around a re-sync
+        assert sr.drops <= summary["fired"] - produced(summary, side) + 2 * sr.timestamp_mismatches, report.problems
     if fake_was_exact(summary):
         assert report.ok, report.problems

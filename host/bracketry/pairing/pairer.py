@@ -73,6 +73,7 @@ class _SideState:
     candidate_shift: int = 0
     recent: dict[int, int] = field(default_factory=dict)  # seq -> offset of recent frames (accepted or not)
     waiting: list = field(default_factory=list)  # frames before any event (host_time alignment)
+    last_ok_seq: int | None = None  # last frame whose timestamp agreed with its pulse
 
 
 class Pairer:
@@ -194,16 +195,16 @@ class Pairer:
     def _check_time(self, side: str, seq: int, frame: Any) -> int:
         """Timestamp cross-check (see module doc); returns the frame's (possibly moved) trigger_seq."""
         st = self._state[side]
-        ev = self._events.get(seq)
-        if ev is None or self._period_us is None or frame.status != "success" or not frame.cam_timestamp_ns:
+        if self._period_us is None or not self._events or frame.status != "success" or not frame.cam_timestamp_ns:
             return seq  # incomplete buffers may carry no timestamp
         period_ns = self._period_us * 1000.0
-        offset = frame.cam_timestamp_ns - ev.t_start_device_us * 1000
+        offset = frame.cam_timestamp_ns - self._pulse_device_ns(seq)
         st.recent[seq] = offset
         if len(st.recent) > 64:
             del st.recent[min(st.recent)]
         if not st.offsets:
             st.offsets.append(offset)
+            st.last_ok_seq = seq
             return seq
         deviation = offset - statistics.median(st.offsets)
         m = round(deviation / period_ns)
@@ -211,6 +212,7 @@ class Pairer:
             return seq  # an outlier (late frame): neither accepted as reference nor a shift
         if m == 0:
             st.offsets.append(offset)
+            st.last_ok_seq = seq
             if st.candidate:
                 log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
             st.candidate = []
@@ -224,20 +226,26 @@ class Pairer:
             return seq
         return self._apply_shift(side, seq)
 
+    def _pulse_device_ns(self, seq: int) -> float:
+        """Device time of pulse ``seq``: its event's, else extrapolated from the nearest event with the period."""
+        ev = self._events.get(seq)
+        if ev is not None:
+            return ev.t_start_device_us * 1000.0
+        before = [k for k in self._events if k < seq]
+        ref = self._events[max(before)] if before else self._events[min(self._events)]
+        return (ref.t_start_device_us + (seq - ref.trigger_seq) * (self._period_us or 0.0)) * 1000.0
+
     def _apply_shift(self, side: str, seq: int) -> int:
         st = self._state[side]
         m = st.candidate_shift
-        # frames right before the candidates that were rejected as outliers but lean towards the shift move too
-        reference = statistics.median(st.offsets)
-        period_ns = (self._period_us or 0.0) * 1000.0
-        prev = min(st.candidate) - 1
-        while prev in st.recent and prev > self._emitted_upto:
-            deviation = st.recent[prev] - reference
-            if abs(deviation - m * period_ns) >= abs(deviation):
-                break
-            st.candidate.append(prev)
-            prev -= 1
+        # every frame of this side after the last frame whose timestamp agreed (incomplete frames carry none,
+        # outliers were not decided) moves too: the shift happened somewhere after that frame
+        first = min(st.candidate)
+        for seq_before in range(st.last_ok_seq + 1 if st.last_ok_seq is not None else first, first):
+            if seq_before > self._emitted_upto and side in self._pending.get(seq_before, {}):
+                st.candidate.append(seq_before)
         moved_seq = seq
+        first_moved = min(st.candidate)
         first = True
         for old in (sorted(st.candidate, reverse=m > 0)):
             frame = self._pending.get(old, {}).pop(side, None)
@@ -250,14 +258,14 @@ class Pairer:
                 continue
             self._pending.setdefault(new, {})[side] = frame
             self._newest = max(self._newest, new)
-            if old == min(st.candidate):
+            if old == first_moved:
                 self._notes.setdefault(new, {})[side] = "timestamp_mismatch"
             if old == seq:
                 moved_seq = new
             first = False
         if not first:
             log.warning("camera %s: timestamps show a shift of %+d pulses from trigger_seq %d: re-synced",
-                        side, m, min(st.candidate))
+                        side, m, first_moved)
         self.counters[side].timestamp_mismatches += 1
         st.offset = (st.offset or 0) + m
         st.candidate = []
@@ -273,6 +281,10 @@ class Pairer:
     def _ready(self, seq: int) -> bool:
         slot = self._pending.get(seq, {})
         if any(st.candidate and seq >= min(st.candidate) for st in self._state.values()):
+            return False
+        # a frame not yet confirmed by a later timestamp check may still move: wait up to confirm_frames pulses
+        if any(st.last_ok_seq is not None and seq > st.last_ok_seq for st in self._state.values()) and \
+                self._newest < seq + self.confirm_frames:
             return False
         return seq in self._events and all(s in slot for s in self.sides)
 
