@@ -87,3 +87,11 @@ def test_unreadable_and_non_toml_files(tmp_path: Path) -> None:
     bad.write_text("[rig\nfps = 22\n")
     with pytest.raises(ConfigError, match="not valid TOML"):
         load_config(bad)
+
+
+def test_simulated_example_config_loads() -> None:
+    cfg = load_config(EXAMPLE.with_name("rig.simulated.toml"))
+    assert [(c.side, c.profile, c.address) for c in cfg.cameras] == [("left", "aravis_fake", "127.0.0.2"),
+                                                                      ("right", "aravis_fake", "127.0.0.3")]
+    assert cfg.trigger.kind == "simulator" and cfg.panel.enabled
+    assert cfg.stop_free_mb < cfg.min_free_mb

@@ -10,7 +10,8 @@ status socket):
 - ``e2e``: SENSORS -> IDLE, RECORD -> REC, ``--seconds`` of recording, RECORD -> IDLE, SIGTERM -> exit code; then
   the one-shot ``bracketry record --config F --duration D`` on the same simulated devices.
 - ``faults``: while recording: trigger simulator killed and restarted, right camera stopped and restarted, panel
-  rebooted (its simulator killed and restarted), then SIGKILL of the daemon (``t_kill_ns`` in the result).
+  rebooted (its simulator killed and restarted), then SIGKILL of the daemon (``t_kill_ns`` in the result) and a
+  new daemon that brings the sensors up again.
 - ``disk``: recording on a small tmpfs that a ballast file fills: the daemon stops cleanly below ``stop_free_mb``
   and refuses RECORD below ``min_free_mb``; the segments are verified inside (the tmpfs dies with the namespace).
 
@@ -239,7 +240,17 @@ def run_faults(s: Session, seconds: float) -> dict[str, Any]:
     proc.send_signal(signal.SIGKILL)
     rc = proc.wait(timeout=30)
     s.step("killed", daemon_exit_code=rc)
-    return {"daemon_exit_code": rc, "t_kill_ns": t_kill_ns, "events_before_kill": before["counters"]}
+    # 5. the service comes back after the crash (systemd Restart=): stale socket, a trigger still STARTed
+    rig.start_daemon()
+    s.wait_screen("L:OFF R:OFF TRIG:OFF", 30.0)
+    rig.press("sensors")
+    rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
+    s.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
+    s.step("restarted_idle")
+    rc2 = rig.stop_daemon(signal.SIGTERM)
+    s.step("restarted_sigterm", daemon_exit_code=rc2)
+    return {"daemon_exit_code": rc, "t_kill_ns": t_kill_ns, "events_before_kill": before["counters"],
+            "restarted_exit_code": rc2}
 
 
 def run_disk(s: Session, ballast_mb: int) -> dict[str, Any]:
