@@ -10,6 +10,7 @@ dashboard off, one thread per worker process) is started before the clock; the l
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import tempfile
 import time
@@ -31,7 +32,11 @@ def make_datasets(root: Path, n_traj: int, n_frames: int) -> list[Path]:
     return out
 
 
+LOADS: list[float] = []
+
+
 def timed(fn) -> float:
+    LOADS.append(os.getloadavg()[0])
     t0 = time.perf_counter()
     fn()
     return time.perf_counter() - t0
@@ -73,6 +78,8 @@ def main() -> None:
         print(f"{k:9s} median {v:7.2f} s  ({', '.join(f'{x:.2f}' for x in times[k])})")
     print(f"speed-up dask  2 vs 1 workers: {med['dask 1w'] / med['dask 2w']:.2f}x (goal >= 1.8x)")
     print(f"speed-up local 2 vs 1 workers: {med['local 1w'] / med['local 2w']:.2f}x (2 workers include process spawn)")
+    print(f"1-min load average during the runs: {min(LOADS):.1f}..{max(LOADS):.1f} on {os.cpu_count()} CPUs "
+          "(a speed-up needs idle cores: above ~1 the other processes take the second core)")
 
 
 if __name__ == "__main__":
