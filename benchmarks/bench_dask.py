@@ -65,7 +65,7 @@ def main() -> None:
         times: dict[str, list[float]] = {}
         for n_workers in (1, 2):
             with LocalCluster(n_workers=n_workers, threads_per_worker=1, processes=True, host="127.0.0.1",
-                              dashboard_address=None) as cluster:
+                              dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False}) as cluster:
                 run(scheduler=cluster.scheduler_address)  # warm-up: imports in the workers
                 times[f"dask {n_workers}w"] = [timed(lambda c=cluster: run(scheduler=c.scheduler_address))
                                                for _ in range(reps)]

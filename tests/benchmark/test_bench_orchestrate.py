@@ -95,8 +95,9 @@ def test_bench_interrupted_run_resumes(datasets, local_run, tmp_path: Path) -> N
 
 def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Path) -> None:
     distributed = pytest.importorskip("distributed")
+    # dashboard off (no Bokeh); the scheduler's small HTTP server goes to a free loopback port
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                  dashboard_address=None) as cluster:
+                                  dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False}) as cluster:
         res = run_benchmark(datasets, METHODS, tmp_path, windows_m=WINDOWS, scheduler=cluster.scheduler_address)
     assert not any(r["cached"] for r in res.results)
     assert _essential(res.results) == _essential(local_run.results)

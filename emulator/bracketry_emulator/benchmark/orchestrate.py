@@ -38,6 +38,10 @@ def parse_methods(methods: str | list[str]) -> list[str]:
 
 
 def _run_local(tasks: list[dict], workers: int, on_done: Callable[[dict], None] | None) -> list[dict]:
+    from bracketry_emulator.benchmark.tasks import load_cached
+
+    todo = [t for t in tasks if load_cached(t) is None]
+    workers = min(workers, len(todo))  # all cached (or one task left): no process pool to start
     if workers <= 1:
         results = []
         for t in tasks:

@@ -32,8 +32,8 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder (resumable).")
 @click.option("--reference", default="ae50", show_default=True, help="Reference method of the statistics.")
 @click.option("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (default: local processes).")
-@click.option("--workers", default=1, show_default=True, type=click.IntRange(1, 64),
-              help="Local worker processes (ignored with --scheduler).")
+@click.option("--workers", default=0, show_default=True, type=click.IntRange(0, 64),
+              help="Local worker processes, 0 = one per CPU (1 = in this process; ignored with --scheduler).")
 @click.option("--windows", "windows_text", default="5:50:1", show_default=True,
               help="RTE/RRE windows in metres: START:STOP:STEP or a list.")
 @click.option("--alpha", default=0.05, show_default=True, type=click.FloatRange(0, 1, min_open=True, max_open=True),
@@ -59,6 +59,10 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
     if scheduler is not None and not scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise BracketryError(f"bad --scheduler {scheduler!r} (expected tcp://HOST:PORT)")
     windows_m = _windows(windows_text)
+    if workers == 0:
+        import os
+
+        workers = os.cpu_count() or 1
 
     def done(r: dict) -> None:
         state = "cached" if r.get("cached") else "done"
