@@ -125,6 +125,8 @@ def test_simulated_rig_buttons_record_verify_sigterm_and_oneshot_record(tmp_path
     assert stopped["states"]["cam_left"] == stopped["states"]["trigger"] == "IDLE" and stopped["recording"] is None
     # SIGTERM: clean exit
     assert result["daemon_exit_code"] == 0
+    notes = result["sd_notify"]  # systemd notifications: ready, watchdog pings while alive, stopping
+    assert notes[0] == "READY=1" and notes.count("WATCHDOG=1") >= 5 and "STOPPING=1" in notes, notes
     log = daemon_log(result)
     for text in ("button sensors", "button record", "segment rec_", "segment closed", "daemon stopped"):
         assert logged(log, text), text

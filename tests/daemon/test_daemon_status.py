@@ -75,6 +75,19 @@ def test_sd_notify_datagrams(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) ->
     assert Notifier().ready() is False
 
 
+def test_sd_notify_never_blocks_on_a_listener_that_does_not_read(tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    path = tmp_path / "notify.sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as recv:
+        recv.bind(str(path))
+        monkeypatch.setenv("NOTIFY_SOCKET", str(path))
+        n = Notifier()
+        sent = [n.watchdog() for _ in range(200)]  # the datagram queue (max_dgram_qlen) fills: False, no hang
+        assert sent[0] and not all(sent)
+        assert n.stopping() is False
+        assert recv.recv(100) == b"WATCHDOG=1"
+
+
 def test_state_snapshot_and_message_truncation() -> None:
     st = RigState()
     st.set_message("x" * 30)

@@ -31,8 +31,9 @@ class Notifier:
             addr = "\0" + addr[1:]
         try:
             with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as s:
+                s.setblocking(False)  # a listener that does not read (full queue) must never hang the daemon
                 s.connect(addr)
-                s.sendall(message.encode())
+                s.send(message.encode())
             return True
         except OSError:
             return False

@@ -30,6 +30,7 @@ import shlex
 import signal
 import subprocess
 import sys
+import threading
 import time
 import traceback
 from pathlib import Path
@@ -69,6 +70,41 @@ class Session:
         self.steps: list[dict[str, Any]] = []
         self._served_done: dict[str, list[int]] = {"left": [], "right": []}
         self.seen: list[str] = []
+
+    def listen_sd_notify(self) -> None:
+        """Be systemd for the daemon: a ``$NOTIFY_SOCKET`` datagram socket and a 2 s watchdog (set before start)."""
+        import socket
+
+        path = self.rig.out / "notify.sock"
+        path.unlink(missing_ok=True)
+        sock = socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM)
+        sock.bind(str(path))
+        sock.settimeout(0.2)
+        self._notes: list[str] = []
+        self._notify_stop = threading.Event()
+
+        def collect() -> None:
+            with sock:
+                while not self._notify_stop.is_set():
+                    try:
+                        self._notes.append(sock.recv(4096).decode())
+                    except (TimeoutError, OSError):
+                        continue
+
+        self._notify_thread = threading.Thread(target=collect, name="sd-notify", daemon=True)
+        self._notify_thread.start()
+        os.environ["NOTIFY_SOCKET"] = str(path)
+        os.environ["WATCHDOG_USEC"] = "2000000"
+
+    def notifications(self) -> list[str]:
+        """Every sd_notify message received; stops listening (later children do not inherit the socket)."""
+        os.environ.pop("NOTIFY_SOCKET", None)
+        os.environ.pop("WATCHDOG_USEC", None)
+        if getattr(self, "_notify_thread", None) is None:
+            return []
+        self._notify_stop.set()
+        self._notify_thread.join(timeout=5)
+        return list(self._notes)
 
     def served(self) -> dict[str, list[int]]:
         """Exposure (µs) of every frame each side's fake camera served so far, restarts included."""
@@ -182,7 +218,7 @@ def run_e2e(s: Session, seconds: float, record_s: float) -> dict[str, Any]:
     s.step("stopped")
     rc = rig.stop_daemon(signal.SIGTERM)
     s.step("sigterm", daemon_exit_code=rc)
-    out: dict[str, Any] = {"daemon_exit_code": rc}
+    out: dict[str, Any] = {"daemon_exit_code": rc, "sd_notify": s.notifications()}
     if record_s > 0:
         w, h = rig.o.resolution
         cmd = [sys.executable, "-m", "bracketry", "record", "--config", str(rig.config_path), "--duration",
@@ -319,6 +355,8 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     try:
         rig.prepare_frames()
+        if args.scenario == "e2e":
+            session.listen_sd_notify()
         rig.start()
         if args.scenario == "e2e":
             result.update(run_e2e(session, args.seconds, args.record_seconds))
