@@ -79,7 +79,7 @@ def run_with_trigger_simulator(cams: dict[str, GigECamera], session: RecordingSe
             client.sync_clock()
             client.configure(period_us, brackets)
             client.start(session_id=1)
-            for ev in client.events(timeout_s=2.0):
+            for ev in client.events(timeout_s=10.0):  # generous: a loaded machine may stall the pty
                 if ev.trigger_seq >= n:
                     break
                 for cam in cams.values():
