@@ -41,7 +41,6 @@ from multiprocessing.connection import Connection, wait
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
 
 from bracketry.errors import BracketryError
@@ -139,10 +138,8 @@ class RunSummary:
 
 
 class _LinkingRunWriter(RunWriter):
-    """:class:`RunWriter` (same layout, same decoded pixels) with two speed-ups for many methods per run.
+    """:class:`RunWriter` (same layout, same decoded pixels) that shares images between the methods of a run:
 
-    - PNGs are encoded with OpenCV's default PNG parameters (zlib level 1 + RLE strategy): lossless, files about
-      the same size, about 2.5x faster than level 1 with the default zlib strategy;
     - an image identical to one already written by another method of the same worker (same sequence, side and
       target exposure, so the same emulated pixels) becomes a hard link to that file instead of a second encoding
       (falls back to writing when the file system refuses links). Treat run outputs as read-only.
@@ -153,42 +150,19 @@ class _LinkingRunWriter(RunWriter):
         super().__init__(out_dir, method, sides, depth=depth, overwrite=overwrite)
         self._written = written
 
-    def write_step(self, step: int, seq: BracketSequence, side_images: dict[str, EmulatedImage],
-                   target_us: float) -> None:
-        first: tuple[int, EmulatedImage] | None = None
-        for side in self.sides:
-            if side not in side_images:
-                raise BracketryError(f"step {step}: no emulated image for side {side}")
-            em = side_images[side]
-            ts = seq.timestamps_ns[side][em.source_exposure_us]
-            path = self.image_path(side, ts)
-            key = (seq.index, side, float(target_us))
-            src = self._written.get(key)
-            linked = False
-            if src is not None and src != path:
-                try:
-                    if path.exists():
-                        path.unlink()
-                    os.link(src, path)
-                    linked = True
-                except OSError:
-                    linked = False
-            if not linked:
-                if path.is_file():  # never write through a hard link of an earlier run (--overwrite)
+    def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:
+        """Hard-link the image when another method already wrote the same (sequence, side, target); else write it."""
+        src = self._written.get(key)
+        if src is not None and src != path:
+            try:
+                if path.exists():
                     path.unlink()
-                if not cv2.imwrite(str(path), em.to_depth(self.depth)):
-                    raise BracketryError(f"cannot write {path}")
-                self._written[key] = path
-            self._times[side].write(f"{ts} {ts} {target_us / 1000.0:.6f}\n")
-            if first is None:
-                first = (ts, em)
-        assert first is not None
-        ts, em = first
-        self._steps.writerow([step, ts, f"{target_us / 1000.0:.6f}", f"{em.source_exposure_us / 1000.0:.6f}",
-                              f"{em.factor:.6f}", em.selection])
-        self.n_steps += 1
-        for f in (*self._times.values(), self._steps_file):
-            f.flush()
+                os.link(src, path)
+                return
+            except OSError:
+                pass
+        super().write_image(path, em, key)
+        self._written[key] = path
 
 
 class _CachedEmulator(Emulator):

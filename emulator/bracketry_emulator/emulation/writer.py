@@ -55,6 +55,17 @@ class RunWriter:
         """Where the image of ``side`` named by ``timestamp_ns`` goes."""
         return self.root / f"images_{side}" / f"{timestamp_ns}.png"
 
+    def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:
+        """Write one emulated image as a lossless PNG (OpenCV's default compression: faster here than level 1).
+
+        ``key`` = (sequence index, side, target exposure us) identifies the image's content, for subclasses that
+        share identical images between runs (hard links) instead of writing them again. A file already at ``path``
+        is replaced, never written through (it may be a hard link of an earlier run)."""
+        if path.is_file():
+            path.unlink()
+        if not cv2.imwrite(str(path), em.to_depth(self.depth)):
+            raise BracketryError(f"cannot write {path}")
+
     def write_step(self, step: int, seq: BracketSequence, side_images: dict[str, EmulatedImage],
                    target_us: float) -> None:
         """Write one step: an image per side, a times line per side and one steps.csv row."""
@@ -65,8 +76,7 @@ class RunWriter:
             em = side_images[side]
             ts = seq.timestamps_ns[side][em.source_exposure_us]
             path = self.image_path(side, ts)
-            if not cv2.imwrite(str(path), em.to_depth(self.depth), [cv2.IMWRITE_PNG_COMPRESSION, 1]):
-                raise BracketryError(f"cannot write {path}")
+            self.write_image(path, em, (seq.index, side, float(target_us)))
             self._times[side].write(f"{ts} {ts} {target_us / 1000.0:.6f}\n")
             if first is None:
                 first = (ts, em)
