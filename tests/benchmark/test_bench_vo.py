@@ -24,6 +24,7 @@ def world_dir(tmp_path_factory) -> Path:
     return d
 
 
+@pytest.mark.realdata
 def test_bench_rectifier_from_sample_calibration(borealhdr_sample) -> None:
     rect = StereoRectifier.from_dir(borealhdr_sample / "calibration")
     assert rect.baseline_m == pytest.approx(180.0 / 1009.76978, rel=1e-6)  # -P[0,3] / P[0,0]
