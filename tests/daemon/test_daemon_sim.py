@@ -214,7 +214,7 @@ def test_simulated_rig_faults_trigger_camera_panel_and_sigkill(tmp_path: Path) -
     assert len({p.parent for p in segments}) == 1  # the new daemon did not record
 
 
-def test_simulated_rig_disk_filling_stops_cleanly_and_refuses(tmp_path: Path) -> None:
+def test_simulated_rig_disk_filling_stops_cleanly_and_refuses_idle_camera_recovers(tmp_path: Path) -> None:
     try:
         probe = subprocess.run(["unshare", "--mount", "--propagation", "private", "true"], capture_output=True,
                                timeout=10)
@@ -233,6 +233,10 @@ def test_simulated_rig_disk_filling_stops_cleanly_and_refuses(tmp_path: Path) ->
     assert logged(log, "stop_free_mb 16: stopping the recording", "ERROR")
     assert logged(log, "recording refused", "ERROR")
     assert not logged(log, "recorder failed")
+    # idle camera off the network: ERR (GVCP check), back: IDLE without any button
+    assert "L:ERR" in step(result, "idle_camera_err")["seen"][0]
+    assert logged(log, "camera left: no answer while idle", "ERROR")
+    assert step(result, "idle_camera_back")["seen"][0] == "L:IDL R:IDL TRIG:IDL"
     assert result["daemon_exit_code"] == 0
     reports = result["verify"]
     assert len(reports) == 1

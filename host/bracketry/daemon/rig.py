@@ -35,6 +35,8 @@ log = logging.getLogger("bracketry.daemon")
 CAM_SENSOR = {"left": "cam_left", "right": "cam_right"}
 #: a recording camera is stalled when this many pulses reached it without a frame (and camera_stall_s passed)
 STALL_PULSES = 3
+#: GigE Vision bootstrap register "Version" (read to see that an idle camera still answers GVCP)
+GEV_VERSION_REGISTER = 0x0000
 
 
 @dataclass
@@ -43,13 +45,15 @@ class DaemonOptions:
 
     ``software_trigger``: fire each camera's TriggerSoftware at every TRIGGER event (fake cameras have no trigger
     line); ``width``/``height``: region of interest (None keeps the camera's); ``camera_stall_s``: a recording camera
-    with no frame for this long is in ERR; ``backoff_s``: first and maximum reconnection delays.
+    with no frame for this long is in ERR; ``idle_check_s``: period of the GVCP check of idle cameras;
+    ``backoff_s``: first and maximum reconnection delays.
     """
 
     software_trigger: bool = False
     width: int | None = None
     height: int | None = None
     camera_stall_s: float = 2.0
+    idle_check_s: float = 2.0
     backoff_s: tuple[float, float] = (0.5, 8.0)
     status_socket: Path | None = None
     calibration: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -103,6 +107,7 @@ class RigDaemon:
         self._supervisor: threading.Thread | None = None
         self._backoff = {name: _Backoff(*self.options.backoff_s) for name in ("trigger", "left", "right", "panel")}
         self._last_frames: dict[str, tuple[float, int, int]] = {}  # side -> (t_s, frames, pulses) at last frame
+        self._last_idle_check = 0.0
         self._pulses: dict[str, int] = {}  # side -> pulses delivered to it in this segment
         self._trigger_reboots_seen = 0
         self._deliver_lock = threading.Lock()
@@ -509,6 +514,7 @@ class RigDaemon:
                 self.state.set_message("WRITE ERROR")
             self._check_trigger()
             self._check_cameras()
+            self._check_idle_cameras()
             self._reconnect()
             if self.panel is None and self.config.panel.enabled and self._backoff["panel"].due():
                 self._connect_panel()
@@ -550,6 +556,25 @@ class RigDaemon:
                 log.error("camera %s: no frame for %.1f s (%d pulses)", side, now - t_last, pulses - pulses_then)
                 self._camera_lost(side, session)
                 return
+
+    def _check_idle_cameras(self) -> None:
+        """Cameras up but not recording: one GVCP register read each every ``idle_check_s``; a camera that does
+        not answer goes to ERR and is reconnected with backoff (a recording camera is watched by its frames)."""
+        if self._session is not None or not self.cameras:
+            return
+        now = time.monotonic()
+        if now - self._last_idle_check < self.options.idle_check_s:
+            return
+        self._last_idle_check = now
+        for side, cam in list(self.cameras.items()):
+            try:
+                cam.device.read_register(GEV_VERSION_REGISTER)
+            except Exception as exc:
+                log.error("camera %s: no answer while idle: %s", side, exc)
+                self.cameras.pop(side, None)
+                self.state.set_state(CAM_SENSOR[side], SensorState.ERR, f"no answer: {exc}")
+                self._backoff[side].failed()
+                threading.Thread(target=_close_quietly, args=(cam,), name=f"close-{side}", daemon=True).start()
 
     def _camera_lost(self, side: str, session: Any) -> None:
         """A recording camera stalled: ERR, the segment closes without it, a new one starts with what works.

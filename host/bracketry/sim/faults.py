@@ -14,6 +14,7 @@ status socket):
   new daemon that brings the sensors up again.
 - ``disk``: recording on a small tmpfs that a ballast file fills: the daemon stops cleanly below ``stop_free_mb``
   and refuses RECORD below ``min_free_mb``; the segments are verified inside (the tmpfs dies with the namespace).
+  Then the left camera drops off the network while idle and comes back.
 
 The result holds ``steps`` (name, monotonic time, screen lines, sensor states, message, counters at each checkpoint),
 ``served`` (exposure of every frame each fake camera served, in order, across restarts, with ``served_at`` counts per
@@ -316,6 +317,15 @@ def run_disk(s: Session, ballast_mb: int) -> dict[str, Any]:
     s.wait_message("DISK LOW", 30.0)
     s.wait_screen("DISK LOW", 20.0)
     s.step("refused")
+    # an idle camera drops off the network and comes back: ERR, then IDLE again by itself
+    s.stop_camera("left")
+    rig.wait_states({"cam_left": "ERR"}, 60.0)
+    s.wait_screen("L:ERR", 20.0)
+    s.step("idle_camera_err")
+    rig.start_camera("left")
+    rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
+    s.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
+    s.step("idle_camera_back")
     rc = rig.stop_daemon(signal.SIGTERM)
     s.step("sigterm", daemon_exit_code=rc)
     from bracketry.recording.verify import verify_recording

@@ -17,13 +17,16 @@ def run_session(rig: SimulatedRig, seconds: float, timeout_s: float = 60.0) -> d
     t0 = time.monotonic()
     rig.press("sensors")
     rig.wait_states({k: "IDLE" for k in ALL}, timeout_s)
+    rig.wait_screen("L:IDL R:IDL TRIG:IDL", timeout_s)  # the panel shows it too (and the screen is printed)
     rig.press("record")
     rig.wait_states({k: "REC" for k in ALL}, timeout_s)
+    rig.wait_screen("L:REC R:REC TRIG:REC", timeout_s)
     t_rec = time.monotonic()
     rig.run_for(seconds)
     rig.press("record")
     state = rig.wait_states({k: "IDLE" for k in ALL}, timeout_s)
     rec_s = time.monotonic() - t_rec
+    rig.wait_screen("SAVED", timeout_s)
     rc = rig.stop_daemon(signal.SIGTERM)
     if rc != 0:
         raise BracketryError(f"the daemon exited with code {rc} after SIGTERM (see {rig.out}/daemon.log)")
