@@ -19,7 +19,8 @@ sequences are processed in chunks that fit ``memory_budget_bytes``: each chunk's
 the workers) into one shared anonymous memory map, then every worker runs its methods through the chunk. Within a
 worker, identical emulations (same sequence, side and target) are computed once and identical output images are
 hard links (see :class:`_LinkingRunWriter`). ``workers`` <= 1 runs in-process. With ``write_images=False`` only
-the exposure trajectories (ae.csv, summaries, plot) are written.
+the exposure trajectories (ae.csv, summaries, plot) are written. Images are lossless PNGs written stored
+(``stored_png``, default: ~4x faster to encode, ~20% larger; see :mod:`..emulation.writer`) on background threads.
 
 Outputs in ``out_dir``: ``<method>/`` (images_left|right/, times_images_*.txt, steps.csv, plus ``ae.csv``: step,
 timestamp_ns, exposure_ms, next_exposure_ms, ae_ms, and ``summary.json``), ``exposures.csv`` (one column per
@@ -33,9 +34,12 @@ import json
 import mmap
 import multiprocessing as mp
 import os
+import threading
 import time
 import traceback
+from collections import deque
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -54,6 +58,10 @@ from .registry import get_method
 DEFAULT_INIT_EXPOSURE_US = 4000.0
 DEFAULT_MIN_EXPOSURE_US = 20.0
 DEFAULT_MAX_EXPOSURE_US = 64000.0
+#: ``workers=0`` (auto) forks worker processes only from this many sequences on; shorter runs are faster in one
+#: process (forking, per-worker method start-up and result pickling cost more than they save; decoding and PNG
+#: encoding use threads in-process anyway).
+AUTO_FORK_MIN_SEQUENCES = 8
 #: Estimated relative cost of one step per method (emulation + writing ~ 20), for balancing the workers.
 _COST = {"fix": 1, "ae30": 1, "ae50": 1, "ae70": 1, "drl": 3, "shim": 10, "wang": 20, "zhang": 10, "kim": 40}
 
@@ -71,6 +79,7 @@ class LoopConfig:
     seed: int = 0
     drl_weights: str | None = None
     write_images: bool = True
+    stored_png: bool = True
     overwrite: bool = False
     max_sequences: int | None = None
     memory_budget_bytes: int = 1 << 30
@@ -137,32 +146,83 @@ class RunSummary:
     plot_path: Path | None = None
 
 
+class _ImageSink:
+    """Encodes the images of a worker's writers on background threads (cv2.imwrite releases the GIL), so PNG
+    encoding overlaps emulation and the AE methods. At most ``max_pending`` images are in flight (bounded memory);
+    a failed write raises from the next :meth:`submit` or from :meth:`drain`. ``threads`` = 0 writes inline."""
+
+    def __init__(self, threads: int, max_pending: int = 8) -> None:
+        self.pool = ThreadPoolExecutor(threads, thread_name_prefix="bracketry-png") if threads > 0 else None
+        self.max_pending = max(1, max_pending)
+        self.pending: deque[Future[None]] = deque()
+        #: (sequence index, side, target us) -> (path, its write) of every image written by this worker
+        self.written: dict[tuple[int, str, float], tuple[Path, Future[None] | None]] = {}
+
+    def submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
+        if self.pool is None:
+            fn(*args)
+            return None
+        fut = self.pool.submit(fn, *args)
+        self.pending.append(fut)
+        while len(self.pending) > self.max_pending:
+            self.pending.popleft().result()
+        return fut
+
+    def drain(self) -> None:
+        """Wait for every pending write (raises the first failure)."""
+        while self.pending:
+            self.pending.popleft().result()
+
+    def close(self) -> None:
+        try:
+            self.drain()
+        finally:
+            if self.pool is not None:
+                self.pool.shutdown(wait=True, cancel_futures=True)
+
+
 class _LinkingRunWriter(RunWriter):
     """:class:`RunWriter` (same layout, same decoded pixels) that shares images between the methods of a run:
 
     - an image identical to one already written by another method of the same worker (same sequence, side and
       target exposure, so the same emulated pixels) becomes a hard link to that file instead of a second encoding
       (falls back to writing when the file system refuses links). Treat run outputs as read-only.
+    - images are encoded on the worker's :class:`_ImageSink` threads; :meth:`close` waits for them.
     """
 
     def __init__(self, out_dir: Path, method: str, sides: tuple[str, ...], depth: int, overwrite: bool,
-                 written: dict[tuple[int, str, float], Path]) -> None:
-        super().__init__(out_dir, method, sides, depth=depth, overwrite=overwrite)
-        self._written = written
+                 sink: _ImageSink, stored_png: bool) -> None:
+        super().__init__(out_dir, method, sides, depth=depth, overwrite=overwrite, stored_png=stored_png)
+        self._sink = sink
 
     def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:
         """Hard-link the image when another method already wrote the same (sequence, side, target); else write it."""
-        src = self._written.get(key)
-        if src is not None and src != path:
-            try:
-                if path.exists():
-                    path.unlink()
-                os.link(src, path)
-                return
-            except OSError:
-                pass
-        super().write_image(path, em, key)
-        self._written[key] = path
+        src = self._sink.written.get(key)
+        if src is not None and src[0] != path:
+            self._sink.submit(self._link, src, path, em, key)
+            return
+        fut = self._sink.submit(super().write_image, path, em, key)
+        self._sink.written[key] = (path, fut)
+
+    def _link(self, src: tuple[Path, Future[None] | None], path: Path, em: EmulatedImage,
+              key: tuple[int, str, float]) -> None:
+        """Runs on a sink thread: the source write was submitted earlier (FIFO), so it is running or done."""
+        if src[1] is not None:
+            src[1].result()
+        try:
+            if path.exists():
+                path.unlink()
+            os.link(src[0], path)
+            return
+        except OSError:
+            pass
+        RunWriter.write_image(self, path, em, key)
+
+    def close(self) -> None:
+        try:
+            self._sink.drain()
+        finally:
+            super().close()
 
 
 class _CachedEmulator(Emulator):
@@ -245,8 +305,10 @@ class _Worker:
 
     def __init__(self, specs: list[str], cfg: LoopConfig, dataset: Dataset, out_dir: Path,
                  emu_sides: tuple[str, ...], write_sides: tuple[str, ...], buffer: Any, shape: tuple[int, int],
-                 n_exp: int) -> None:
+                 n_exp: int, write_threads: int = 1,
+                 preloaded: dict[tuple[int, int, int], np.ndarray] | None = None) -> None:
         self.cfg = cfg
+        self.preloaded = preloaded or {}
         self.dataset = dataset
         self.sequences = dataset.sequences()
         self.emu_sides, self.write_sides = emu_sides, write_sides
@@ -256,7 +318,7 @@ class _Worker:
         self.targets: dict[str, float] = {}
         self.runs: dict[str, MethodRun] = {}
         self.writers: dict[str, RunWriter] = {}
-        written: dict[tuple[int, str, float], Path] = {}
+        self.sink = _ImageSink(write_threads if cfg.write_images else 0)
         for spec in specs:
             method = get_method(spec, seed=cfg.seed, drl_weights=cfg.drl_weights)
             init = getattr(method, "init_exposure_us", None) or cfg.init_exposure_us
@@ -265,23 +327,15 @@ class _Worker:
             self.targets[spec] = float(init)
             self.runs[spec] = MethodRun(spec)
             self.writers[spec] = _LinkingRunWriter(out_dir, _folder(spec), write_sides, cfg.emulator.depth,
-                                                   cfg.overwrite, written)
+                                                   cfg.overwrite, self.sink, cfg.stored_png)
 
     def _view(self, slot: int, side_i: int, exp_i: int) -> np.ndarray:
-        h, w = self.shape
-        n = h * w
-        off = ((slot * len(self.emu_sides) + side_i) * self.n_exp + exp_i) * n * 2
-        return np.frombuffer(self.buffer, dtype=np.uint16, count=n, offset=off).reshape(h, w)
+        return _buffer_view(self.buffer, self.shape, len(self.emu_sides), self.n_exp, slot, side_i, exp_i)
 
     def decode(self, tasks: list[tuple[int, int, int, int]]) -> None:
         """Decode frames (slot, seq index, side index, exposure index) into the shared buffer."""
-        for slot, seq_i, side_i, exp_i in tasks:
-            seq = self.sequences[seq_i]
-            exp = seq.exposures_us[exp_i]
-            img = seq.frames[self.emu_sides[side_i]][exp].load()
-            if img.shape != self.shape:
-                raise BracketryError(f"sequence {seq.index}: frame shape {img.shape} differs from {self.shape}")
-            self._view(slot, side_i, exp_i)[...] = img
+        _decode_into(self.buffer, self.shape, self.sequences, self.emu_sides, self.n_exp, tasks,
+                     preloaded=self.preloaded)
 
     def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
         """Advance every method of this worker through the given sequences (slot = position in the list)."""
@@ -323,9 +377,47 @@ class _Worker:
         self.targets[spec] = nxt
 
     def close(self) -> dict[str, MethodRun]:
-        for w in self.writers.values():
-            w.close()
+        try:
+            for w in self.writers.values():
+                w.close()
+        finally:
+            self.sink.close()
         return self.runs
+
+
+def _buffer_view(buffer: Any, shape: tuple[int, int], n_sides: int, n_exp: int, slot: int, side_i: int,
+                 exp_i: int) -> np.ndarray:
+    """uint16 HxW view of one frame's place in the shared decode buffer."""
+    h, w = shape
+    n = h * w
+    off = ((slot * n_sides + side_i) * n_exp + exp_i) * n * 2
+    return np.frombuffer(buffer, dtype=np.uint16, count=n, offset=off).reshape(h, w)
+
+
+def _decode_into(buffer: Any, shape: tuple[int, int], sequences: list[BracketSequence], emu_sides: tuple[str, ...],
+                 n_exp: int, tasks: list[tuple[int, int, int, int]], pool: ThreadPoolExecutor | None = None,
+                 preloaded: dict[tuple[int, int, int], np.ndarray] | None = None) -> list[Future[None]]:
+    """Decode frames (slot, seq index, side index, exposure index) into the shared buffer.
+
+    With ``pool`` the decodes run on its threads (cv2.imread releases the GIL) and the futures are returned (wait
+    on them before reading the buffer); else inline. ``preloaded``: {(seq index, side index, exposure index):
+    image} already decoded (copied instead of decoded again)."""
+
+    def one(task: tuple[int, int, int, int]) -> None:
+        slot, seq_i, side_i, exp_i = task
+        seq = sequences[seq_i]
+        img = (preloaded or {}).get((seq_i, side_i, exp_i))
+        if img is None:
+            img = seq.frames[emu_sides[side_i]][seq.exposures_us[exp_i]].load()
+        if img.shape != shape:
+            raise BracketryError(f"sequence {seq.index}: frame shape {img.shape} differs from {shape}")
+        _buffer_view(buffer, shape, len(emu_sides), n_exp, slot, side_i, exp_i)[...] = img
+
+    if pool is None:
+        for task in tasks:
+            one(task)
+        return []
+    return [pool.submit(one, task) for task in tasks]
 
 
 def _folder(spec: str) -> str:
@@ -396,29 +488,32 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     first = sequences[0]
-    shape = first.frames[emu_sides[0]][first.exposures_us[0]].load().shape
+    first_img = first.frames[emu_sides[0]][first.exposures_us[0]].load()
+    shape = first_img.shape
+    preloaded = {(0, 0, 0): first_img}  # decoded for the shape: reused, not decoded again
     n_exp = len(first.exposures_us)
     seq_bytes = len(emu_sides) * n_exp * shape[0] * shape[1] * 2
     chunk = max(1, min(n_seq, cfg.memory_budget_bytes // max(seq_bytes, 1)))
     buffer = mmap.mmap(-1, chunk * seq_bytes)
-    n_workers = workers if workers > 0 else min(len(specs), os.cpu_count() or 1, 4)
+    n_cpu = os.cpu_count() or 1
+    if workers > 0:
+        n_workers = workers
+    else:  # auto: forking (and each worker's start-up) only pays off on long runs
+        n_workers = min(len(specs), n_cpu, 4) if n_seq >= AUTO_FORK_MIN_SEQUENCES else 1
     can_fork = "fork" in mp.get_all_start_methods()
     n_workers = max(1, min(n_workers, len(specs))) if can_fork else 1
     groups = _partition(specs, n_workers)
 
-    def make(group: list[str]) -> Callable[[], _Worker]:
-        return lambda: _Worker(group, cfg, dataset, out, emu_sides, write_sides, buffer, shape, n_exp)
+    def make(group: list[str], write_threads: int = 1) -> Callable[[], _Worker]:
+        return lambda: _Worker(group, cfg, dataset, out, emu_sides, write_sides, buffer, shape, n_exp,
+                               write_threads, preloaded)
 
     bar = _progress_bar(progress, len(specs) * n_seq)
     runs: dict[str, MethodRun] = {}
     try:
         if len(groups) == 1:
-            w = make(groups[0])()
-            for c0 in range(0, n_seq, chunk):
-                idx = list(range(c0, min(n_seq, c0 + chunk)))
-                w.decode(_decode_tasks(idx, len(emu_sides), n_exp))
-                w.run(idx, bar.update)
-            runs.update(w.close())
+            runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), sequences, n_seq, chunk, buffer, shape,
+                                        emu_sides, n_exp, preloaded, bar))
         else:
             runs.update(_run_forked(groups, make, n_seq, chunk, len(emu_sides), n_exp, bar))
     finally:
@@ -429,6 +524,39 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
     _write_outputs(summary, cfg, dataset)
     summary.wall_s = time.perf_counter() - t_start
     return summary
+
+
+def _run_in_process(make: Callable[[], _Worker], sequences: list[BracketSequence], n_seq: int, chunk: int,
+                    buffer: Any, shape: tuple[int, int], emu_sides: tuple[str, ...], n_exp: int,
+                    preloaded: dict[tuple[int, int, int], np.ndarray], bar: Any) -> dict[str, MethodRun]:
+    """One worker in this process; PNGs decode on threads while the methods are set up (imports) and matplotlib
+    is imported for the final plot (cv2.imread releases the GIL)."""
+    n_threads = min(2, os.cpu_count() or 1)
+    preload = threading.Thread(target=_preload_plotting, name="bracketry-mpl-import", daemon=True)
+    with ThreadPoolExecutor(n_threads, thread_name_prefix="bracketry-decode") as pool:
+        chunks = [list(range(c0, min(n_seq, c0 + chunk))) for c0 in range(0, n_seq, chunk)]
+        futures = _decode_into(buffer, shape, sequences, emu_sides, n_exp,
+                               _decode_tasks(chunks[0], len(emu_sides), n_exp), pool, preloaded)
+        preload.start()
+        try:
+            w = make()
+            try:
+                for k, idx in enumerate(chunks):
+                    if k > 0:
+                        futures = _decode_into(buffer, shape, sequences, emu_sides, n_exp,
+                                               _decode_tasks(idx, len(emu_sides), n_exp), pool)
+                    for f in futures:
+                        f.result()
+                    w.run(idx, bar.update)
+            except BaseException:
+                with contextlib.suppress(Exception):
+                    w.sink.close()  # finish the images already submitted; the first error is the one raised
+                raise
+            return w.close()
+        finally:
+            for f in futures:
+                f.cancel()
+            preload.join()
 
 
 def _decode_tasks(seq_indices: list[int], n_sides: int, n_exp: int) -> list[tuple[int, int, int, int]]:

@@ -4,16 +4,23 @@
 code >> 4 at depth 8; the name is the timestamp of the source bracket frame), ``times_images_left|right.txt``
 (``<name> <timestamp_ns> <target_ms>`` per step) and ``steps.csv`` (step, timestamp_ns, target_exposure_ms,
 source_exposure_ms, factor, selection; one row per step, for the first side).
+
+PNG encoding: OpenCV's default compression, or with ``stored_png=True`` a stored (uncompressed deflate) PNG written
+by :func:`write_png_stored`: the same decoded pixels, ~4x faster to write, ~20% larger files (the noisy 12-bit raw
+mosaic compresses poorly anyway: 3.9 MB instead of 4.6 MB for 1920x1200).
 """
 
 from __future__ import annotations
 
 import csv
+import struct
+import zlib
 from pathlib import Path
 from types import TracebackType
 from typing import IO
 
 import cv2
+import numpy as np
 
 from bracketry.errors import BracketryError
 
@@ -21,6 +28,31 @@ from ..dataset.model import BracketSequence
 from .emulator import EmulatedImage
 
 STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_ms", "factor", "selection")
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def _png_chunk(tag: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(tag)))
+
+
+def encode_png_stored(image: np.ndarray) -> bytes:
+    """A lossless gray PNG of ``image`` (uint16 HxW -> 16-bit, uint8 HxW -> 8-bit), deflate level 0 (stored), no
+    row filter. Any PNG reader returns exactly ``image``. Raises ValueError for another dtype or shape."""
+    if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"encode_png_stored needs uint8 or uint16 HxW, got {image.dtype} {image.shape}")
+    h, w = image.shape
+    nbytes = image.dtype.itemsize
+    raw = np.empty((h, 1 + nbytes * w), np.uint8)
+    raw[:, 0] = 0  # filter type None
+    raw[:, 1:].view(">u2" if nbytes == 2 else np.uint8)[...] = image  # PNG samples are big-endian
+    ihdr = struct.pack(">IIBBBBB", w, h, 8 * nbytes, 0, 0, 0, 0)  # gray, deflate, no filter, no interlace
+    return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", ihdr), _png_chunk(b"IDAT", zlib.compress(raw.data, 0)),
+                     _png_chunk(b"IEND", b"")))
+
+
+def write_png_stored(path: Path, image: np.ndarray) -> None:
+    """Write :func:`encode_png_stored` of ``image`` to ``path``."""
+    path.write_bytes(encode_png_stored(image))
 
 
 class RunWriter:
@@ -31,7 +63,7 @@ class RunWriter:
     """
 
     def __init__(self, out_dir: str | Path, method: str, sides: tuple[str, ...] | list[str] = ("left", "right"),
-                 depth: int = 12, overwrite: bool = False) -> None:
+                 depth: int = 12, overwrite: bool = False, stored_png: bool = False) -> None:
         if depth not in (8, 12):
             raise BracketryError(f"depth must be 12 or 8, got {depth}")
         if not method or "/" in method or method in (".", ".."):
@@ -39,6 +71,7 @@ class RunWriter:
         self.root = Path(out_dir) / method
         self.sides = tuple(sides)
         self.depth = depth
+        self.stored_png = stored_png
         if self.root.exists() and any(self.root.iterdir()) and not overwrite:
             raise BracketryError(f"output folder already holds a run: {self.root} (choose another --out)")
         self.root.mkdir(parents=True, exist_ok=True)
@@ -56,14 +89,20 @@ class RunWriter:
         return self.root / f"images_{side}" / f"{timestamp_ns}.png"
 
     def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:
-        """Write one emulated image as a lossless PNG (OpenCV's default compression: faster here than level 1).
+        """Write one emulated image as a lossless PNG (OpenCV's default compression: faster here than level 1; or
+        stored, see the module docstring).
 
         ``key`` = (sequence index, side, target exposure us) identifies the image's content, for subclasses that
         share identical images between runs (hard links) instead of writing them again. A file already at ``path``
         is replaced, never written through (it may be a hard link of an earlier run)."""
         if path.is_file():
             path.unlink()
-        if not cv2.imwrite(str(path), em.to_depth(self.depth)):
+        if self.stored_png:
+            try:
+                write_png_stored(path, em.to_depth(self.depth))
+            except OSError as exc:
+                raise BracketryError(f"cannot write {path}: {exc.strerror or exc}") from exc
+        elif not cv2.imwrite(str(path), em.to_depth(self.depth)):
             raise BracketryError(f"cannot write {path}")
 
     def write_step(self, step: int, seq: BracketSequence, side_images: dict[str, EmulatedImage],
