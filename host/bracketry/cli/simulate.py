@@ -57,7 +57,7 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     from bracketry.sim.rig import SimOptions, SimulatedRig, summary_json
     from bracketry.sim.scenario import run_session
 
-    opts = SimOptions(out_dir=out_dir, resolution=res, fps=fps, world_seconds=seconds + 15.0, trigger=trigger,
+    opts = SimOptions(out_dir=out_dir, resolution=res, fps=fps, world_seconds=seconds + 5.0, trigger=trigger,
                       preset=preset, seed=seed, world=world, echo=lambda s: click.echo(s, err=True))
     rig = SimulatedRig(opts)
     try:
