@@ -18,9 +18,12 @@ Parallelism: the methods are split over ``workers`` forked processes (balanced b
 sequences are processed in chunks that fit ``memory_budget_bytes``: each chunk's PNGs are decoded ONCE (split over
 the workers) into one shared anonymous memory map, then every worker runs its methods through the chunk. Within a
 worker, identical emulations (same sequence, side and target) are computed once and identical output images are
-hard links (see :class:`_LinkingRunWriter`). ``workers`` <= 1 runs in-process. With ``write_images=False`` only
-the exposure trajectories (ae.csv, summaries, plot) are written. Images are lossless PNGs written stored
-(``stored_png``, default: ~4x faster to encode, ~20% larger; see :mod:`..emulation.writer`) on background threads.
+hard links (see :class:`_LinkingRunWriter`). ``workers`` = 1 runs in-process, and so does ``workers`` = 0
+(auto) below :data:`AUTO_FORK_MIN_SEQUENCES` sequences; in-process, a sequence's frames are decoded on demand on 2
+threads, only the brackets the methods' current targets can select (:func:`_needed_brackets`).
+With ``write_images=False`` only the exposure trajectories (ae.csv, summaries, plot) are written. Images
+are lossless PNGs written stored (``stored_png``, default: ~4x faster to encode, ~20% larger; see
+:mod:`..emulation.writer`) on background threads.
 
 Outputs in ``out_dir``: ``<method>/`` (images_left|right/, times_images_*.txt, steps.csv, plus ``ae.csv``: step,
 timestamp_ns, exposure_ms, next_exposure_ms, ae_ms, and ``summary.json``), ``exposures.csv`` (one column per
@@ -37,6 +40,7 @@ import os
 import threading
 import time
 import traceback
+from bisect import bisect_left
 from collections import deque
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
@@ -309,6 +313,9 @@ class _Worker:
                  preloaded: dict[tuple[int, int, int], np.ndarray] | None = None) -> None:
         self.cfg = cfg
         self.preloaded = preloaded or {}
+        #: set: decode on demand (only the brackets the methods' targets need) on this pool's threads
+        self.decode_pool: ThreadPoolExecutor | None = None
+        self._decoded: set[tuple[int, int, int]] = set()
         self.dataset = dataset
         self.sequences = dataset.sequences()
         self.emu_sides, self.write_sides = emu_sides, write_sides
@@ -338,11 +345,17 @@ class _Worker:
                      preloaded=self.preloaded)
 
     def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
-        """Advance every method of this worker through the given sequences (slot = position in the list)."""
+        """Advance every method of this worker through the given sequences (slot = position in the list).
+
+        Without :attr:`decode_pool` the frames must already be decoded (:meth:`decode`); with it, each sequence's
+        frames are decoded on demand: only the brackets that the methods' current targets can select."""
         self.emu.clear()
+        self._decoded.clear()
         for slot, seq_i in enumerate(seq_indices):
             seq = self.sequences[seq_i]
             self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
+            if self.decode_pool is not None:
+                self._decode_needed(slot, seq_i, seq)
             brackets = {side: {e: self._view(slot, si, ei) for ei, e in enumerate(seq.exposures_us)}
                         for si, side in enumerate(self.emu_sides)}
             for spec, method in self.methods.items():
@@ -350,11 +363,25 @@ class _Worker:
                 progress(1)
         self.emu.clear()
 
+    def _decode_needed(self, slot: int, seq_i: int, seq: BracketSequence) -> None:
+        """Decode (on the pool's threads) the frames this sequence's steps can use; the targets are known now."""
+        selection = self.cfg.emulator.selection
+        exps = {e for t in self.targets.values() for e in _needed_brackets(seq.exposures_us, t, selection)}
+        tasks = [(slot, seq_i, si, ei) for si in range(len(self.emu_sides))
+                 for ei, e in enumerate(seq.exposures_us) if e in exps and (slot, si, ei) not in self._decoded]
+        assert self.decode_pool is not None
+        for f in _decode_into(self.buffer, self.shape, self.sequences, self.emu_sides, self.n_exp, tasks,
+                              self.decode_pool, self.preloaded):
+            f.result()
+        self._decoded.update((slot, si, ei) for _, _, si, ei in tasks)
+
     def _step(self, spec: str, method: AEMethod, seq_i: int, seq: BracketSequence,
               brackets: dict[str, dict[int, np.ndarray]]) -> None:
         cfg = self.cfg
         target = self.targets[spec]
-        images = {side: self.emu.emulate(seq_i, side, brackets[side], target) for side in self.emu_sides}
+        needed = _needed_brackets(seq.exposures_us, target, cfg.emulator.selection)
+        images = {side: self.emu.emulate(seq_i, side, {e: brackets[side][e] for e in needed}, target)
+                  for side in self.emu_sides}
         if cfg.write_images:
             self.writers[spec].write_step(seq_i, seq, {s: images[s] for s in self.write_sides}, target)
         ae_img = images[cfg.ae_side]
@@ -383,6 +410,23 @@ class _Worker:
         finally:
             self.sink.close()
         return self.runs
+
+
+def _needed_brackets(exposures_us: tuple[int, ...], target_us: float, selection: str) -> tuple[int, ...]:
+    """The brackets that the emulation of ``target_us`` can use: all for fusion; for the single-bracket selections
+    the nearest one outside the range, the exact match (highernosat), else the bracketing pair. The selection
+    rules give the same source on this subset as on every bracket (see :mod:`..emulation.selection`)."""
+    exps = sorted(exposures_us)
+    if selection not in ("highernosat", "upstream"):
+        return tuple(exps)
+    i = bisect_left(exps, target_us)
+    if i >= len(exps):
+        return (exps[-1],)
+    if i == 0:
+        return (exps[0],)
+    if selection == "highernosat" and (exps[i] == target_us or target_us >= exps[-1]):
+        return (exps[i],)
+    return exps[i - 1], exps[i]
 
 
 def _buffer_view(buffer: Any, shape: tuple[int, int], n_sides: int, n_exp: int, slot: int, side_i: int,
@@ -488,9 +532,8 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     first = sequences[0]
-    first_img = first.frames[emu_sides[0]][first.exposures_us[0]].load()
-    shape = first_img.shape
-    preloaded = {(0, 0, 0): first_img}  # decoded for the shape: reused, not decoded again
+    shape, first_img = _frame_shape(first, emu_sides[0])
+    preloaded = {} if first_img is None else {(0, 0, 0): first_img}  # decoded for the shape: reused
     n_exp = len(first.exposures_us)
     seq_bytes = len(emu_sides) * n_exp * shape[0] * shape[1] * 2
     chunk = max(1, min(n_seq, cfg.memory_budget_bytes // max(seq_bytes, 1)))
@@ -512,8 +555,7 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
     runs: dict[str, MethodRun] = {}
     try:
         if len(groups) == 1:
-            runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), sequences, n_seq, chunk, buffer, shape,
-                                        emu_sides, n_exp, preloaded, bar))
+            runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), n_seq, chunk, bar))
         else:
             runs.update(_run_forked(groups, make, n_seq, chunk, len(emu_sides), n_exp, bar))
     finally:
@@ -526,37 +568,39 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
     return summary
 
 
-def _run_in_process(make: Callable[[], _Worker], sequences: list[BracketSequence], n_seq: int, chunk: int,
-                    buffer: Any, shape: tuple[int, int], emu_sides: tuple[str, ...], n_exp: int,
-                    preloaded: dict[tuple[int, int, int], np.ndarray], bar: Any) -> dict[str, MethodRun]:
-    """One worker in this process; PNGs decode on threads while the methods are set up (imports) and matplotlib
-    is imported for the final plot (cv2.imread releases the GIL)."""
-    n_threads = min(2, os.cpu_count() or 1)
+def _run_in_process(make: Callable[[], _Worker], n_seq: int, chunk: int, bar: Any) -> dict[str, MethodRun]:
+    """One worker in this process, decoding on demand on threads (cv2.imread releases the GIL); matplotlib is
+    imported for the final plot on a thread meanwhile."""
     preload = threading.Thread(target=_preload_plotting, name="bracketry-mpl-import", daemon=True)
-    with ThreadPoolExecutor(n_threads, thread_name_prefix="bracketry-decode") as pool:
-        chunks = [list(range(c0, min(n_seq, c0 + chunk))) for c0 in range(0, n_seq, chunk)]
-        futures = _decode_into(buffer, shape, sequences, emu_sides, n_exp,
-                               _decode_tasks(chunks[0], len(emu_sides), n_exp), pool, preloaded)
-        preload.start()
-        try:
+    preload.start()
+    try:
+        with ThreadPoolExecutor(min(2, os.cpu_count() or 1), thread_name_prefix="bracketry-decode") as pool:
             w = make()
+            w.decode_pool = pool
             try:
-                for k, idx in enumerate(chunks):
-                    if k > 0:
-                        futures = _decode_into(buffer, shape, sequences, emu_sides, n_exp,
-                                               _decode_tasks(idx, len(emu_sides), n_exp), pool)
-                    for f in futures:
-                        f.result()
-                    w.run(idx, bar.update)
+                for c0 in range(0, n_seq, chunk):
+                    w.run(list(range(c0, min(n_seq, c0 + chunk))), bar.update)
             except BaseException:
                 with contextlib.suppress(Exception):
                     w.sink.close()  # finish the images already submitted; the first error is the one raised
                 raise
             return w.close()
-        finally:
-            for f in futures:
-                f.cancel()
-            preload.join()
+    finally:
+        preload.join()
+
+
+def _frame_shape(seq: BracketSequence, side: str) -> tuple[tuple[int, int], np.ndarray | None]:
+    """(H, W) of a sequence's first frame: from the PNG header when the frame is a PNG file (no decode), else by
+    loading it (then returned too, to be reused)."""
+    frame = seq.frames[side][seq.exposures_us[0]]
+    path = Path(frame.source)
+    if path.suffix.lower() == ".png" and path.is_file():
+        with open(path, "rb") as fh:
+            head = fh.read(24)
+        if len(head) == 24 and head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+            return (int.from_bytes(head[20:24], "big"), int.from_bytes(head[16:20], "big")), None
+    img = frame.load()
+    return (int(img.shape[0]), int(img.shape[1])), img
 
 
 def _decode_tasks(seq_indices: list[int], n_sides: int, n_exp: int) -> list[tuple[int, int, int, int]]:

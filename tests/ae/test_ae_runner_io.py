@@ -1,0 +1,53 @@
+"""AE runner I/O: the stored PNG writer (any reader returns exactly the written codes) and on-demand decoding."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from bracketry_emulator.emulation.writer import encode_png_stored, write_png_stored
+
+
+@pytest.mark.parametrize("dtype,high", [(np.uint16, 4096), (np.uint16, 65536), (np.uint8, 256)])
+def test_stored_png_round_trip(tmp_path: Path, dtype: type, high: int) -> None:
+    img = np.random.default_rng(3).integers(0, high, (37, 53)).astype(dtype)
+    path = tmp_path / "x.png"
+    write_png_stored(path, img)
+    back = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert back.dtype == img.dtype and np.array_equal(back, img)
+
+
+def test_stored_png_rejects_other_arrays() -> None:
+    with pytest.raises(ValueError):
+        encode_png_stored(np.zeros((4, 4, 3), np.uint8))
+    with pytest.raises(ValueError):
+        encode_png_stored(np.zeros((4, 4), np.float32))
+
+
+@pytest.mark.parametrize("selection", ["highernosat", "upstream"])
+def test_needed_brackets_select_like_all_brackets(selection: str) -> None:
+    """Decoding on demand: the selection on the needed subset equals the selection on every bracket."""
+    from bracketry_emulator.ae.closedloop import _needed_brackets
+    from bracketry_emulator.emulation.selection import select_highernosat, select_upstream
+
+    exps = (1000, 2000, 4000, 8000, 16000, 32000)
+    rng = np.random.default_rng(5)
+    targets = [*exps, 20.0, 500.0, 999.0, 1000.5, 4000.0, 6321.7, 31999.0, 32000.5, 64000.0,
+               *rng.uniform(20, 64000, 200)]
+    for k in range(40):
+        sat = {e: float(v) for e, v in zip(exps, np.sort(rng.uniform(0, 0.05, 6)) if k % 2 else rng.uniform(0, 0.05, 6),
+                                           strict=True)}
+        for t in targets:
+            sub = _needed_brackets(exps, float(t), selection)
+            assert set(sub) <= set(exps) and 1 <= len(sub) <= 2
+            if selection == "highernosat":
+                full = select_highernosat(exps, t, sat)
+                part = select_highernosat(sub, t, sat) if len(sub) > 1 else sub[0]
+            else:
+                full = select_upstream(exps, t, sat)
+                part = select_upstream(sub, t, sat) if len(sub) > 1 else sub[0]
+            assert part == full, (t, sub)
+    assert _needed_brackets(exps, 5000.0, "fusion") == exps
