@@ -106,6 +106,8 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     if "drl" in methods and not os.environ.get("BRACKETRY_DRL_WEIGHTS"):
         methods = [m for m in methods if m != "drl"]
     out = p.out_dir / "benchmark"
+    if out.exists():  # a new recording: earlier runs and cached results belong to the old one
+        shutil.rmtree(out)
     echo(f"[3/3] benchmarking {len(methods)} AE methods ({', '.join(methods)}): closed loop, VO, metrics")
     bar = tqdm(total=len(methods), desc="methods", unit="method", file=sys.stderr)
 

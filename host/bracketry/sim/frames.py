@@ -35,6 +35,8 @@ class FrameSchedule:
         self.width, self.height = resolution
         self.frames: dict[str, np.ndarray] = {}
         self.served: dict[str, int] = {s: 0 for s in sides}
+        #: per side, every frame served: (exposure_us, frame index k or None when not a bracket exposure)
+        self.log: dict[str, list[tuple[int, int | None]]] = {s: [] for s in sides}
         self.mismatches = 0
         self._lock = threading.Lock()
         total = self.n_frames * len(sides)
@@ -71,13 +73,17 @@ class FrameSchedule:
             with self._lock:
                 k = self.served[side]
                 n = len(self.brackets_us)
+                matched = None
                 for step in range(n):
                     if abs(self.exposure_us(k + step) - exposure_us) <= 1:
                         if step:
                             self.mismatches += 1
-                        k += step
+                        matched = k + step
                         break
-                self.served[side] = k + 1
+                if matched is not None:  # not a bracket (e.g. the priming trigger): frame k, no advance
+                    k = matched
+                    self.served[side] = k + 1
+                self.log[side].append((int(exposure_us), matched))
             frame = self.frames[side][k % self.n_frames]
             if (height, width) != frame.shape:
                 out = np.zeros((height, width), np.uint16)
@@ -88,16 +94,37 @@ class FrameSchedule:
 
         return fill
 
-    def write_groundtruth(self, path: Path, stamps_ns: Sequence[int], first_k: int = 0) -> int:
-        """Write the left camera's TUM ground truth for recorded frames: the i-th stamp is frame ``first_k + i``.
+    def frame_indices(self, recorded_exposures_us: Sequence[float], side: str = "left") -> list[int | None]:
+        """World frame index of each recorded frame (in recording order), from the exposures the fake camera
+        reported for them: the served log is walked forward to the next entry with that exposure, so frames lost
+        between camera and disk, priming frames and merged triggers do not shift the later ones."""
+        log = self.log[side]
+        out: list[int | None] = []
+        j = 0
+        for e in recorded_exposures_us:
+            k = None
+            for jj in range(j, min(j + 4 * len(self.brackets_us), len(log))):
+                if log[jj][1] is not None and abs(log[jj][0] - float(e)) <= 1.0:
+                    k, j = log[jj][1], jj + 1
+                    break
+            out.append(k)
+        return out
+
+    def write_groundtruth(self, path: Path, frames: Sequence[tuple[int, float]]) -> int:
+        """Write the left camera's TUM ground truth of recorded frames ``(stamp_ns, reported exposure_us)`` in
+        recording order: each stamp gets the pose of the world frame that camera really served for it.
 
         Returns the number of poses written (0 without a world)."""
         if self.world is None:
             return 0
         from bracketry_emulator.synth.writer import tum_line
 
+        ks = self.frame_indices([e for _t, e in frames])
         lines = ["# bracketry simulated rig ground truth (TUM): t_s tx ty tz qx qy qz qw, left camera, host time"]
-        for i, t_ns in enumerate(stamps_ns):
-            lines.append(tum_line(int(t_ns), self.world.pose(self.t_s(first_k + i))))
+        n = 0
+        for (t_ns, _e), k in zip(frames, ks):
+            if k is not None:
+                lines.append(tum_line(int(t_ns), self.world.pose(self.t_s(k))))
+                n += 1
         path.write_text("\n".join(lines) + "\n")
-        return len(stamps_ns)
+        return n

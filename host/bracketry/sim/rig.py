@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import math
 import os
 import shutil
 import signal
@@ -304,15 +305,19 @@ class SimulatedRig:
         """Ground truth of the recorded left frames (host time stamps), next to the recordings."""
         if self.schedule is None or self.schedule.world is None:
             return None
-        from bracketry.recording.reader import read_all
+        from mcap_ros2.reader import read_ros2_messages
 
-        stamps = []
+        frames: list[tuple[int, float]] = []
         for seg in self.recordings():
             for f in sorted(seg.glob("*.mcap")):
-                msgs, _report, _ = read_all(f, {"/stereo/left/frame_meta"})
-                stamps += [m.log_time for m in msgs]
+                for m in read_ros2_messages(str(f), topics=["/stereo/left/frame_meta"]):
+                    stamp = m.ros_msg.header.stamp
+                    reported = float(m.ros_msg.exposure_us_reported)  # NaN when the camera did not say
+                    exposure = reported if math.isfinite(reported) else float(m.ros_msg.exposure_us)
+                    frames.append((stamp.sec * 1_000_000_000 + stamp.nanosec, exposure))
+        frames.sort()
         path = self.out / "groundtruth.txt"
-        self.schedule.write_groundtruth(path, sorted(stamps))
+        self.schedule.write_groundtruth(path, frames)
         return path
 
     def close(self) -> None:
