@@ -51,3 +51,16 @@ def test_needed_brackets_select_like_all_brackets(selection: str) -> None:
                 part = select_upstream(sub, t, sat) if len(sub) > 1 else sub[0]
             assert part == full, (t, sub)
     assert _needed_brackets(exps, 5000.0, "fusion") == exps
+
+
+def test_shared_gray_equals_the_direct_conversions() -> None:
+    from bracketry_emulator.ae.base import SharedGray, bayer_gray, gray_for, work_gray, work_gray_for
+
+    img = np.random.default_rng(7).integers(0, 4096, (120, 192)).astype(np.uint16)
+    meta = {"shared_gray": SharedGray(img)}
+    assert np.array_equal(gray_for(img, meta), bayer_gray(img))
+    assert np.array_equal(work_gray_for(img, 48, meta), work_gray(img, 48))
+    assert work_gray_for(img, 48, meta) is work_gray_for(img, 48, meta)  # computed once
+    assert not gray_for(img, meta).flags.writeable
+    other = img.copy()  # a memo of another array is never used
+    assert gray_for(other, meta) is not gray_for(img, meta) and gray_for(other, meta).flags.writeable

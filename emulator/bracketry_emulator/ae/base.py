@@ -14,7 +14,9 @@ bounds). The return value is the exposure (us) for the next frame; the runner cl
     step (int, 0-based), timestamp_ns (int, timestamp of the frame), side ("left"/"right"),
     sequence_index (int), response (:class:`bracketry_emulator.crf.Response`, the camera response the emulator
     uses: methods that synthesise images with the CRF use the same curve), source_exposure_us (int, the bracket
-    the image was emulated from), bounds_us ((min_us, max_us), the runner's exposure bounds).
+    the image was emulated from), bounds_us ((min_us, max_us), the runner's exposure bounds),
+    shared_gray (:class:`SharedGray` of this image: the runner shares gray conversions between the methods that see
+    the same image; methods read it through :func:`gray_for` / :func:`work_gray_for`, which compute when absent).
 """
 
 from __future__ import annotations
@@ -58,12 +60,62 @@ def work_gray(image: np.ndarray, width: int) -> np.ndarray:
 
     Gradient-based methods work at a reduced size for speed (documented per method); the aspect ratio is kept.
     """
-    gray = bayer_gray(image).astype(np.float32)
+    return _work_from_gray(bayer_gray(image), width)
+
+
+def _work_from_gray(gray_codes: np.ndarray, width: int) -> np.ndarray:
+    gray = gray_codes.astype(np.float32)
     h, w = gray.shape
     if width <= 0 or width >= w:
         return gray
     height = max(1, round(h * width / w))
     return cv2.resize(gray, (width, height), interpolation=cv2.INTER_AREA)
+
+
+class SharedGray:
+    """Memo of one image's gray conversions, shared by the methods that see the same (never modified) image.
+
+    The arrays it returns are read-only and equal :func:`bayer_gray` / :func:`work_gray` of ``image`` bit for bit.
+    """
+
+    def __init__(self, image: np.ndarray) -> None:
+        self.image = image
+        self._gray: np.ndarray | None = None
+        self._work: dict[int, np.ndarray] = {}
+
+    def gray(self) -> np.ndarray:
+        """:func:`bayer_gray` of the image (uint16 HxW, read-only)."""
+        if self._gray is None:
+            self._gray = bayer_gray(self.image)
+            self._gray.setflags(write=False)
+        return self._gray
+
+    def work(self, width: int) -> np.ndarray:
+        """:func:`work_gray` of the image at ``width`` columns (float32, read-only)."""
+        out = self._work.get(width)
+        if out is None:
+            out = _work_from_gray(self.gray(), width)
+            out.setflags(write=False)
+            self._work[width] = out
+        return out
+
+
+def _shared(image: np.ndarray, meta: dict[str, Any] | None) -> SharedGray | None:
+    shared = meta.get("shared_gray") if meta else None
+    return shared if isinstance(shared, SharedGray) and shared.image is image else None
+
+
+def gray_for(image: np.ndarray, meta: dict[str, Any] | None = None) -> np.ndarray:
+    """:func:`bayer_gray` of ``image``, from the runner's ``meta["shared_gray"]`` when it holds this image (then
+    read-only: do not modify the result)."""
+    shared = _shared(image, meta)
+    return shared.gray() if shared is not None else bayer_gray(image)
+
+
+def work_gray_for(image: np.ndarray, width: int, meta: dict[str, Any] | None = None) -> np.ndarray:
+    """:func:`work_gray` of ``image``, shared like :func:`gray_for` (read-only when shared)."""
+    shared = _shared(image, meta)
+    return shared.work(width) if shared is not None else work_gray(image, width)
 
 
 class MethodError(ValueError):

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from .base import FULL_SCALE_12BIT, bayer_gray, check_input
+from .base import FULL_SCALE_12BIT, check_input, gray_for
 
 
 def classical_step_ms(mean_dn: float, t_ms: float, percent: float, gain_ms_per_dn: float = 0.002,
@@ -54,7 +54,7 @@ class ClassicalAE:
 
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         check_input(image, exposure_us)
-        mean_dn = float(np.mean(bayer_gray(image)))
+        mean_dn = float(np.mean(gray_for(image, meta)))
         t_ms = classical_step_ms(mean_dn, exposure_us / 1000.0, self.percent, self.gain_ms_per_dn, self.deadband_dn)
         return t_ms * 1000.0
 

@@ -56,7 +56,7 @@ from bracketry.errors import BracketryError
 from ..dataset import BracketSequence, Dataset, open_dataset
 from ..emulation import EmulatedImage, Emulator, EmulatorConfig, RunWriter
 from ..emulation.selection import SatCount, saturation_fraction, select_highernosat, select_upstream
-from .base import AEMethod
+from .base import AEMethod, SharedGray
 from .registry import get_method
 
 DEFAULT_INIT_EXPOSURE_US = 4000.0
@@ -263,10 +263,12 @@ class _Emulators:
     def __init__(self, config: EmulatorConfig) -> None:
         self.emulator = _CachedEmulator(config)
         self._cache: dict[tuple[int, str, float], EmulatedImage] = {}
+        self._gray: dict[tuple[int, str, float], SharedGray] = {}
 
     def clear(self) -> None:
         """Forget the chunk (call before the shared buffer is refilled: cache keys use array identity)."""
         self._cache.clear()
+        self._gray.clear()
         self.emulator.clear()
 
     def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float) -> EmulatedImage:
@@ -276,6 +278,14 @@ class _Emulators:
             hit = self.emulator.emulate(images, target_us)
             self._cache[key] = hit
         return hit
+
+    def shared_gray(self, seq_index: int, side: str, target_us: float) -> SharedGray:
+        """The gray-conversion memo of an image emulated by :meth:`emulate` (shared by the methods that see it)."""
+        key = (seq_index, side, float(target_us))
+        shared = self._gray.get(key)
+        if shared is None:
+            shared = self._gray[key] = SharedGray(self._cache[key].image)
+        return shared
 
 
 def _method_cost(spec: str) -> int:
@@ -388,7 +398,8 @@ class _Worker:
         ts = seq.timestamps_ns[cfg.ae_side][ae_img.source_exposure_us]
         meta = {"step": seq_i, "timestamp_ns": ts, "side": cfg.ae_side, "sequence_index": seq.index,
                 "response": self.emu.emulator.response, "source_exposure_us": ae_img.source_exposure_us,
-                "bounds_us": (cfg.min_exposure_us, cfg.max_exposure_us)}
+                "bounds_us": (cfg.min_exposure_us, cfg.max_exposure_us),
+                "shared_gray": self.emu.shared_gray(seq_i, cfg.ae_side, target)}
         t0 = time.perf_counter()
         try:
             nxt = float(method.next_exposure_us(ae_img.image, target, meta))

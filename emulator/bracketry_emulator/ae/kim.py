@@ -35,7 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .base import check_input, work_gray
+from .base import check_input, work_gray_for
 from .gp import GaussianProcess1D
 
 
@@ -85,13 +85,13 @@ class KimAE:
         self._eta = 1.0
         self.converged = False
 
-    def metric(self, image: np.ndarray) -> float:
+    def metric(self, image: np.ndarray, meta: dict[str, Any] | None = None) -> float:
         """Kim's metric of an emulated mosaic (uint16 HxW 12-bit)."""
-        return kim_metric(work_gray(image, self.work_width) / 16.0)
+        return kim_metric(work_gray_for(image, self.work_width, meta) / 16.0)
 
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         check_input(image, exposure_us)
-        self._points.insert(0, (exposure_us / 1000.0, self.metric(image)))
+        self._points.insert(0, (exposure_us / 1000.0, self.metric(image, meta)))
         del self._points[self.window:]
         x = np.array([p[0] for p in self._points])
         y = np.array([p[1] for p in self._points])

@@ -30,7 +30,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .base import check_input, work_gray
+from .base import check_input, work_gray_for
 
 SHIM_GAMMAS: tuple[float, ...] = (1 / 1.9, 1 / 1.5, 1 / 1.2, 1.0, 1.2, 1.5, 1.9)
 
@@ -86,9 +86,9 @@ class ShimAE:
     def reset(self, init_exposure_us: float) -> None:
         self.last_gamma = None
 
-    def scores(self, image: np.ndarray) -> np.ndarray:
+    def scores(self, image: np.ndarray, meta: dict[str, Any] | None = None) -> np.ndarray:
         """Gradient information per gamma (float64 (7,)), normalised by the pixel count."""
-        gray = work_gray(image, self.work_width)
+        gray = work_gray_for(image, self.work_width, meta)
         lo, hi = float(gray.min()), float(gray.max())
         g01 = (gray - lo) / (hi - lo) if hi > lo else np.zeros_like(gray)
         return np.array([gradient_information(np.power(g01, gm), self.delta, self.lam) for gm in self.gammas]
@@ -96,6 +96,6 @@ class ShimAE:
 
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         check_input(image, exposure_us)
-        gamma_star = best_gamma(self.scores(image), self.gammas)
+        gamma_star = best_gamma(self.scores(image, meta), self.gammas)
         self.last_gamma = gamma_star
         return float(exposure_us) * shim_update_factor(gamma_star, self.kp)

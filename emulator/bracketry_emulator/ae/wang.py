@@ -34,7 +34,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .base import check_input, work_gray
+from .base import check_input, work_gray_for
 from .crfutil import log_icrf_slope, response_of, synthesise
 
 
@@ -108,7 +108,7 @@ class WangAE:
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         check_input(image, exposure_us)
         response = response_of(meta)
-        gray12 = work_gray(image, self.work_width)
+        gray12 = work_gray_for(image, self.work_width, meta)
         gamma = self.search_gamma(gray12, response)
         self.last_gamma = gamma
         t_ms = exposure_us / 1000.0

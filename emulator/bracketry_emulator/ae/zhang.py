@@ -31,7 +31,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .base import bayer_gray, check_input, work_gray
+from .base import check_input, gray_for, work_gray_for
 from .classical import classical_step_ms
 from .crfutil import log_icrf_slope, response_of
 
@@ -95,14 +95,14 @@ class ZhangAE:
 
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         check_input(image, exposure_us)
-        mean_dn = float(np.mean(bayer_gray(image)))
+        mean_dn = float(np.mean(gray_for(image, meta)))
         if mean_dn <= self.low_dn or mean_dn >= self.high_dn:
             self.last_mode = "classical"
             return classical_step_ms(mean_dn, exposure_us / 1000.0, 50.0) * 1000.0
         self.last_mode = "gradient"
         response = response_of(meta)
         slope = log_icrf_slope(response)
-        gray = work_gray(image, self.work_width)
+        gray = work_gray_for(image, self.work_width, meta)
         m, dm = zhang_metric_and_derivative(gray, exposure_us, slope, self.p, self.k, float(response.saturated_code))
         if m <= 0:
             return float(exposure_us)
