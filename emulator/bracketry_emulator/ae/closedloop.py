@@ -325,7 +325,7 @@ class _Worker:
         self.preloaded = preloaded or {}
         #: set: decode on demand (only the brackets the methods' targets need) on this pool's threads
         self.decode_pool: ThreadPoolExecutor | None = None
-        self._decoded: set[tuple[int, int, int]] = set()
+        self._decoded: dict[tuple[int, int, int], Future[None]] = {}  # (slot, side, exposure index)
         self.dataset = dataset
         self.sequences = dataset.sequences()
         self.emu_sides, self.write_sides = emu_sides, write_sides
@@ -357,33 +357,50 @@ class _Worker:
     def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
         """Advance every method of this worker through the given sequences (slot = position in the list).
 
-        Without :attr:`decode_pool` the frames must already be decoded (:meth:`decode`); with it, each sequence's
-        frames are decoded on demand: only the brackets that the methods' current targets can select."""
+        Without :attr:`decode_pool` the frames must already be decoded (:meth:`decode`); with it, frames are decoded
+        on demand, only the brackets that the methods' targets can select: a method's next target is known as soon
+        as its step is done, so the next sequence's frames decode while the other methods run."""
         self.emu.clear()
         self._decoded.clear()
-        for slot, seq_i in enumerate(seq_indices):
-            seq = self.sequences[seq_i]
-            self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
-            if self.decode_pool is not None:
-                self._decode_needed(slot, seq_i, seq)
-            brackets = {side: {e: self._view(slot, si, ei) for ei, e in enumerate(seq.exposures_us)}
-                        for si, side in enumerate(self.emu_sides)}
-            for spec, method in self.methods.items():
-                self._step(spec, method, seq_i, seq, brackets)
-                progress(1)
+        try:
+            for slot, seq_i in enumerate(seq_indices):
+                seq = self.sequences[seq_i]
+                self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
+                if self.decode_pool is not None:
+                    for t in self.targets.values():
+                        self._prefetch(slot, seq_i, t)
+                    for key in self._needed_keys(seq, list(self.targets.values())):
+                        self._decoded[(slot, *key)].result()
+                brackets = {side: {e: self._view(slot, si, ei) for ei, e in enumerate(seq.exposures_us)}
+                            for si, side in enumerate(self.emu_sides)}
+                nxt = seq_indices[slot + 1] if slot + 1 < len(seq_indices) else None
+                for spec, method in self.methods.items():
+                    self._step(spec, method, seq_i, seq, brackets)
+                    if self.decode_pool is not None and nxt is not None:
+                        self._prefetch(slot + 1, nxt, self.targets[spec])
+                    progress(1)
+        finally:
+            for f in self._decoded.values():
+                f.cancel()
+            for f in self._decoded.values():
+                if not f.cancelled():
+                    f.exception()  # wait: no decode may write into the buffer after this chunk
         self.emu.clear()
 
-    def _decode_needed(self, slot: int, seq_i: int, seq: BracketSequence) -> None:
-        """Decode (on the pool's threads) the frames this sequence's steps can use; the targets are known now."""
-        selection = self.cfg.emulator.selection
-        exps = {e for t in self.targets.values() for e in _needed_brackets(seq.exposures_us, t, selection)}
-        tasks = [(slot, seq_i, si, ei) for si in range(len(self.emu_sides))
-                 for ei, e in enumerate(seq.exposures_us) if e in exps and (slot, si, ei) not in self._decoded]
+    def _needed_keys(self, seq: BracketSequence, targets: list[float]) -> list[tuple[int, int]]:
+        """(side index, exposure index) of the frames that emulating ``targets`` from ``seq`` can use."""
+        exps = {e for t in targets for e in _needed_brackets(seq.exposures_us, t, self.cfg.emulator.selection)}
+        return [(si, ei) for si in range(len(self.emu_sides)) for ei, e in enumerate(seq.exposures_us) if e in exps]
+
+    def _prefetch(self, slot: int, seq_i: int, target_us: float) -> None:
+        """Start decoding (on the pool's threads) the frames of ``seq_i`` that ``target_us`` needs, once each."""
         assert self.decode_pool is not None
-        for f in _decode_into(self.buffer, self.shape, self.sequences, self.emu_sides, self.n_exp, tasks,
-                              self.decode_pool, self.preloaded):
-            f.result()
-        self._decoded.update((slot, si, ei) for _, _, si, ei in tasks)
+        tasks = [(slot, seq_i, si, ei) for si, ei in self._needed_keys(self.sequences[seq_i], [target_us])
+                 if (slot, si, ei) not in self._decoded]
+        futures = _decode_into(self.buffer, self.shape, self.sequences, self.emu_sides, self.n_exp, tasks,
+                               self.decode_pool, self.preloaded)
+        for (_, _, si, ei), f in zip(tasks, futures, strict=True):
+            self._decoded[(slot, si, ei)] = f
 
     def _step(self, spec: str, method: AEMethod, seq_i: int, seq: BracketSequence,
               brackets: dict[str, dict[int, np.ndarray]]) -> None:
