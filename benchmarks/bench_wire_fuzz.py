@@ -31,6 +31,10 @@ from pathlib import Path
 from bracketry import paths
 from bracketry.wire import bproto
 
+sys.path.insert(0, str(paths.repo_root() / "tests" / "wire"))
+# the per-record digest the C fuzz harness prints, shared with the tests
+from wire_corpus import frames_fnv1a
+
 C_DIR = paths.firmware_dir() / "protocol" / "c"
 
 #: mutation categories: name -> weight
@@ -145,16 +149,6 @@ def build_corpus(n_frames: int, seed: int) -> tuple[list[bytes], list[str], list
     return records, kinds, originals
 
 
-def _fnv(frames: list[bproto.Frame]) -> int:
-    h = 2166136261
-    for f in frames:
-        for b in (f.msg_type, f.seq & 0xFF, f.seq >> 8, len(f.payload) & 0xFF, len(f.payload) >> 8, *f.payload):
-            h = ((h ^ b) * 16777619) & 0xFFFFFFFF
-    return h
-
-
-COUNTERS = ("frames_ok", "crc_errors", "length_errors", "cobs_errors", "version_errors", "overflows",
-            "bytes_discarded")
 
 
 def python_pass(records: list[bytes]) -> tuple[list[list[bproto.Frame]], list[tuple[int, ...]], float]:
@@ -164,7 +158,7 @@ def python_pass(records: list[bytes]) -> tuple[list[list[bproto.Frame]], list[tu
     for rec in records:
         dec = bproto.Decoder()
         frames.append(dec.feed(rec))
-        stats.append(tuple(dec.stats[k] for k in COUNTERS))
+        stats.append(tuple(dec.stats[k] for k in bproto.STAT_NAMES))
     return frames, stats, time.perf_counter() - t0
 
 
@@ -306,7 +300,7 @@ def main() -> int:
         mpy = micropython_rate(b"".join(mpy_valid), Path(tmp))
     c_med = statistics.median(c_times)
 
-    py_rows = [(*s, _fnv(f)) for s, f in zip(py_stats, py_frames)]
+    py_rows = [(*s, frames_fnv1a(f)) for s, f in zip(py_stats, py_frames)]
     disagree = sum(a != b for a, b in zip(py_rows, c_rows)) + abs(len(py_rows) - len(c_rows))
 
     print()

@@ -9,7 +9,7 @@ import subprocess
 from pathlib import Path
 
 import pytest
-from wire_corpus import make_corpus
+from wire_corpus import frames_fnv1a, make_corpus
 
 from bracketry import paths
 from bracketry.wire import bproto
@@ -17,16 +17,6 @@ from bracketry_testkit import missing_component
 
 C_DIR = paths.firmware_dir() / "protocol" / "c"
 HERE = Path(__file__).resolve().parent
-STAT_ORDER = ("frames_ok", "crc_errors", "length_errors", "cobs_errors", "version_errors", "overflows",
-              "bytes_discarded")
-
-
-def _fnv(frames: list[bproto.Frame]) -> int:
-    h = 2166136261
-    for f in frames:
-        for b in (f.msg_type, f.seq & 0xFF, f.seq >> 8, len(f.payload) & 0xFF, len(f.payload) >> 8, *f.payload):
-            h = ((h ^ b) * 16777619) & 0xFFFFFFFF
-    return h
 
 
 def _python(records: list[bytes]) -> list[tuple[list[bproto.Frame], list[int]]]:
@@ -34,7 +24,7 @@ def _python(records: list[bytes]) -> list[tuple[list[bproto.Frame], list[int]]]:
     for rec in records:
         dec = bproto.Decoder()
         frames = dec.feed(rec)
-        out.append((frames, [dec.stats[k] for k in STAT_ORDER]))
+        out.append((frames, [dec.stats[k] for k in bproto.STAT_NAMES]))
     return out
 
 
@@ -51,7 +41,7 @@ def test_wire_c_decoder_matches_python_under_asan(tmp_path: Path) -> None:
     proc = subprocess.run([str(exe)], input=blob, capture_output=True, timeout=300)
     assert proc.returncode == 0, proc.stderr.decode()[-3000:]
     rows = [[int(x) for x in line.split()] for line in proc.stdout.decode().splitlines()]
-    expected = [[*stats, _fnv(frames)] for frames, stats in _python(records)]
+    expected = [[*stats, frames_fnv1a(frames)] for frames, stats in _python(records)]
     assert len(rows) == len(expected)
     mismatches = [i for i, (a, b) in enumerate(zip(rows, expected)) if a != b]
     assert mismatches == [], f"first mismatch: record {mismatches[0]} = {records[mismatches[0]].hex()}"
@@ -68,7 +58,8 @@ def test_wire_micropython_decoder_matches_cpython(tmp_path: Path) -> None:
     node = shutil.which("node")
     assert node is not None
     proc = subprocess.run([node, str(HERE / "wire_mpy_run.mjs"), str(paths.micropython_module_path()),
-                           str(HERE / "wire_mpy_differential.py"), str(Path(bproto.__file__)), str(corpus_path)],
+                           str(HERE / "wire_mpy_differential.py"), str(Path(bproto.__file__)), str(corpus_path),
+                           str(HERE / "wire_vectors_check.py")],
                           capture_output=True, text=True, timeout=300, cwd=tmp_path)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
     assert proc.stdout.strip().splitlines()[-1] == "PASS 600"

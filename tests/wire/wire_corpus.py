@@ -7,6 +7,16 @@ import random
 from bracketry.wire import bproto
 
 
+def frames_fnv1a(frames: list[bproto.Frame]) -> int:
+    """32-bit FNV-1a over each frame's type, seq (LE), payload length (LE) and payload: the digest the C fuzz
+    harness prints per record, so the C, CPython and MicroPython decoders can be compared record by record."""
+    h = 2166136261
+    for f in frames:
+        for b in (f.msg_type, f.seq & 0xFF, f.seq >> 8, len(f.payload) & 0xFF, len(f.payload) >> 8, *f.payload):
+            h = ((h ^ b) * 16777619) & 0xFFFFFFFF
+    return h
+
+
 def make_corpus(n: int, seed: int) -> list[bytes]:
     """``n`` independent records (bytes), each to be fed to a fresh decoder."""
     rng = random.Random(seed)

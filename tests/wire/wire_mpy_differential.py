@@ -6,21 +6,7 @@ and ``stats`` as the 7 counters in STAT order. Prints ``PASS <n>`` or raises.
 import json
 
 import bproto
-
-STAT_ORDER = ("frames_ok", "crc_errors", "length_errors", "cobs_errors", "version_errors", "overflows",
-              "bytes_discarded")
-
-
-def _unhex(s):
-    out = bytearray()
-    for i in range(0, len(s), 2):
-        out.append(int(s[i:i + 2], 16))
-    return bytes(out)
-
-
-def _hex(b):
-    return "".join("{:02x}".format(x) for x in b)  # noqa: UP032 (older MicroPython lacks f-strings)
-
+from wire_vectors_check import _hex, _unhex
 
 with open("/corpus.json") as fh:
     corpus = json.load(fh)
@@ -37,7 +23,7 @@ for rec_hex, frames, stats in corpus:
             got.append([f.msg_type, f.seq, _hex(f.payload)])
         i += step
         step = step * 3 % 17 + 1
-    if got != frames or [dec.stats[k] for k in STAT_ORDER] != stats:
+    if got != frames or [dec.stats[k] for k in bproto.STAT_NAMES] != stats:
         bad += 1
         if bad < 5:
             print("MISMATCH " + rec_hex[:40])

@@ -4,10 +4,6 @@ CPython: ``import wire_vectors_check; wire_vectors_check.run(bproto, vectors)``.
 with ``bproto.py`` and ``protocol_vectors.json`` in ``/`` (see wire_mpy_run.mjs); it prints ``PASS <n>`` or raises.
 """
 
-COUNTERS = ("frames_ok", "crc_errors", "length_errors", "cobs_errors", "version_errors", "overflows",
-            "bytes_discarded")
-
-
 def _unhex(s):
     out = bytearray()
     for i in range(0, len(s), 2):
@@ -80,7 +76,7 @@ def run(bproto, vectors):
                 got.append({"msg_type": f.msg_type, "seq": f.seq, "payload": _hex(f.payload)})
         if got != s["frames"]:
             fails.append("stream frames " + s["name"])
-        for k in COUNTERS:
+        for k in bproto.STAT_NAMES:
             if dec.stats[k] != s["stats"][k]:
                 fails.append("stream " + s["name"] + " " + k + " = " + str(dec.stats[k]) + " expected "
                              + str(s["stats"][k]))
