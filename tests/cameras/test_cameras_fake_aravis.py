@@ -97,6 +97,15 @@ def test_basler_profile_on_the_fake_refuses_with_a_clear_message(fake_camera) ->
     assert "\n" not in msg
 
 
+def test_configured_device_id_must_match_the_camera_at_the_address(fake_camera) -> None:  # type: ignore[no-untyped-def]
+    from bracketry.cameras.camera import GigECamera
+
+    with GigECamera("127.0.0.1", side="left") as cam:
+        cam.check_identity("PYTEST01")  # the fake's serial number
+        with pytest.raises(CameraError, match="not the configured device_id 'OTHER01'"):
+            cam.check_identity("OTHER01")
+
+
 def test_packet_loss_marks_frames_incomplete(fake_camera) -> None:  # type: ignore[no-untyped-def]
     from bracketry.cameras.camera import GigECamera
     from bracketry.cameras.profiles import CameraSettings

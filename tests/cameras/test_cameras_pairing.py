@@ -93,3 +93,15 @@ def test_frame_ids_wrap_inside_a_run() -> None:
     p, sets = run(200)
     assert {s.frames["left"].frame_id for s in sets} >= {65535, 1}
     assert p.counters["left"].drops == 0
+
+
+def test_counter_value_chunk_aligns_only_when_asked() -> None:
+    """A CounterValue chunk is trusted only with initial_alignment="counter" (a camera counter that was never reset
+    would otherwise shift every frame of a segment); by default the first frame is pulse 0."""
+    for mode, expected in (("count", 0), ("counter", 4)):
+        p = Pairer(("left",), window=8, initial_alignment=mode)
+        for k in range(6):
+            p.add_event(event(k))
+        f = frame("left", 0, 4)
+        f.counter_value = 5  # type: ignore[attr-defined]  (the 5th pulse since the counter's reset)
+        assert p.add_frame(f) == expected, mode

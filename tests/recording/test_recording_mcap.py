@@ -19,7 +19,7 @@ from bracketry.recording.mcap_writer import ChunkedMcapWriter
 from bracketry.recording.msgdefs import MSGDEFS, decode_image, encode_image, stamp
 from bracketry.recording.reader import RecordingReader, UnreadableRecordingError
 from bracketry.recording.recorder import Recorder, RecorderConfig
-from bracketry.recording.verify import repair_recording, verify_recording
+from bracketry.recording.verify import recording_files, repair_recording, segment_folders, verify_recording
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning:mcap_ros2.reader")
 
@@ -203,3 +203,34 @@ def test_verify_json_and_repair_of_a_truncated_file(tmp_path: Path, capsys) -> N
     assert not r2.truncated and r2.sides["left"].drops == 0
     with pytest.raises(Exception, match="never overwrites"):
         repair_recording(cut, cut)
+
+
+def test_daemon_recording_root_with_segments_and_a_repaired_file(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    root = tmp_path / "rec_1"
+    record(root / "seg00", 40)
+    cut_path, _ = record(root / "seg01", 80, chunk_max_bytes=30_000)  # the power went: seg01 is truncated
+    cut_path.write_bytes(cut_path.read_bytes()[: int(cut_path.stat().st_size * 0.6)])
+    assert recording_files(root / "seg01") == [cut_path]
+    assert segment_folders(root) == [root / "seg00", root / "seg01"] and segment_folders(root / "seg00") == []
+
+    capsys.readouterr()
+    assert cli_main(["verify", str(root), "--json", "--repair"]) == 1  # each segment checked on its own
+    doc = json.loads(capsys.readouterr().out)
+    assert [Path(r["recording"]).name for r in doc["reports"]] == ["seg00", "seg01"]
+    assert doc["reports"][0]["ok"] and doc["reports"][1]["truncated"]
+    repaired = Path(doc["repaired"][0]["repaired"])
+    assert repaired.parent == root / "seg01" and repaired.name.endswith(".repaired.mcap")
+
+    # the repaired copy now stands in for the truncated file: its frames are read once, not twice
+    assert recording_files(root / "seg01") == [repaired]
+    r = verify_recording(root / "seg01")
+    assert r.sides["left"].frames == r.last_seq - r.first_seq + 1 and r.sides["left"].drops == 0
+    assert not any("two frames" in p for p in r.problems), r.problems
+    assert r.tail_lost >= 0 and not r.truncated
+
+    out = tmp_path / "tree"
+    assert cli_main(["export", str(root), "--out", str(out), "--no-progress"]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["seg00", "seg01"]
+    assert len(list((out / "seg00" / "camera_left").rglob("*.png"))) == 40
+    assert cli_main(["export", str(root), "--format", "rosbag1", "--out", str(tmp_path / "x.bag")]) != 0
+    assert "segments" in capsys.readouterr().err

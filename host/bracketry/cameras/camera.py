@@ -130,6 +130,15 @@ class GigECamera:
         self._counter_names: tuple[str, ...] = ()
 
     # -- identity and features -------------------------------------------------------------------------------------
+    def check_identity(self, expected: str) -> None:
+        """Raise CameraError unless the camera reports ``expected`` as its device id or serial number (catches
+        swapped cables or a replaced camera behind a configured address)."""
+        info = self.info()
+        if expected not in (info.get("device_id"), info.get("serial")):
+            raise CameraError(f"camera {self.side}: the camera at {self.address} is "
+                              f"{info.get('serial') or info.get('device_id')!r}, not the configured device_id "
+                              f"{expected!r} (swapped cables?)")
+
     @property
     def device(self) -> Any:
         """The ``Aravis.Device`` (GenICam feature access)."""

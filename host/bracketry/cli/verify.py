@@ -8,7 +8,13 @@ from pathlib import Path
 import click
 
 from bracketry.recording.reader import UnreadableRecordingError
-from bracketry.recording.verify import format_report, recording_files, repair_recording, verify_recording
+from bracketry.recording.verify import (
+    expand_segments,
+    format_report,
+    recording_files,
+    repair_recording,
+    verify_recording,
+)
 
 
 @click.command("verify")
@@ -18,11 +24,14 @@ from bracketry.recording.verify import format_report, recording_files, repair_re
 @click.option("--out", type=click.Path(path_type=Path), help="With --repair and one file: the repaired file's path.")
 def command(recordings: tuple[Path, ...], as_json: bool, repair: bool, out: Path | None) -> int:
     """Check recordings (.mcap files or folders of split files): frames, drops, incomplete and unpaired frames,
-    bracket-order breaks, exposure mismatches and missing packets per camera. Truncated files are read too.
+    bracket-order breaks, exposure mismatches and missing packets per camera. Truncated files are read too; a
+    repaired copy (<file>.repaired.mcap) replaces its truncated file. A daemon recording folder holding segment
+    folders (segNN/) is checked segment by segment.
 
     Exit code: 0 all clean, 1 problems found, 2 a recording is unreadable.
     """
-    reports = [verify_recording(r) for r in recordings]
+    targets = [seg for r in recordings for seg in expand_segments(r)]
+    reports = [verify_recording(r) for r in targets]
     repaired: list[dict[str, object]] = []
     if repair:
         for report in reports:
@@ -33,7 +42,7 @@ def command(recordings: tuple[Path, ...], as_json: bool, repair: bool, out: Path
                 if entry is None or not entry["truncated"]:
                     continue
                 try:
-                    dst, n = repair_recording(f, out if out and len(recordings) == 1 else None)
+                    dst, n = repair_recording(f, out if out and len(targets) == 1 else None)
                 except UnreadableRecordingError as exc:
                     repaired.append({"file": str(f), "error": str(exc)})
                     continue

@@ -30,7 +30,9 @@ class ConfigError(BracketryError):
 
 @dataclass(frozen=True)
 class CameraConfig:
-    """One GigE camera. ``address`` (IPv4) or ``device_id`` identifies it; never discovered by broadcast."""
+    """One GigE camera, opened by its IPv4 ``address`` (cameras are never discovered by broadcast). ``device_id``
+    (optional): the id or serial number the camera at that address must report, so swapped cables or a replaced
+    camera are caught at start-up instead of recording under the wrong side."""
 
     side: str
     profile: str
@@ -211,8 +213,9 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
             c.fail(f"{where}.side", f"must be one of {', '.join(SIDES)}, got {cam['side']!r}")
         if cam["profile"] not in CAMERA_PROFILES:
             c.fail(f"{where}.profile", f"must be one of {', '.join(CAMERA_PROFILES)}, got {cam['profile']!r}")
-        if "address" not in cam and "device_id" not in cam:
-            c.fail(where, "needs address (IPv4) or device_id (cameras are never discovered by broadcast)")
+        if "address" not in cam:
+            c.fail(where, "needs address (IPv4; cameras are never discovered by broadcast, device_id alone cannot "
+                          "open one)")
         if "address" in cam:
             try:
                 ipaddress.IPv4Address(cam["address"])
@@ -234,9 +237,10 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
     sides = sorted(cam.side for cam in cameras)
     if sides != ["left", "right"]:
         c.fail("cameras", f"need exactly one left and one right camera, got sides {sides}")
-    ids = [cam.address or cam.device_id for cam in cameras]
-    if len(set(ids)) != len(ids):
-        c.fail("cameras", f"left and right use the same address/device_id {ids[0]!r}")
+    for key in ("address", "device_id"):
+        ids = [getattr(cam, key) for cam in cameras if getattr(cam, key)]
+        if len(set(ids)) != len(ids):
+            c.fail("cameras", f"left and right use the same {key} {ids[0]!r}")
 
     trig = c.table(data.get("trigger", {}), "trigger", _TRIGGER_KEYS)
     if trig.get("kind", "serial") not in TRIGGER_KINDS:

@@ -271,7 +271,9 @@ class RigDaemon:
         sensor = CAM_SENSOR[side]
         cam = None
         try:
-            cam = GigECamera(cc.address, device_id=cc.device_id, side=side)
+            cam = GigECamera(cc.address, side=side)
+            if cc.device_id:
+                cam.check_identity(cc.device_id)
             fake = cc.profile == "aravis_fake"
             settings = CameraSettings(profile=cc.profile, pixel_format=cc.pixel_format, width=self.options.width,
                                       height=self.options.height,

@@ -85,7 +85,7 @@ class Pairer:
         window: a trigger_seq is emitted incomplete once it is this many pulses behind the newest seen.
         tolerance_fraction: allowed timestamp disagreement as a fraction of the pulse period.
         confirm_frames: consecutive frames that must agree on a shift before frames are moved.
-        initial_alignment: ``count`` (first frame = pulse 0) or ``host_time`` (see ``_initial_seq``).
+        initial_alignment: ``count`` (first frame = pulse 0), ``counter`` or ``host_time`` (see ``_initial_seq``).
     """
 
     def __init__(self, sides: tuple[str, ...] = ("left", "right"), on_set: Callable[[PairedSet], None] | None = None,
@@ -148,7 +148,6 @@ class Pairer:
         c.missing_packets += int(getattr(frame, "missing_packets", 0) or 0)
         if frame.status != "success":
             c.incomplete += 1
-            log.warning("camera %s: frame id %d incomplete (%s)", side, frame.frame_id, frame.status)
         if st.offset is None:
             first = self._initial_seq(frame)
             if first is None:
@@ -158,6 +157,9 @@ class Pairer:
                 return -1
             st.offset = first - frame.frame_index
         seq = frame.frame_index + st.offset
+        if frame.status != "success":
+            log.warning("camera %s: frame for trigger_seq %d (frame id %d) incomplete (%s)", side, seq,
+                        frame.frame_id, frame.status)
         if seq <= self._emitted_upto and seq not in self._pending:
             c.late += 1
             c.unpaired += 1
@@ -178,13 +180,15 @@ class Pairer:
     def _initial_seq(self, frame: Any) -> int | None:
         """trigger_seq of a camera's first frame.
 
-        A CounterValue chunk (a camera counter of trigger pulses reset at START, first pulse = 1) is authoritative.
-        With ``initial_alignment="host_time"`` (cameras whose timestamps are host time, like the Aravis fake camera)
-        it is the latest pulse that started before the frame's timestamp, and None (frame ignored) when no pulse
-        did. Otherwise the first frame is pulse 0 (k-th frame since START).
+        With ``initial_alignment="counter"`` the CounterValue chunk is authoritative (for cameras whose Counter1 is
+        configured to count trigger pulses and reset at START, first pulse = 1; the shipped camera profiles do not
+        configure it, so the chunk is only recorded by default). With ``initial_alignment="host_time"`` (cameras
+        whose timestamps are host time, like the Aravis fake camera) it is the latest pulse that started before the
+        frame's timestamp, and None (frame ignored) when no pulse did. Otherwise the first frame is pulse 0 (k-th
+        frame since START).
         """
         counter = getattr(frame, "counter_value", None)
-        if counter is not None and counter > 0:
+        if self.initial_alignment == "counter" and counter is not None and counter > 0:
             return int(counter) - 1
         if self.initial_alignment == "host_time":
             started = [e.trigger_seq for e in self._events.values()

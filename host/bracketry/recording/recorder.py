@@ -43,7 +43,7 @@ class RecorderConfig:
     split_bytes: int = 4 << 30
     split_s: float = 600.0
     queue_max_items: int = 48
-    fsync_interval_s: float | None = 1.0
+    fsync_interval_s: float | None = 0.0  # fsync (on a background thread) after every chunk
     sides: tuple[str, ...] = T.SIDES
 
 

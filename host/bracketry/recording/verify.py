@@ -26,17 +26,43 @@ EXPOSURE_TOLERANCE_US = 20.0
 MAX_LISTED = 50
 
 
+#: name ending of the clean copy ``verify --repair`` writes next to a truncated file
+REPAIRED_SUFFIX = ".repaired.mcap"
+
+
 def recording_files(path: str | Path) -> list[Path]:
-    """The .mcap files of a recording given as a file or a folder (sorted by name = split order)."""
+    """The .mcap files of a recording given as a file or a folder (sorted by name = split order).
+
+    In a folder, a ``<stem>.repaired.mcap`` written by ``verify --repair`` replaces its truncated ``<stem>.mcap``
+    (same place in the split order), so a repaired recording is not read twice."""
     p = Path(path)
     if p.is_dir():
-        files = sorted(f for f in p.glob("*.mcap") if f.is_file())
+        found = [f for f in p.glob("*.mcap") if f.is_file()]
+        superseded = {f.name[: -len(REPAIRED_SUFFIX)] + ".mcap" for f in found if f.name.endswith(REPAIRED_SUFFIX)}
+        files = sorted((f for f in found if f.name not in superseded),
+                       key=lambda f: f.name.replace(REPAIRED_SUFFIX, ".mcap"))
         if not files:
-            raise UnreadableRecordingError(f"{p}: no .mcap files in this folder")
+            segments = segment_folders(p)
+            hint = f" (it holds {len(segments)} segment folders, e.g. {segments[0].name}/)" if segments else ""
+            raise UnreadableRecordingError(f"{p}: no .mcap files in this folder{hint}")
         return files
     if not p.exists():
         raise UnreadableRecordingError(f"{p}: no such file")
     return [p]
+
+
+def segment_folders(path: str | Path) -> list[Path]:
+    """The segment folders (``segNN/``, each a recording of its own) of a daemon recording root, sorted; [] when
+    ``path`` holds .mcap files itself or is not a folder."""
+    p = Path(path)
+    if not p.is_dir() or any(f.is_file() for f in p.glob("*.mcap")):
+        return []
+    return sorted(d for d in p.iterdir() if d.is_dir() and any(f.is_file() for f in d.glob("*.mcap")))
+
+
+def expand_segments(path: str | Path) -> list[Path]:
+    """``path`` itself, or the segment folders of a daemon recording root (trigger_seq restarts in each)."""
+    return segment_folders(path) or [Path(path)]
 
 
 @dataclass
@@ -244,7 +270,7 @@ def repair_recording(src: str | Path, dst: str | Path | None = None) -> tuple[Pa
     src = Path(src)
     if src.is_dir():
         raise BracketryError(f"{src}: --repair takes .mcap files, not folders")
-    out = Path(dst) if dst else src.with_name(src.stem + ".repaired.mcap")
+    out = Path(dst) if dst else src.with_name(src.stem + REPAIRED_SUFFIX)
     if out.resolve() == src.resolve():
         raise BracketryError("--repair never overwrites its input")
     reader = RecordingReader(src)
