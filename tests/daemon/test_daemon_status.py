@@ -9,6 +9,7 @@ from typing import Any
 
 import pytest
 
+from bracketry import paths
 from bracketry.cli import main
 from bracketry.daemon.sdnotify import Notifier
 from bracketry.daemon.state import RigState, SensorState
@@ -47,6 +48,14 @@ def test_status_round_trip_and_cli(tmp_path: Path, capsys: pytest.CaptureFixture
         assert main(["status", "--socket", str(sock)]) == 0
         out = capsys.readouterr().out
         assert "cam_left=REC" in out and "error trigger: device lost" in out
+        # the socket named by a config file (rig.status_socket)
+        example = (paths.repo_root() / "host" / "deploy" / "rig.example.toml").read_text()
+        default_line = 'status_socket = "/run/bracketry/status.sock"'
+        assert default_line in example
+        cfg = tmp_path / "rig.toml"
+        cfg.write_text(example.replace(default_line, f'status_socket = "{sock}"', 1))
+        assert main(["status", "--config", str(cfg)]) == 0
+        assert "cam_left=REC" in capsys.readouterr().out
     finally:
         server.close()
     assert not sock.exists()

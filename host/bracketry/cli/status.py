@@ -13,11 +13,20 @@ DEFAULT_SOCKET = Path("/run/bracketry/status.sock")
 
 
 @click.command("status")
-@click.option("--socket", "socket_path", type=click.Path(path_type=Path), default=DEFAULT_SOCKET, show_default=True,
-              help="The daemon's status socket (rig.status_socket in the config).")
+@click.option("--socket", "socket_path", type=click.Path(path_type=Path), default=None,
+              help=f"The daemon's status socket [default: rig.status_socket of --config, else {DEFAULT_SOCKET}].")
+@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
+              help="The daemon's config file: its rig.status_socket is used.")
 @click.option("--json", "as_json", is_flag=True, help="Print the raw JSON state.")
-def command(socket_path: Path, as_json: bool) -> int:
+def command(socket_path: Path | None, config_path: Path | None, as_json: bool) -> int:
     """Ask the running daemon for every sensor's state, FPS, free disk and recording."""
+    if socket_path is None:
+        if config_path is not None:
+            from bracketry.daemon.config import load_config
+
+            socket_path = load_config(config_path).status_socket
+        else:
+            socket_path = DEFAULT_SOCKET
     reply = query(socket_path, {"cmd": "status"})
     if as_json:
         click.echo(json.dumps(reply, indent=2))
