@@ -231,7 +231,8 @@ def run_e2e(s: Session, seconds: float, record_s: float) -> dict[str, Any]:
 
 
 def run_faults(s: Session, seconds: float) -> dict[str, Any]:
-    """Trigger, camera and panel faults while recording, then SIGKILL of the daemon."""
+    """Trigger, camera and panel faults while recording, SIGKILL of the daemon, then SIGTERM of the restarted daemon
+    while it records."""
     rig = s.rig
     _sensors_and_record(s)
     s.wait_recorded_events(round(seconds * rig.o.fps), 60.0)
@@ -284,6 +285,11 @@ def run_faults(s: Session, seconds: float) -> dict[str, Any]:
     rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
     s.wait_screen("L:IDL R:IDL TRIG:IDL", 20.0)
     s.step("restarted_idle")
+    # 6. SIGTERM while recording (systemctl stop, shutdown): the recording is closed cleanly, footer and all
+    rig.press("record")
+    rig.wait_states({k: "REC" for k in ALL}, 60.0)
+    s.wait_recorded_events(round(rig.o.fps), 60.0)
+    s.step("restarted_rec")
     rc2 = rig.stop_daemon(signal.SIGTERM)
     s.step("restarted_sigterm", daemon_exit_code=rc2)
     return {"daemon_exit_code": rc, "t_kill_ns": t_kill_ns, "events_before_kill": before["counters"],
