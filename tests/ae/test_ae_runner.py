@@ -94,3 +94,28 @@ def test_bad_settings(tmp_path: Path) -> None:
         run_methods(rec, ["ae50"], tmp_path / "o", progress=False, camera="middle")
     with pytest.raises(BracketryError, match="unknown AE method"):
         run_methods(rec, ["nope"], tmp_path / "o", progress=False)
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_emulate_reports_a_corrupt_png_and_an_incomplete_sequence_in_one_line(
+        tmp_path: Path, workers: str, capsys: pytest.CaptureFixture[str]) -> None:
+    from bracketry.cli import main
+
+    rec = tiny_tree(tmp_path, 3)
+    lost = sorted((rec / "camera_left" / "8.0").glob("*.png"))[-1]
+    lost.unlink()  # the last sequence is incomplete: skipped and reported, not fatal
+    assert main(["emulate", str(rec), "-m", "ae50,fix", "-o", str(tmp_path / "ok"), "-j", workers, "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "warning: dataset:" in err and "incomplete" in err, err
+    doc = json.loads((tmp_path / "ok" / "summary.json").read_text())
+    assert doc["sequences"] == 2 and doc["dataset_problems"]
+
+    bad = sorted((rec / "camera_left" / "4.0").glob("*.png"))[1]  # read once the run is under way
+    data = bytearray(bad.read_bytes())
+    data[8:40] = bytes(32)  # a broken header (no IHDR chunk first)
+    bad.write_bytes(bytes(data))
+    code = main(["emulate", str(rec), "-m", "ae50,fix", "-o", str(tmp_path / "bad"), "-j", workers, "-q"])
+    err = capsys.readouterr().err.strip()
+    assert code != 0
+    assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err, err
+    assert bad.name in err and "BufferError" not in err, err

@@ -148,6 +148,8 @@ class RunSummary:
     sides: tuple[str, ...]
     wall_s: float
     plot_path: Path | None = None
+    #: the dataset's problems (incomplete sequences, skipped files; one line each), also in summary.json
+    problems: list[str] = field(default_factory=list)
 
 
 class _ImageSink:
@@ -588,9 +590,12 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
             runs.update(_run_forked(groups, make, n_seq, chunk, len(emu_sides), n_exp, bar))
     finally:
         bar.close()
-        buffer.close()
+        # on an error path the traceback still holds numpy views of the buffer: it is freed with them instead
+        with contextlib.suppress(BufferError):
+            buffer.close()
     ordered = {s: runs[s] for s in specs}
-    summary = RunSummary(out, ordered, n_seq, write_sides, time.perf_counter() - t_start)
+    summary = RunSummary(out, ordered, n_seq, write_sides, time.perf_counter() - t_start,
+                         problems=list(dataset.problems))
     _write_outputs(summary, cfg, dataset)
     summary.wall_s = time.perf_counter() - t_start
     return summary
@@ -747,7 +752,7 @@ def _write_outputs(summary: RunSummary, cfg: LoopConfig, dataset: Dataset) -> No
     doc = {"dataset": str(dataset.path), "sequences": summary.n_sequences, "sides": list(summary.sides),
            "ae_side": cfg.ae_side, "init_exposure_ms": cfg.init_exposure_us / 1000.0,
            "bounds_ms": [cfg.min_exposure_us / 1000.0, cfg.max_exposure_us / 1000.0], "seed": cfg.seed,
-           "emulator": emu, "wall_s": round(summary.wall_s, 3),
+           "emulator": emu, "wall_s": round(summary.wall_s, 3), "dataset_problems": summary.problems,
            "methods": {s: r.summary() for s, r in summary.runs.items()}}
     (out / "summary.json").write_text(json.dumps(doc, indent=2, default=str) + "\n")
     series = {s: ([(st.timestamp_ns - t0_ns) / 1e9 for st in r.steps], r.exposures_ms)

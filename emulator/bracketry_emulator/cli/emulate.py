@@ -100,4 +100,14 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
                    f"mean {exp['mean']:.3f}  AE {s['ae_ms_per_step']['median']:.1f} ms/step")
     if summary.plot_path:
         click.echo(f"  plot: {summary.plot_path}")
+    warn_dataset_problems(summary.problems)
     return 0
+
+
+def warn_dataset_problems(problems: list[str], shown: int = 5) -> None:
+    """One stderr line per dataset problem (incomplete sequence, skipped file), at most ``shown`` of them."""
+    for line in problems[:shown]:
+        click.echo(f"warning: dataset: {line}", err=True)
+    if len(problems) > shown:
+        click.echo(f"warning: dataset: {len(problems) - shown} more problem(s), see dataset_problems in summary.json",
+                   err=True)

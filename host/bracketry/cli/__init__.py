@@ -100,6 +100,8 @@ def cli() -> None:
 def main(argv: list[str] | None = None) -> int:
     """Entry point: run the CLI, turning BracketryError (and any other failure) into one line on stderr."""
     debug = os.environ.get("BRACKETRY_DEBUG") == "1"
+    # bad input is reported by us in one line: keep OpenCV's own log lines (e.g. a broken PNG header) quiet
+    os.environ.setdefault("OPENCV_LOG_LEVEL", "SILENT" if not debug else "INFO")
     try:
         rv = cli.main(args=argv, prog_name="bracketry", standalone_mode=False)
     except click.exceptions.Abort:
