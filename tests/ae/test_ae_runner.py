@@ -119,3 +119,29 @@ def test_emulate_reports_a_corrupt_png_and_an_incomplete_sequence_in_one_line(
     assert code != 0
     assert err.startswith("error: ") and "\n" not in err and "Traceback" not in err, err
     assert bad.name in err and "BufferError" not in err, err
+
+
+def test_emulate_fusion_options_and_noise_model(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    from bracketry.cli import main
+    from bracketry_emulator.emulation import NoiseModel
+
+    rec = tiny_tree(tmp_path, 2)
+    noise = tmp_path / "noise.json"
+    NoiseModel(read_dn=2.5, dn_per_e=0.125).to_json(noise)
+    args = ["emulate", str(rec), "-m", "ae50", "-j", "1", "-q", "--selection", "fusion", "--fusion-brackets", "all",
+            "--motion", "translation", "--deghost-sigma", "4"]
+    assert main([*args, "-o", str(tmp_path / "a"), "--noise", str(noise)]) == 0
+    emu = json.loads((tmp_path / "a" / "summary.json").read_text())["emulator"]
+    assert emu["fusion_brackets"] == "all" and emu["motion"] == "translation" and emu["deghost_sigma"] == 4
+    assert emu["noise"] == {"read_dn": 2.5, "dn_per_e": 0.125}
+    # a synthetic world's camera_model.json at the dataset root is the default model
+    (rec / "camera_model.json").write_text(json.dumps({"read_noise_e": 3.0, "gain_e_per_dn": 6.0}))
+    assert main([*args, "-o", str(tmp_path / "b")]) == 0
+    emu = json.loads((tmp_path / "b" / "summary.json").read_text())["emulator"]
+    assert emu["noise"] == {"read_dn": 0.5, "dn_per_e": pytest.approx(1 / 6)}
+    capsys.readouterr()
+    assert main(["emulate", str(rec), "-m", "ae50", "-o", str(tmp_path / "c"), "--motion", "homography"]) == 2
+    assert "need --selection fusion" in capsys.readouterr().err
+    noise.write_text("{}")
+    assert main([*args, "-o", str(tmp_path / "d"), "--noise", str(noise)]) == 2
+    assert "not a noise model" in capsys.readouterr().err

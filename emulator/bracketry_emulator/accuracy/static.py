@@ -19,18 +19,20 @@ import numpy as np
 
 from ..crf import Response
 from ..dataset import read_png12
-from ..emulation import Emulator, EmulatorConfig
+from ..emulation import Emulator, EmulatorConfig, NoiseModel
 from .metrics import noise_corrected, noise_floor_dn, rmse_dn
 from .stack import StaticStack
 
 MODES: tuple[str, ...] = ("highernosat", "upstream", "fusion", "fusion-all")
 
 
-def mode_config(mode: str, crf: str, alpha: float) -> EmulatorConfig:
-    """Emulator settings of a protocol mode: a selection name, or ``fusion-all`` (fusion of every bracket)."""
+def mode_config(mode: str, crf: str, alpha: float, noise: NoiseModel | None = None) -> EmulatorConfig:
+    """Emulator settings of a protocol mode: a selection name, or ``fusion-all`` (fusion of every bracket).
+    ``noise``: the camera noise model of the fusion weights (None = the built-in default)."""
+    model = noise if noise is not None else NoiseModel()
     if mode == "fusion-all":
-        return EmulatorConfig(selection="fusion", fusion_brackets="all", crf=crf, alpha=alpha)
-    return EmulatorConfig(selection=mode, crf=crf, alpha=alpha)  # type: ignore[arg-type]
+        return EmulatorConfig(selection="fusion", fusion_brackets="all", crf=crf, alpha=alpha, noise=model)
+    return EmulatorConfig(selection=mode, crf=crf, alpha=alpha, noise=model)  # type: ignore[arg-type]
 Progress = Callable[[int, int], None]
 #: Relative tolerance of the "fusion not worse than HigherNoSat at any target" check.
 NOT_WORSE_REL_TOL = 1e-3
@@ -76,9 +78,17 @@ def _summary(values: list[float]) -> dict[str, float]:
 
 def run_static(stack: StaticStack, crf: str = "srgb", response: Response | None = None,
                modes: Sequence[str] = MODES, max_targets: int | None = None, alpha: float = 0.01,
-               progress: Progress | None = None) -> dict:
-    """Run the static protocol; returns a JSON-ready dict (per-target rows, per-bracket curves, summaries, goals)."""
-    emulators = {m: Emulator(mode_config(m, crf, alpha), response=response) for m in modes}
+               progress: Progress | None = None, noise_model: NoiseModel | None = None) -> dict:
+    """Run the static protocol; returns a JSON-ready dict (per-target rows, per-bracket curves, summaries, goals).
+
+    ``noise_model``: the camera noise model of the fusion weights; None = the stack's ``camera_model.json`` when it
+    has one (synthetic stacks), else the built-in default."""
+    if noise_model is None and stack.camera_model is not None:
+        try:
+            noise_model = NoiseModel.from_mapping(stack.camera_model.get("camera", stack.camera_model))
+        except (KeyError, ValueError, TypeError, AttributeError):
+            noise_model = None
+    emulators = {m: Emulator(mode_config(m, crf, alpha, noise_model), response=response) for m in modes}
     resp = next(iter(emulators.values())).response
     single = Emulator(EmulatorConfig(selection="highernosat", crf=crf), response=resp)
     brackets = stack.load_brackets()
@@ -115,7 +125,9 @@ def run_static(stack: StaticStack, crf: str = "srgb", response: Response | None 
             inside = [r["modes"][m][metric] for r in rows
                       if r["modes"][m][metric] is not None and lo <= r["exposure_us"] <= hi]
             summary[m][metric] = {"all": _summary(vals), "in_bracket_range": _summary(inside)}
+    model = next(iter(emulators.values())).config.noise
     return {"protocol": "static", "stack": str(stack.root), "crf": resp.name, "alpha": alpha,
+            "noise_model": {"read_dn": model.read_dn, "dn_per_e": model.dn_per_e},
             "brackets_us": exps, "noise_curve": {"exposures_us": noise.exposures_us.tolist(),
                                                  "noise_dn": noise.noise_dn.tolist()},
             "n_targets": len(rows), "targets": rows, "summary": summary, "goals": goals(rows, summary, modes, lo, hi)}

@@ -748,7 +748,7 @@ def _write_outputs(summary: RunSummary, cfg: LoopConfig, dataset: Dataset) -> No
             row = [f"{summary.runs[s].steps[k].exposure_us / 1000:.6f}" for s in specs]
             f.write(f"{st.step},{st.timestamp_ns}," + ",".join(row) + "\n")
     emu = asdict(cfg.emulator)
-    emu = {k: (str(v) if isinstance(v, Path) else v) for k, v in emu.items() if k != "noise"}
+    emu = {k: (str(v) if isinstance(v, Path) else v) for k, v in emu.items()}  # noise: {read_dn, dn_per_e}
     doc = {"dataset": str(dataset.path), "sequences": summary.n_sequences, "sides": list(summary.sides),
            "ae_side": cfg.ae_side, "init_exposure_ms": cfg.init_exposure_us / 1000.0,
            "bounds_ms": [cfg.min_exposure_us / 1000.0, cfg.max_exposure_us / 1000.0], "seed": cfg.seed,

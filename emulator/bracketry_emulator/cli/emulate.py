@@ -10,8 +10,10 @@ from bracketry.errors import BracketryError
 
 
 def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str, depth: int,
-                     gain_db: float) -> object:
+                     gain_db: float, noise: Path | None = None, fusion_brackets: str = "bounding",
+                     motion: str = "none", deghost_sigma: float | None = None) -> object:
     from bracketry_emulator.emulation import EmulatorConfig
+    from bracketry_emulator.emulation.noise import resolve_noise_model
 
     if crf is None:
         crf = "srgb"
@@ -26,7 +28,14 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
         raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf}")
     if parity == "upstream" and selection == "highernosat":
         selection = "upstream"  # the authors' closer_least_sat goes with their arithmetic
-    cfg = EmulatorConfig(selection=selection, crf=crf, parity=parity, depth=depth, gain_db=gain_db)  # type: ignore[arg-type]
+    if selection != "fusion" and (fusion_brackets != "bounding" or motion != "none" or deghost_sigma is not None):
+        raise BracketryError("--fusion-brackets, --motion and --deghost-sigma need --selection fusion")
+    if deghost_sigma is not None and deghost_sigma <= 0:
+        raise BracketryError(f"--deghost-sigma must be > 0, got {deghost_sigma}")
+    model, _source = resolve_noise_model(noise, dataset if dataset.is_dir() else None)
+    cfg = EmulatorConfig(selection=selection, crf=crf, parity=parity, depth=depth, gain_db=gain_db,  # type: ignore[arg-type]
+                         fusion_brackets=fusion_brackets, motion=motion, deghost_sigma=deghost_sigma,  # type: ignore[arg-type]
+                         noise=model)
     cfg.validate()
     return cfg
 
@@ -52,6 +61,15 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 @click.option("--depth", type=click.Choice(["12", "8"]), default="12", show_default=True,
               help="Bit depth of written images (12: 16-bit PNG of 12-bit codes; 8: code >> 4).")
 @click.option("--gain-db", type=float, default=0.0, show_default=True, help="Emulated analog gain (dB).")
+@click.option("--noise", type=click.Path(path_type=Path, exists=True, dir_okay=False), default=None,
+              help="Camera noise model for --gain-db and fusion weights: a calibrate-crf --noise-out JSON or a "
+                   "camera_model.json [default: DATASET/camera_model.json when present, else built-in].")
+@click.option("--fusion-brackets", type=click.Choice(["bounding", "all"]), default="bounding", show_default=True,
+              help="Fusion: the two brackets around the target, or every bracket.")
+@click.option("--motion", type=click.Choice(["none", "translation", "homography"]), default="none",
+              show_default=True, help="Fusion: global motion compensation between the brackets.")
+@click.option("--deghost-sigma", type=float, default=None,
+              help="Fusion: drop pixels of a non-reference bracket more than this many noise sigmas off the reference.")
 @click.option("--init-exposure-ms", type=float, default=4.0, show_default=True,
               help="First target exposure of every method (the authors: 4 ms).")
 @click.option("--min-exposure-ms", type=float, default=0.02, show_default=True,
@@ -68,7 +86,8 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 @click.option("--overwrite", is_flag=True, help="Replace the files of an earlier run in the same --out.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
 def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
-            ae_camera: str, depth: str, gain_db: float, init_exposure_ms: float, min_exposure_ms: float,
+            ae_camera: str, depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
+            deghost_sigma: float | None, init_exposure_ms: float, min_exposure_ms: float,
             max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
             no_images: bool, overwrite: bool, quiet: bool) -> int:
     """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world or MCAP).
@@ -84,7 +103,8 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     if max_sequences is not None and max_sequences < 1:
         raise BracketryError("--max-sequences must be >= 1")
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
-    emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db)
+    emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db, noise, fusion_brackets, motion,
+                           deghost_sigma)
     cfg = LoopConfig(emulator=emu, camera=camera, ae_side=ae_camera,  # type: ignore[arg-type]
                      init_exposure_us=init_exposure_ms * 1000.0, min_exposure_us=min_exposure_ms * 1000.0,
                      max_exposure_us=max_exposure_ms * 1000.0, seed=seed,

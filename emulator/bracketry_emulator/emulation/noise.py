@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from bracketry.errors import BracketryError
+
 from ..crf.response import Response
 
 
@@ -53,6 +55,27 @@ class NoiseModel:
         if "read_dn" not in data and "read_noise_e" not in data and isinstance(data.get("camera"), dict):
             data = data["camera"]
         return cls.from_mapping(data)
+
+
+def resolve_noise_model(explicit: str | Path | None, dataset_dir: str | Path | None = None
+                        ) -> tuple[NoiseModel, str]:
+    """The camera noise model to use and where it came from: ``explicit`` (a ``calibrate-crf --noise-out`` JSON or
+    a ``camera_model.json``), else ``camera_model.json`` at the top of ``dataset_dir`` (a synthetic world or stack
+    writes it), else the built-in default. Raises BracketryError (one line) for an unreadable explicit file."""
+    if explicit is not None:
+        p = Path(explicit)
+        try:
+            return NoiseModel.from_json(p), str(p)
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            raise BracketryError(f"--noise {p}: not a noise model ({exc})") from exc
+    if dataset_dir is not None:
+        p = Path(dataset_dir) / "camera_model.json"
+        if p.is_file():
+            try:
+                return NoiseModel.from_json(p), str(p)
+            except (OSError, ValueError, KeyError, TypeError):
+                pass  # a camera_model.json without noise terms: the default applies
+    return NoiseModel(), "default"
 
 
 def photon_transfer(repeats: Sequence[np.ndarray], response: Response, max_pixels: int = 400_000,
