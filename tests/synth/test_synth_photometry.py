@@ -139,3 +139,17 @@ def test_synth_default_code_set_matches_real_sample(world: World, borealhdr_sequ
     for e in np.geomspace(20.0, 50000.0, 40):
         rendered |= set(np.unique(world.render("left", 3.0, e)).tolist())
     assert rendered == sample
+
+
+def test_a_12bit_calibrate_crf_curve_drives_the_synthetic_camera(tmp_path: Path) -> None:
+    """``calibrate-crf`` writes 4096 values (inverse response per 12-bit code); synth --response accepts them."""
+    from bracketry_emulator.crf import load_response
+    from bracketry_emulator.crf.pcalib import save_pcalib
+
+    path = tmp_path / "pcalib4096.txt"
+    save_pcalib(path, load_response("srgb").icrf)
+    model = CameraModel.with_pcalib_file(path)
+    diff = model.lut.astype(int) - srgb_lut().astype(int)
+    assert np.abs(diff).max() <= 1  # the sRGB camera back, within the truncation of one code
+    with pytest.raises(Exception, match="256 or 4096"):
+        pcalib_lut(np.linspace(0, 1, 1000))

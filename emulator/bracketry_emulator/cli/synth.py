@@ -30,7 +30,7 @@ def _make_world(preset: str, seed: int, resolution: str, response: str, calibrat
     else:
         path = Path(response)
         if not path.is_file():
-            raise BracketryError(f"--response must be srgb, linear or a TUM pcalib file (not found: {response})")
+            raise BracketryError(f"--response must be srgb, linear or a pcalib file (not found: {response})")
         camera = CameraModel.with_pcalib_file(path)
     calib = load_calibration(calibration, *size) if calibration is not None else None
     if speed_kmh <= 0 or speed_kmh > 20:
@@ -67,7 +67,8 @@ _common = [
                  show_default=True, help="World preset."),
     click.option("--seed", type=int, default=0, show_default=True, help="Seed of the world and of the noise."),
     click.option("--response", default="srgb", show_default=True,
-                 help="Camera response: srgb (like the real sample), linear, or a TUM pcalib.txt file."),
+                 help="Camera response: srgb (like the real sample), linear, or a pcalib.txt file (TUM 256 values, "
+                      "or the 4096 of bracketry calibrate-crf)."),
     click.option("--calibration", type=click.Path(path_type=Path, file_okay=False, exists=True), default=None,
                  help="Folder with left.yaml/right.yaml to take the intrinsics from (default: the real sample's)."),
     click.option("--force", is_flag=True, help="Write into a non-empty output folder."),

@@ -43,14 +43,24 @@ def srgb_lut() -> np.ndarray:
 
 
 def pcalib_lut(pcalib: np.ndarray) -> np.ndarray:
-    """TUM pcalib (256 inverse-response values, 8-bit code -> irradiance 0..255) lifted to 12 bits as the BorealHDR
-    authors do (knots linspace(0, 4095, 256), irradiance 16 x pcalib with ends forced to 0 and 4095) and inverted:
-    linear level -> code (truncated, capped at 4094). uint16 (4096,)."""
+    """Response LUT (linear level -> code, truncated, capped at 4094; uint16 (4096,)) of an inverse response.
+
+    256 values (TUM pcalib, 8-bit code -> irradiance 0..255): lifted to 12 bits as the BorealHDR authors do (knots
+    linspace(0, 4095, 256), irradiance 16 x pcalib with ends forced to 0 and 4095). 4096 values (the 12-bit variant
+    ``bracketry calibrate-crf`` writes: the inverse response of every code): rescaled to 0..4095 and used per code.
+    """
     g = np.asarray(pcalib, dtype=np.float64).ravel()
-    if g.size != 256 or not np.all(np.isfinite(g)) or np.any(np.diff(g) < 0):
-        raise BracketryError("pcalib must hold 256 finite non-decreasing values")
-    knots_dn = np.linspace(0.0, 4095.0, 256)
-    irr = 16.0 * g
+    if g.size not in (256, N_LEVELS) or not np.all(np.isfinite(g)) or np.any(np.diff(g) < 0):
+        raise BracketryError("pcalib must hold 256 or 4096 finite non-decreasing values")
+    if g.size == 256:
+        knots_dn = np.linspace(0.0, 4095.0, 256)
+        irr = 16.0 * g
+    else:
+        span = float(g[-1] - g[0])
+        if span <= 0:
+            raise BracketryError("pcalib curve is flat")
+        knots_dn = np.arange(N_LEVELS, dtype=np.float64)
+        irr = (g - g[0]) / span * 4095.0
     irr[0], irr[-1] = 0.0, 4095.0
     codes = np.interp(np.arange(N_LEVELS, dtype=np.float64), irr, knots_dn)
     return np.minimum(np.floor(codes), SATURATED_CODE).astype(np.uint16)
