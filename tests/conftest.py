@@ -9,7 +9,7 @@ import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-from bracketry_testkit import MARKER_NEEDS, require_marker_components, sample_dir
+from bracketry_testkit import MARKER_NEEDS, STRICT, require_marker_components, sample_dir
 
 
 def pytest_runtest_setup(item: pytest.Item) -> None:
@@ -32,3 +32,16 @@ def borealhdr_sequence(borealhdr_sample: Path) -> Path:
             return child
     pytest.fail(f"no recording folder with camera_left/ under {borealhdr_sample}")
     raise AssertionError("unreachable")
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Strict mode (CI): a skipped test or an empty collection fails the run, whatever skipped it."""
+    if not STRICT or exitstatus not in (pytest.ExitCode.OK, pytest.ExitCode.NO_TESTS_COLLECTED):
+        return
+    reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+    skipped = reporter.stats.get("skipped", []) if reporter is not None else []
+    if skipped or session.testscollected == 0:
+        what = f"{len(skipped)} test(s) skipped" if skipped else "no test collected"
+        if reporter is not None:
+            reporter.write_line(f"BRACKETRY_STRICT=1: {what}; strict mode allows none", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED

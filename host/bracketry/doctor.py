@@ -46,14 +46,17 @@ def check_aravis_typelib() -> Check:
         from gi.repository import Aravis  # type: ignore[import-untyped]  # noqa: F401
     except (ImportError, ValueError):
         return Check("Aravis typelib 0.8", False, "", fix)
-    ver = "0.8"
+    return Check("Aravis typelib 0.8", True, _deb_version("libaravis-0.8-0") or "0.8", "")
+
+
+def _deb_version(package: str) -> str:
+    """The installed version of a Debian package, or "" (not a Debian system, not installed)."""
     try:
-        out = subprocess.run(["dpkg-query", "-W", "-f=${Version}", "libaravis-0.8-0"], capture_output=True,
-                             text=True, timeout=10, check=False)
-        ver = out.stdout.strip() or ver
+        out = subprocess.run(["dpkg-query", "-W", "-f=${Version}", package], capture_output=True, text=True,
+                             timeout=10, check=False)
     except (OSError, subprocess.TimeoutExpired):
-        pass
-    return Check("Aravis typelib 0.8", True, ver, "")
+        return ""
+    return out.stdout.strip() if out.returncode == 0 else ""
 
 
 def check_binary(name: str, exe: str, version_args: list[str], fix: str, pattern: str = r"(\d+\.\d+(\.\d+)?)",
@@ -71,7 +74,7 @@ def check_fake_camera() -> Check:
     path = shutil.which("arv-fake-gv-camera-0.8")
     if path is None:
         return Check("arv-fake-gv-camera-0.8", False, "", fix)
-    return Check("arv-fake-gv-camera-0.8", True, path, "")
+    return Check("arv-fake-gv-camera-0.8", True, _deb_version("aravis-tools") or path, "")
 
 
 def check_qemu_machine() -> Check:

@@ -8,6 +8,7 @@ from pathlib import Path
 import pytest
 
 from bracketry.cli import main as cli_main
+from bracketry.errors import BracketryError
 from bracketry_emulator.benchmark import make_task, run_benchmark
 from bracketry_emulator.benchmark.tasks import load_cached
 from bracketry_emulator.benchmark.toyworld import ToyWorld
@@ -94,7 +95,7 @@ def test_bench_interrupted_run_resumes(datasets, local_run, tmp_path: Path) -> N
 
 
 def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Path) -> None:
-    distributed = pytest.importorskip("distributed")
+    import distributed  # dask[distributed], a dependency of the emulator extra
     # dashboard off (no Bokeh); the scheduler's small HTTP server goes to a free loopback port
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False}) as cluster:
@@ -115,3 +116,13 @@ def test_bench_cli(datasets, local_run, tmp_path: Path, capsys) -> None:
     assert "reference method 'ae50'" in capsys.readouterr().err
     assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
                      "--windows", "x"]) == 2
+
+
+def test_methods_all_leaves_drl_out_without_weights_and_names_the_option() -> None:
+    from bracketry_emulator.benchmark.orchestrate import parse_methods
+
+    assert "drl" not in parse_methods("all", has_drl_weights=False)
+    assert parse_methods("all", has_drl_weights=True)[-2:] == ["drl", "zhang"]
+    assert parse_methods("ae50,fix,ae50") == ["ae50", "fix"]
+    with pytest.raises(BracketryError, match="--drl-weights"):
+        parse_methods("ae50,drl", has_drl_weights=False)

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import csv
 import json
+import math
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,23 +20,41 @@ METRICS = ["RTE (%)", "RRE (deg/m)", "coverage median (%)", "matches median", "t
 @pytest.mark.socat
 @pytest.mark.slow
 def test_demo_quick_records_verifies_and_reports_every_method(tmp_path: Path) -> None:
+    from bracketry_emulator.ae.drl import save_random_actor
+
     out = tmp_path / "demo"
+    # DRL joins when its weights are given (a seeded random actor here: the public weights are not shipped)
+    weights = save_random_actor(tmp_path / "actor.pth", seed=3)
+    env = {**os.environ, "BRACKETRY_DRL_WEIGHTS": str(weights)}
     res = subprocess.run([sys.executable, "-m", "bracketry", "demo", "--quick", "--out", str(out)],
-                         capture_output=True, text=True, timeout=1500)
+                         capture_output=True, text=True, timeout=1500, env=env)
     assert res.returncode == 0, (res.stdout[-2000:], res.stderr[-3000:])
     assert "Traceback" not in res.stderr
+    # progress all the way: the rig's render bar and panel screens, the closed loops' bar, VO per method
+    for text in ("[1/3]", "rendering camera frames", "|L:REC R:REC TRIG:REC|", "[2/3]", "[3/3]", "emulate",
+                 "VO + metrics"):
+        assert text in res.stderr, text
     summary = json.loads((out / "demo_summary.json").read_text())
     assert summary["recording_verified"] is True
     assert min(summary["frames"].values()) >= 150  # 8 s at 22 fps per camera
     assert summary["drops"] == {"left": 0, "right": 0}
-    assert summary["methods"] == sorted(PAPER_METHODS)
+    for seg in summary["recordings"]:  # the recording verifies clean by the user's own command too
+        check = subprocess.run([sys.executable, "-m", "bracketry", "verify", seg], capture_output=True, text=True,
+                               timeout=300)
+        assert check.returncode == 0, check.stdout[-2000:]
+    methods = sorted([*PAPER_METHODS, "drl"])
+    assert summary["methods"] == methods
     assert set(summary["best"]) == set(METRICS)
+    with open(summary["report"]["summary.csv"], newline="") as f:
+        rows = list(csv.reader(f))
+    assert rows[0][:6] == ["method", *METRICS]
+    assert sorted(r[0] for r in rows[1:]) == methods
+    for row in rows[1:]:  # every method has a finite value for every metric
+        for metric, value in zip(METRICS, row[1:6], strict=True):
+            assert math.isfinite(float(value)), (row[0], metric, value)
     report_md = Path(summary["report"]["report.md"]).read_text()
-    for method in PAPER_METHODS:
-        assert method in report_md
-    summary_csv = Path(summary["report"]["summary.csv"]).read_text().splitlines()
-    assert summary_csv[0].split(",")[:6] == ["method", *METRICS]
-    assert sorted(line.split(",")[0] for line in summary_csv[1:]) == sorted(PAPER_METHODS)
+    for method in methods:
+        assert f"| {method} |" in report_md or f"| {method}|" in report_md, method
     for png in ("coverage.png", "matches.png", "failure.png", "qualitative.png"):
         assert Path(summary["report"][png]).stat().st_size > 1000
     # the exported dataset: both cameras, six exposures, ground truth and calibration

@@ -31,6 +31,11 @@ def test_hw_wiring_required_signals_present() -> None:
     assert {c["to"] for c in trig} == {"cam_left.Line3", "cam_right.Line3"}
     for c in trig:
         assert c["level"] and "FallingEdge" in c["polarity"] and c["protection"]
+        assert "pull-up to 3.3 V" in c["pull"]  # the lines float from reset until the firmware drives them
+    w["connections"] = [{k: v for k, v in c.items() if k != "pull"} for c in w["connections"]]
+    assert any("needs its pull resistor" in p for p in wiring.check_connections(w))
+    bom = (paths.hw_dir() / "bom.csv").read_text()
+    assert "trigger_pullup,harness,10 kOhm" in bom
 
 
 def test_hw_wiring_detects_disagreement(tmp_path: Path) -> None:

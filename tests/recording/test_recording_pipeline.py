@@ -177,7 +177,6 @@ def test_packet_loss_dropped_events_and_missed_trigger_are_all_reported(tmp_path
 
 def test_with_the_stm32_trigger_simulator(tmp_path: Path) -> None:
     """TRIGGER events from the trigger simulator (wire protocol on a pty, TriggerClient, clock model)."""
-    pytest.importorskip("bracketry.trigger.simulator")
     rec, summary = run_sim(tmp_path, "--trigger", "simulator", "--seconds", "4", "--width", "160", "--height", "100")
     report = verify_recording(rec)
     assert summary["fired"] == report.events == 4 * FPS

@@ -24,17 +24,38 @@ class BenchmarkResult:
     report_files: dict[str, Path]
 
 
-def parse_methods(methods: str | list[str]) -> list[str]:
-    """``all`` or a comma-separated list (or a list) -> method ids, order kept, duplicates removed."""
+def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> list[str]:
+    """``all`` or a comma-separated list (or a list) -> method ids, order kept, duplicates removed.
+
+    Without DRL weights (``has_drl_weights=False``) ``all`` leaves ``drl`` out and an explicit ``drl`` is an error.
+    """
     items = methods.split(",") if isinstance(methods, str) else list(methods)
     out: list[str] = []
     for item in (m.strip() for m in items):
-        for m in (all_methods() if item == "all" else (item,)):
+        if item == "drl" and not has_drl_weights:
+            raise BracketryError("the drl method needs its weights: pass --drl-weights PATH (or set "
+                                 "BRACKETRY_DRL_WEIGHTS)")
+        expanded = [m for m in all_methods() if m != "drl" or has_drl_weights] if item == "all" else [item]
+        for m in expanded:
             if m and m not in out:
                 out.append(m)
     if not out:
         raise BracketryError("no AE method given (--methods all or a comma-separated list)")
     return out
+
+
+def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[dict], out: Path, drl_weights: str | None,
+                         workers: int, progress: bool) -> None:
+    """Per trajectory, the closed loops of every method whose task still needs one, in one shared-decode pass."""
+    from bracketry_emulator.benchmark.closedloop import emulate_runs
+    from bracketry_emulator.benchmark.tasks import load_cached
+
+    for spec in specs:
+        todo = [t["method"] for t in tasks if t["trajectory"] == spec.name and not t["existing_run"]
+                and load_cached(t) is None]
+        if todo:
+            emulate_runs(spec.path, todo, out / "runs" / spec.name, drl_weights=drl_weights,
+                         workers=max(0, workers), progress=progress)
 
 
 def _run_local(tasks: list[dict], workers: int, on_done: Callable[[dict], None] | None) -> list[dict]:
@@ -82,16 +103,22 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
                   reference: str = "ae50", scheduler: str | None = None, workers: int = 1,
                   windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, max_frames: int | None = None,
                   alpha: float = 0.05, report: bool = True, export_orbslam: bool = False,
-                  slam_dir: str | Path | None = None,
-                  on_done: Callable[[dict], None] | None = None) -> BenchmarkResult:
+                  slam_dir: str | Path | None = None, drl_weights: str | Path | None = None,
+                  progress: bool = False, on_done: Callable[[dict], None] | None = None) -> BenchmarkResult:
     """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
-    ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``).
+    ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally,
+    the closed loops of all methods still to run on a trajectory run first in one pass (each bracket sequence
+    decoded once for all methods, ``progress`` shows a bar); with a scheduler each task runs its own closed loop
+    on the cluster. ``drl_weights``: the DRL actor (``all`` leaves DRL out without it).
     ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
     """
     paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
     specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
-    method_ids = parse_methods(methods)
+    weights = str(drl_weights) if drl_weights else None
+    if weights is not None and not Path(weights).is_file():
+        raise BracketryError(f"--drl-weights file not found: {weights}")
+    method_ids = parse_methods(methods, has_drl_weights=weights is not None)
     if reference not in method_ids:
         raise BracketryError(f"reference method {reference!r} is not among the benchmarked methods {method_ids}")
     out = Path(out_dir)
@@ -99,7 +126,10 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     slam = Path(slam_dir).resolve() if slam_dir else None
     if slam is not None and not slam.is_dir():
         raise BracketryError(f"--slam-trajectories folder not found: {slam}")
-    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam) for s in specs for m in method_ids]
+    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam, weights)
+             for s in specs for m in method_ids]
+    if scheduler is None and slam is None:
+        _shared_closed_loops(specs, tasks, out, weights, workers, progress)
     results = _run_dask(tasks, scheduler, on_done) if scheduler else _run_local(tasks, workers, on_done)
     results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
     files: dict[str, Path] = {}

@@ -23,12 +23,15 @@ from bracketry_emulator.metrics.evaluate import evaluate_run
 from bracketry_emulator.metrics.manifest import TrajectorySpec
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
 
-CACHE_VERSION = 1
+CACHE_VERSION = 2
 
 
 def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M,
-              max_frames: int | None = None, export_orbslam: bool = False, slam_dir: Path | None = None) -> dict:
+              max_frames: int | None = None, export_orbslam: bool = False, slam_dir: Path | None = None,
+              drl_weights: str | None = None) -> dict:
     """A picklable task description.
+
+    ``drl_weights``: the DRL actor's .pth (used by the ``drl`` method's closed loop; part of its cache key).
 
     ``export_orbslam``: also write the run in ORB-SLAM's stereo-example layout to
     ``out/orbslam/<trajectory>/<method>/``. ``slam_dir``: evaluate external SLAM trajectories
@@ -42,9 +45,11 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
         "existing_run": str(spec.existing_run(method)) if spec.existing_run(method) else None,
         "windows_m": [float(w) for w in windows_m], "max_frames": max_frames,
         "export_orbslam": bool(export_orbslam), "slam_dir": str(slam_dir) if slam_dir else None,
+        "drl_weights": str(Path(drl_weights).resolve()) if drl_weights and method == "drl" else None,
     }
     key_src = json.dumps({k: task[k] for k in ("dataset", "method", "groundtruth", "calibration", "existing_run",
-                                               "windows_m", "max_frames", "slam_dir")}, sort_keys=True)
+                                               "windows_m", "max_frames", "slam_dir", "drl_weights")},
+                         sort_keys=True)
     task["key"] = hashlib.sha256(f"v{CACHE_VERSION}:{key_src}".encode()).hexdigest()[:16]
     return task
 
@@ -117,7 +122,8 @@ def run_task(task: dict) -> dict:
     if task["existing_run"]:
         run_dir = Path(task["existing_run"])
     else:
-        run_dir = emulate_run(Path(task["dataset"]), task["method"], out / "runs" / task["trajectory"])
+        run_dir = emulate_run(Path(task["dataset"]), task["method"], out / "runs" / task["trajectory"],
+                              drl_weights=task.get("drl_weights"))
     if task.get("export_orbslam"):
         from bracketry_emulator.vo.orbslam import export_orbslam
 

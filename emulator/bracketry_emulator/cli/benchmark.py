@@ -44,13 +44,18 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--slam-trajectories", "slam_dir", default=None, type=click.Path(file_okay=False),
               help="Evaluate external SLAM output DIR/<trajectory>/<method>/CameraTrajectory*.txt instead of the "
                    "built-in VO.")
+@click.option("--drl-weights", type=click.Path(dir_okay=False), default=None, envvar="BRACKETRY_DRL_WEIGHTS",
+              help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth; env "
+                   "BRACKETRY_DRL_WEIGHTS). Without it 'all' leaves DRL out.")
+@click.option("--quiet", "-q", is_flag=True, help="No progress bar for the closed loops.")
 def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: str, scheduler: str | None,
             workers: int, windows_text: str, alpha: float, max_frames: int | None, export_orbslam: bool,
-            slam_dir: str | None) -> int:
+            slam_dir: str | None, drl_weights: str | None, quiet: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
-    Per (trajectory, method): run the closed loop (unless the dataset already holds that method's emulated run),
-    the built-in stereo VO (ORB-SLAM2-like), RTE/RRE with evo and the failure metrics. Results are cached under
+    Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
+    in one pass that decodes each bracket sequence once; then per (trajectory, method) the built-in stereo VO
+    (ORB-SLAM2-like), RTE/RRE with evo and the failure metrics. Results are cached under
     OUT/cache, so running the same command again resumes. The report is written to OUT/report (CSV, Markdown,
     HTML, figures). Exit code 0.
     """
@@ -73,6 +78,7 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
 
     result = run_benchmark(list(datasets), methods, out_dir, reference=reference, scheduler=scheduler,
                            workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
-                           export_orbslam=export_orbslam, slam_dir=slam_dir, on_done=done)
+                           export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
+                           progress=not quiet, on_done=done)
     click.echo(f"report: {result.report_files.get('report.html')}")
     return 0

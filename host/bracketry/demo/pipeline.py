@@ -7,8 +7,9 @@ Steps (each prints progress, each output kept under ``out_dir``):
    SENSORS/RECORD presses; the recording is verified.
 2. ``dataset/``: the recording exported as a BorealHDR tree (16-bit PNG per camera and exposure, left and right
    sharing their trigger's timestamp) with the world's calibration and ground-truth poses.
-3. ``benchmark/``: every paper AE method (DRL when ``BRACKETRY_DRL_WEIGHTS`` names its weights) in closed loop on the
-   emulated images, stereo VO, RTE/RRE, failures, statistics against AE50, report (Markdown, HTML, CSV, plots).
+3. ``benchmark/``: every paper AE method (DRL when ``--drl-weights`` / ``BRACKETRY_DRL_WEIGHTS`` names its weights)
+   in closed loop on the emulated images, stereo VO, RTE/RRE, failures, statistics against AE50, report (Markdown,
+   HTML, CSV, plots).
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from bracketry.errors import BracketryError
 
@@ -39,6 +40,8 @@ class DemoPlan:
     fps: float = 22.0
     workers: int = 2
     methods: str = "all"
+    #: the DRL actor's .pth; None leaves DRL out (its public weights are not shipped)
+    drl_weights: str | None = None
 
 
 DEFAULT_SECONDS = 40.0
@@ -47,11 +50,11 @@ DEFAULT_RESOLUTION = (640, 400)
 QUICK_RESOLUTION = (320, 200)
 
 
-def plan(out_dir: Path, seconds: float | None, quick: bool) -> DemoPlan:
+def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | None = None) -> DemoPlan:
     """The default plan (a VO run long enough to mean something), or the quick one for CI (< 2 minutes)."""
     if quick:
-        return DemoPlan(out_dir, seconds or QUICK_SECONDS, QUICK_RESOLUTION)
-    return DemoPlan(out_dir, seconds or DEFAULT_SECONDS, DEFAULT_RESOLUTION)
+        return DemoPlan(out_dir, seconds or QUICK_SECONDS, QUICK_RESOLUTION, drl_weights=drl_weights)
+    return DemoPlan(out_dir, seconds or DEFAULT_SECONDS, DEFAULT_RESOLUTION, drl_weights=drl_weights)
 
 
 def record(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
@@ -67,8 +70,10 @@ def record(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     echo(f"[1/3] recording {p.seconds:g} s on the simulated backpack ({w}x{h}, {p.fps:g} fps): "
          f"bracketry {' '.join(cmd[len(prio) + 3:])}")
     log_path = p.out_dir / "simulate.log"
-    with open(log_path, "w") as log:
-        rc = subprocess.call(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.STDOUT)
+        _tee(proc, log)
+        rc = proc.wait()
     summary_path = rig_dir / "simulation.json"
     if not summary_path.is_file():
         tail = log_path.read_text()[-800:]
@@ -76,6 +81,20 @@ def record(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     summary = json.loads(summary_path.read_text())
     summary["exit_code"] = rc
     return summary
+
+
+def _tee(proc: subprocess.Popen[bytes], log: BinaryIO) -> None:
+    """Copy the child's output to ``log`` and, live, to our stderr (its render bar, devices, panel screens)."""
+    assert proc.stdout is not None
+    err = getattr(sys.stderr, "buffer", None)
+    fd = proc.stdout.fileno()
+    while chunk := os.read(fd, 65536):
+        log.write(chunk)
+        if err is not None:
+            err.write(chunk)
+            err.flush()
+        else:
+            sys.stderr.write(chunk.decode(errors="replace"))
 
 
 def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]) -> Path:
@@ -97,42 +116,33 @@ def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]
 
 
 def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
-    """Step 3: all AE methods in closed loop, VO, metrics, statistics and the report."""
+    """Step 3: all AE methods in closed loop (one shared-decode pass, with a progress bar), VO, metrics, statistics
+    and the report."""
     from tqdm import tqdm
 
     from bracketry_emulator.benchmark.orchestrate import parse_methods, run_benchmark
 
-    methods = parse_methods(p.methods)
-    if "drl" in methods and not os.environ.get("BRACKETRY_DRL_WEIGHTS"):
-        methods = [m for m in methods if m != "drl"]
+    methods = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
     out = p.out_dir / "benchmark"
     if out.exists():  # a new recording: earlier runs and cached results belong to the old one
         shutil.rmtree(out)
-    echo(f"[3/3] benchmarking {len(methods)} AE methods ({', '.join(methods)}): closed loop, VO, metrics")
-    bar = tqdm(total=len(methods), desc="methods", unit="method", file=sys.stderr)
+    echo(f"[3/3] benchmarking {len(methods)} AE methods ({', '.join(methods)}): closed loops (each bracket "
+         f"sequence decoded once for all), then VO and metrics per method")
+    bar: Any = None
 
     def done(r: dict) -> None:
+        nonlocal bar
+        if bar is None:  # after the closed loops' own bar
+            bar = tqdm(total=len(methods), desc="VO + metrics", unit="method", file=sys.stderr)
         bar.update(1)
         bar.set_postfix_str(r["method"])
 
-    # All closed loops in one pass sharing each decoded bracket sequence (decode once, emulate for all methods);
-    # the benchmark then finds the runs in place and does VO and metrics per method.
-    from bracketry_emulator.ae import run_methods
-    from bracketry_emulator.metrics.manifest import expand_datasets
-
-    spec = expand_datasets([dataset])[0]
-    runs_dir = out / "runs" / spec.name
-    missing = [m for m in methods if not (runs_dir / m / "images_left").is_dir()]
-    if missing:
-        echo(f"      closed loops of {len(missing)} methods on {spec.name} (decode once, emulate for all)")
-        run_methods(dataset, missing, runs_dir / ".partial", workers=p.workers, progress=False)
-        for m in missing:
-            (runs_dir / ".partial" / m).rename(runs_dir / m)
-        shutil.rmtree(runs_dir / ".partial", ignore_errors=True)
     try:
-        return run_benchmark([dataset], methods, out, reference="ae50", workers=p.workers, on_done=done)
+        return run_benchmark([dataset], methods, out, reference="ae50", workers=p.workers,
+                             drl_weights=p.drl_weights, progress=True, on_done=done)
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
 
 
 def best_per_metric(summary_csv: Path) -> dict[str, tuple[str, str]]:

@@ -125,7 +125,8 @@ def check_panel(wiring: dict[str, Any], pins_text: str) -> list[str]:
 
 
 def check_connections(wiring: dict[str, Any]) -> list[str]:
-    """Connection endpoints must name known nodes, and MCU pin endpoints must be signals of ``pins``."""
+    """Connection endpoints must name known nodes, MCU pin endpoints must be signals of ``pins``, and each camera
+    trigger line names its pull resistor."""
     nodes = set(wiring["nodes"])
     problems = []
     mcu_extra = {"GND", "USB", "3V3", "LD4"}
@@ -136,6 +137,9 @@ def check_connections(wiring: dict[str, Any]) -> list[str]:
                 problems.append(f"connection {conn['id']}: unknown node {node!r}")
             elif node in ("stm32", "esp32") and port not in wiring["pins"].get(node, {}) and port not in mcu_extra:
                 problems.append(f"connection {conn['id']}: {node} has no pin signal {port!r}")
+        if str(conn["from"]).startswith("stm32.TRIG_") and not conn.get("pull"):
+            problems.append(f"connection {conn['id']}: a trigger line needs its pull resistor (pull:), else it floats "
+                            "from reset until the firmware drives it")
     for rail in wiring["rails"]:
         for n in [rail["from"], *rail["to"]]:
             if n not in nodes:

@@ -1,9 +1,7 @@
-"""DRL actor (seeded random weights saved to tmp) and the plugin API (import path and entry point)."""
+"""DRL actor (seeded random weights saved to tmp): architecture, bounds, determinism, weight errors."""
 
 from __future__ import annotations
 
-import sys
-import textwrap
 from pathlib import Path
 
 import numpy as np
@@ -13,10 +11,16 @@ from ae_scenes import irradiance, render
 from bracketry.errors import BracketryError
 from bracketry_emulator.ae import get_method
 from bracketry_emulator.ae.classical import ClassicalAE
+from bracketry_testkit import STRICT
 
-torch = pytest.importorskip("torch")
+try:
+    import torch
+except ImportError:  # the drl extra; CI installs it (strict mode fails here instead of skipping)
+    if STRICT:
+        raise
+    pytest.skip("torch is not installed (pip install -e '.[drl]')", allow_module_level=True)
 
-from bracketry_emulator.ae import drl  # noqa: E402
+from bracketry_emulator.ae import drl
 
 
 @pytest.fixture(scope="module")
@@ -81,58 +85,3 @@ def test_drl_weights_errors(tmp_path: Path) -> None:
     torch.save(state, tmp_path / "shape.pth")
     with pytest.raises(BracketryError, match=r"l1\.weight has shape"):
         drl.load_actor(tmp_path / "shape.pth")
-
-
-PLUGIN_SOURCE = textwrap.dedent('''
-    class HalfAE:
-        """Halves the exposure whenever the mean code is above 2048, else doubles it."""
-
-        name = "half"
-
-        def reset(self, init_exposure_us):
-            self.calls = 0
-
-        def next_exposure_us(self, image, exposure_us, meta):
-            self.calls += 1
-            return exposure_us / 2 if image.mean() > 2048 else exposure_us * 2
-
-
-    class NoName:
-        def reset(self, init_exposure_us):
-            pass
-
-        def next_exposure_us(self, image, exposure_us, meta):
-            return exposure_us
-
-
-    class Broken:
-        name = "broken"
-''')
-
-
-@pytest.fixture()
-def plugin_dir(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
-    (tmp_path / "ae_plugin_demo.py").write_text(PLUGIN_SOURCE)
-    dist = tmp_path / "ae_plugin_demo-0.1.dist-info"
-    dist.mkdir()
-    (dist / "METADATA").write_text("Metadata-Version: 2.1\nName: ae-plugin-demo\nVersion: 0.1\n")
-    (dist / "entry_points.txt").write_text("[bracketry.ae_methods]\nhalf-ep = ae_plugin_demo:HalfAE\n")
-    monkeypatch.syspath_prepend(str(tmp_path))
-    yield tmp_path
-    sys.modules.pop("ae_plugin_demo", None)
-
-
-def test_plugin_by_import_path(plugin_dir: Path) -> None:
-    m = get_method("ae_plugin_demo:HalfAE")
-    m.reset(1000.0)
-    assert m.name == "half"
-    assert m.next_exposure_us(np.full((4, 4), 4000, np.uint16), 1000.0, {}) == 500.0
-    assert get_method("ae_plugin_demo:NoName").name == "NoName"
-    with pytest.raises(BracketryError, match="no method reset"):
-        get_method("ae_plugin_demo:Broken")
-
-
-def test_plugin_by_entry_point(plugin_dir: Path) -> None:
-    m = get_method("half-ep")
-    m.reset(1000.0)
-    assert m.next_exposure_us(np.zeros((4, 4), np.uint16), 1000.0, {}) == 2000.0
