@@ -219,11 +219,11 @@ def micropython_rate(stream: bytes, tmp: Path) -> tuple[int, float] | None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="20,000 records, one Python repeat")
-    ap.add_argument("--frames", type=int, default=None, help="number of records (default 120,000)")
+    ap.add_argument("--frames", type=int, default=None, help="number of records (default 150,000: >= 100,000 random or mutated)")
     ap.add_argument("--seed", type=int, default=20261122)
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats of the Python pass (default 3)")
     args = ap.parse_args()
-    n = args.frames or (20_000 if args.quick else 120_000)
+    n = args.frames or (20_000 if args.quick else 150_000)
     repeats = args.repeats or (1 if args.quick else 3)
 
     t0 = time.perf_counter()

@@ -142,7 +142,7 @@ class PanelLink:
             fields = bproto.unpack_payload(t, frame.payload)
         except ValueError:
             if t in (bproto.MSG_PANEL_STATE, bproto.MSG_PING):
-                self._nack(frame.seq, bproto.NACK_BAD_LENGTH)
+                self._nack(frame.seq, bproto.nack_code_for(t, frame.payload) or bproto.NACK_BAD_LENGTH)
             return
         if t == bproto.MSG_PANEL_STATE:
             for key in _STATE_KEYS:

@@ -17,4 +17,4 @@ BTN_RECORD = 27
 UART_TX = 17
 UART_RX = 16
 UART_ID = 2
-UART_BAUDRATE = 921600
+UART_BAUDRATE = 115200  # matches panel.baudrate of the rig config (a few hundred bytes/s of traffic)

@@ -258,6 +258,10 @@ def check_link_ping_nack_and_garbage():
     bad = _panel_state_fields(states=(7, 1, 1, 1, 1, 1))
     app.step(40, bproto.encode_frame(bproto.MSG_PANEL_STATE, 9, bproto.pack_payload(bproto.MSG_PANEL_STATE, bad)))
     assert host.of_type(bproto.MSG_NACK)[-1][2] == {"acked_seq": 9, "code": bproto.NACK_BAD_VALUE}
+    # right length, but a message that is not printable ASCII -> NACK BAD_VALUE too
+    good = bproto.pack_payload(bproto.MSG_PANEL_STATE, _panel_state_fields(msg=b"OK"))
+    app.step(45, bproto.encode_frame(bproto.MSG_PANEL_STATE, 10, good[:-20] + b"\xff" * 20))
+    assert host.of_type(bproto.MSG_NACK)[-1][2] == {"acked_seq": 10, "code": bproto.NACK_BAD_VALUE}
     assert app.link.state is None
     # garbage, then a frame split in 1-byte pieces: recovered
     app.step(50, b"\x11\x22\x00\x05garbage\x00")

@@ -127,6 +127,20 @@ def test_wire_unpack_rejects_wrong_length_and_unknown_type() -> None:
     assert bproto.nack_code_for(bproto.MSG_STOP, b"") == 0
 
 
+def test_wire_panel_message_must_be_printable_ascii_both_ways() -> None:
+    fields = {name: 0 for name in bproto.unpack_payload(bproto.MSG_PANEL_STATE, bytes(bproto._SIZES[
+        bproto.MSG_PANEL_STATE] - 20) + b" " * 20)}
+    fields["message"] = "READY"
+    payload = bproto.pack_payload(bproto.MSG_PANEL_STATE, fields)
+    assert bproto.unpack_payload(bproto.MSG_PANEL_STATE, payload)["message"] == "READY"
+    bad = payload[:-20] + b"\xe9t\xe9" + b" " * 17
+    with pytest.raises(bproto.PayloadValueError):
+        bproto.unpack_payload(bproto.MSG_PANEL_STATE, bad)
+    assert bproto.nack_code_for(bproto.MSG_PANEL_STATE, bad) == bproto.NACK_BAD_VALUE
+    with pytest.raises(ValueError, match="printable ASCII"):
+        bproto.pack_payload(bproto.MSG_PANEL_STATE, {**fields, "message": b"\x07bell"})
+
+
 @pytest.mark.parametrize("period_us,exposures_us,ok", [
     (1000, [10, 800], True), (1000, [801], False), (999, [10], False), (1_000_000, [999_800], True),
     (1_000_001, [10], False), (5000, [9], False), (5000, [], False), (50_000, [10] * 16, True),

@@ -29,7 +29,7 @@
 #define PIN_TRIG_RIGHT PIN('B', 1)
 #define PIN_TRIG_RIGHT_AF 2
 
-/* Status LED (plain GPIO output, active high): on while running, blinks at the heartbeat when idle. */
+/* Status LED (plain GPIO output, active high): on while running (START), off when idle. */
 #define PIN_STATUS_LED PIN('D', 12)
 
 #endif /* PINS_H */

@@ -210,7 +210,7 @@ class PanelClient:
 
 
 def connect(url: str, state_fn: Callable[[], dict[str, Any]], on_button: Callable[[ButtonEvent], None] | None = None,
-            rate_hz: float = 4.0, baudrate: int = 921600) -> PanelClient:
+            rate_hz: float = 4.0, baudrate: int = 115200) -> PanelClient:
     """Open a :class:`~bracketry.wire.link.SerialLink` to the panel at ``url`` and start a client on it.
 
     The link sends no HEARTBEAT of its own (PANEL_STATE is the host heartbeat) and leaves BUTTON ACKs to the client.

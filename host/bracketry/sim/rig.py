@@ -70,6 +70,8 @@ class SimulatedRig:
         self.dev_dir = self.out / "dev"
         self.dev_dir.mkdir(exist_ok=True)
         self.rec_dir = options.output_dir or (self.out / "recordings")
+        #: recordings already in rec_dir before this rig ran (an --out reused): never reported as this run's
+        self._earlier = set(self.rec_dir.glob("*/seg*")) if self.rec_dir.is_dir() else set()
         self.screen_file = self.out / "panel_screen.txt"
         self.socket_path = self.out / "status.sock"
         self.config_path = self.out / "sim_rig.toml"
@@ -298,8 +300,8 @@ class SimulatedRig:
             raise BracketryError(f"the daemon did not exit within {timeout_s:g} s of signal {sig}") from None
 
     def recordings(self) -> list[Path]:
-        """Segment folders (``<rec>/segNN``) holding MCAP files, oldest first."""
-        return sorted({p.parent for p in self.rec_dir.glob("*/seg*/*.mcap")})
+        """Segment folders (``<rec>/segNN``) holding MCAP files recorded by this rig, oldest first."""
+        return sorted({p.parent for p in self.rec_dir.glob("*/seg*/*.mcap")} - self._earlier)
 
     def write_groundtruth(self) -> Path | None:
         """Ground truth of the recorded left frames (host time stamps), next to the recordings."""

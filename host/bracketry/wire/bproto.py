@@ -362,6 +362,14 @@ def _check_int(name, value, bits):
         raise ValueError("field " + name + " out of range for " + str(bits) + " bits")
 
 
+class PayloadValueError(ValueError):
+    """A payload of the right length holding a value its type does not allow (a device answers NACK BAD_VALUE)."""
+
+
+def _is_printable_ascii(data):
+    return all(32 <= b <= 126 for b in data)
+
+
 def _as_fixed_bytes(name, value, size, pad):
     if isinstance(value, str):
         for ch in value:
@@ -370,6 +378,8 @@ def _as_fixed_bytes(name, value, size, pad):
         value = value.encode()
     elif not isinstance(value, (bytes, bytearray)):
         raise ValueError("field " + name + " must be bytes or str")
+    elif pad == b" " and not _is_printable_ascii(value):
+        raise ValueError("field " + name + " must be printable ASCII")
     if len(value) > size:
         raise ValueError("field " + name + " longer than " + str(size) + " bytes")
     return bytes(value) + pad * (size - len(value))
@@ -428,7 +438,8 @@ def pack_payload(msg_type, fields):
 
 
 def unpack_payload(msg_type, payload):
-    """Dict of the fields of ``msg_type`` from its payload bytes; ValueError on an unknown type or a wrong length.
+    """Dict of the fields of ``msg_type`` from its payload bytes; ValueError on an unknown type or a wrong length,
+    :class:`PayloadValueError` (a ValueError) on a value the type does not allow (a non-ASCII ``message``).
 
     HELLO with an empty payload (the request) gives ``{}``; ``uid`` is 12 bytes; ``message`` is a str with the
     trailing spaces removed; SET_BRACKETS gives ``period_us`` and ``exposures_us`` (list).
@@ -457,6 +468,8 @@ def unpack_payload(msg_type, payload):
     values = struct.unpack(fmt, payload)
     for name, v in zip(names, values):
         if name == "message":
+            if not _is_printable_ascii(v):
+                raise PayloadValueError("field message must be printable ASCII")
             v = bytes(v).decode().rstrip(" ")
         elif name == "uid":
             v = bytes(v)
@@ -475,11 +488,14 @@ def decode_message(frame):
 
 
 def nack_code_for(msg_type, payload):
-    """The NACK code a device answers for a structurally bad command, or 0 if its type and length are fine."""
+    """The NACK code a device answers for a structurally bad command (unknown type, wrong length, a value its type
+    does not allow), or 0 if it is well formed."""
     if msg_type not in _LAYOUTS and msg_type != MSG_SET_BRACKETS:
         return NACK_UNKNOWN_TYPE
     try:
         unpack_payload(msg_type, payload)
+    except PayloadValueError:
+        return NACK_BAD_VALUE
     except ValueError:
         return NACK_BAD_LENGTH
     return 0
