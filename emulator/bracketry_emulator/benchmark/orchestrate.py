@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.benchmark.closedloop import all_methods
+from bracketry_emulator.benchmark.closedloop import all_methods, loop_config
 from bracketry_emulator.benchmark.tasks import make_task, run_task
 from bracketry_emulator.metrics.manifest import TrajectorySpec, expand_datasets
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
@@ -45,7 +45,7 @@ def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> lis
 
 
 def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[dict], out: Path, drl_weights: str | None,
-                         workers: int, progress: bool) -> None:
+                         workers: int, progress: bool, loop: dict | None) -> None:
     """Per trajectory, the closed loops of every method whose task still needs one, in one shared-decode pass."""
     from bracketry_emulator.benchmark.closedloop import emulate_runs
     from bracketry_emulator.benchmark.tasks import load_cached
@@ -55,7 +55,7 @@ def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[dict], out: Pa
                 and load_cached(t) is None]
         if todo:
             emulate_runs(spec.path, todo, out / "runs" / spec.name, drl_weights=drl_weights,
-                         workers=max(0, workers), progress=progress)
+                         workers=max(0, workers), progress=progress, options=loop)
 
 
 def _run_local(tasks: list[dict], workers: int, on_done: Callable[[dict], None] | None) -> list[dict]:
@@ -104,13 +104,16 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
                   windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, max_frames: int | None = None,
                   alpha: float = 0.05, report: bool = True, export_orbslam: bool = False,
                   slam_dir: str | Path | None = None, drl_weights: str | Path | None = None,
-                  progress: bool = False, on_done: Callable[[dict], None] | None = None) -> BenchmarkResult:
+                  progress: bool = False, loop: dict | None = None,
+                  on_done: Callable[[dict], None] | None = None) -> BenchmarkResult:
     """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
     ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally,
     the closed loops of all methods still to run on a trajectory run first in one pass (each bracket sequence
     decoded once for all methods, ``progress`` shows a bar); with a scheduler each task runs its own closed loop
-    on the cluster. ``drl_weights``: the DRL actor (``all`` leaves DRL out without it).
+    on the cluster. ``drl_weights``: the DRL actor (``all`` leaves DRL out without it). ``loop``: closed-loop
+    settings (selection, crf, init_exposure_ms, seed, ae_camera; see
+    :data:`~bracketry_emulator.benchmark.closedloop.LOOP_DEFAULTS`), part of every cache key.
     ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
     """
     paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
@@ -126,10 +129,11 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     slam = Path(slam_dir).resolve() if slam_dir else None
     if slam is not None and not slam.is_dir():
         raise BracketryError(f"--slam-trajectories folder not found: {slam}")
-    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam, weights)
+    loop_config(loop, None)  # bad settings: one clear line before anything runs
+    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam, weights, loop)
              for s in specs for m in method_ids]
     if scheduler is None and slam is None:
-        _shared_closed_loops(specs, tasks, out, weights, workers, progress)
+        _shared_closed_loops(specs, tasks, out, weights, workers, progress, loop)
     results = _run_dask(tasks, scheduler, on_done) if scheduler else _run_local(tasks, workers, on_done)
     results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
     files: dict[str, Path] = {}

@@ -19,6 +19,7 @@ import json
 import os
 from pathlib import Path
 
+from bracketry_emulator.benchmark.closedloop import loop_options
 from bracketry_emulator.metrics.evaluate import evaluate_run
 from bracketry_emulator.metrics.manifest import TrajectorySpec
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
@@ -28,10 +29,11 @@ CACHE_VERSION = 2
 
 def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M,
               max_frames: int | None = None, export_orbslam: bool = False, slam_dir: Path | None = None,
-              drl_weights: str | None = None) -> dict:
+              drl_weights: str | None = None, loop: dict | None = None) -> dict:
     """A picklable task description.
 
     ``drl_weights``: the DRL actor's .pth (used by the ``drl`` method's closed loop; part of its cache key).
+    ``loop``: closed-loop settings (:data:`~bracketry_emulator.benchmark.closedloop.LOOP_DEFAULTS`; part of the key).
 
     ``export_orbslam``: also write the run in ORB-SLAM's stereo-example layout to
     ``out/orbslam/<trajectory>/<method>/``. ``slam_dir``: evaluate external SLAM trajectories
@@ -46,9 +48,10 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
         "windows_m": [float(w) for w in windows_m], "max_frames": max_frames,
         "export_orbslam": bool(export_orbslam), "slam_dir": str(slam_dir) if slam_dir else None,
         "drl_weights": str(Path(drl_weights).resolve()) if drl_weights and method == "drl" else None,
+        "loop": loop_options(**(loop or {})),
     }
     key_src = json.dumps({k: task[k] for k in ("dataset", "method", "groundtruth", "calibration", "existing_run",
-                                               "windows_m", "max_frames", "slam_dir", "drl_weights")},
+                                               "windows_m", "max_frames", "slam_dir", "drl_weights", "loop")},
                          sort_keys=True)
     task["key"] = hashlib.sha256(f"v{CACHE_VERSION}:{key_src}".encode()).hexdigest()[:16]
     return task
@@ -123,7 +126,7 @@ def run_task(task: dict) -> dict:
         run_dir = Path(task["existing_run"])
     else:
         run_dir = emulate_run(Path(task["dataset"]), task["method"], out / "runs" / task["trajectory"],
-                              drl_weights=task.get("drl_weights"))
+                              drl_weights=task.get("drl_weights"), options=task.get("loop"))
     if task.get("export_orbslam"):
         from bracketry_emulator.vo.orbslam import export_orbslam
 

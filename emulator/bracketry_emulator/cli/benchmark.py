@@ -47,10 +47,19 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--drl-weights", type=click.Path(dir_okay=False), default=None, envvar="BRACKETRY_DRL_WEIGHTS",
               help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth; env "
                    "BRACKETRY_DRL_WEIGHTS). Without it 'all' leaves DRL out.")
+@click.option("--selection", type=click.Choice(["highernosat", "upstream", "fusion"]), default="highernosat",
+              show_default=True, help="Closed loops: the emulator's source-bracket selection.")
+@click.option("--crf", default="srgb", show_default=True, help="Closed loops: camera response, 'srgb' or a pcalib.txt.")
+@click.option("--init-exposure-ms", type=float, default=4.0, show_default=True,
+              help="Closed loops: first target exposure of every method.")
+@click.option("--seed", type=int, default=0, show_default=True, help="Closed loops: seed of stochastic methods.")
+@click.option("--ae-camera", type=click.Choice(["left", "right"]), default="left", show_default=True,
+              help="Closed loops: the camera whose image the methods see.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar for the closed loops.")
 def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: str, scheduler: str | None,
             workers: int, windows_text: str, alpha: float, max_frames: int | None, export_orbslam: bool,
-            slam_dir: str | None, drl_weights: str | None, quiet: bool) -> int:
+            slam_dir: str | None, drl_weights: str | None, selection: str, crf: str, init_exposure_ms: float,
+            seed: int, ae_camera: str, quiet: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
@@ -79,6 +88,8 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
     result = run_benchmark(list(datasets), methods, out_dir, reference=reference, scheduler=scheduler,
                            workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
                            export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
-                           progress=not quiet, on_done=done)
+                           progress=not quiet, on_done=done,
+                           loop={"selection": selection, "crf": crf, "init_exposure_ms": init_exposure_ms,
+                                 "seed": seed, "ae_camera": ae_camera})
     click.echo(f"report: {result.report_files.get('report.html')}")
     return 0

@@ -275,3 +275,345 @@ uint8_t bproto_check_set_brackets(uint32_t period_us, const uint32_t *exposures_
     }
     return 0;
 }
+
+/* ---------------------------------------------------------------------------------------------- message payloads */
+
+static int printable_ascii(uint8_t c)
+{
+    return c >= 0x20u && c <= 0x7Eu;
+}
+
+int bproto_pack_hello(const bproto_hello_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_HELLO) {
+        return -1;
+    }
+    out[0] = m->device_kind;
+    out[1] = m->proto_minor;
+    out[2] = m->fw_major;
+    out[3] = m->fw_minor;
+    out[4] = m->fw_patch;
+    memcpy(&out[5], m->uid, BPROTO_UID_LEN);
+    bproto_put_u32(&out[17], m->capabilities);
+    return (int)BPROTO_LEN_HELLO;
+}
+
+int bproto_pack_ack(const bproto_ack_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_ACK) {
+        return -1;
+    }
+    bproto_put_u16(&out[0], m->acked_seq);
+    return (int)BPROTO_LEN_ACK;
+}
+
+int bproto_pack_nack(const bproto_nack_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_NACK) {
+        return -1;
+    }
+    bproto_put_u16(&out[0], m->acked_seq);
+    out[2] = m->code;
+    return (int)BPROTO_LEN_NACK;
+}
+
+int bproto_pack_heartbeat(const bproto_heartbeat_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_HEARTBEAT) {
+        return -1;
+    }
+    bproto_put_u32(&out[0], m->uptime_ms);
+    out[4] = m->state;
+    return (int)BPROTO_LEN_HEARTBEAT;
+}
+
+int bproto_pack_ping(const bproto_ping_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_PING) {
+        return -1;
+    }
+    bproto_put_u64(&out[0], m->host_time_ns);
+    return (int)BPROTO_LEN_PING;
+}
+
+int bproto_pack_pong(const bproto_pong_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_PONG) {
+        return -1;
+    }
+    bproto_put_u64(&out[0], m->host_time_ns);
+    bproto_put_u64(&out[8], m->device_time_us);
+    return (int)BPROTO_LEN_PONG;
+}
+
+int bproto_pack_set_brackets(const bproto_set_brackets_t *m, uint8_t *out, size_t out_cap)
+{
+    if (m->n > BPROTO_SET_BRACKETS_MAX_N) {
+        return -1;
+    }
+    size_t len = 5u + 4u * (size_t)m->n;
+    if (out_cap < len) {
+        return -1;
+    }
+    bproto_put_u32(&out[0], m->period_us);
+    out[4] = m->n;
+    for (size_t i = 0; i < m->n; i++) {
+        bproto_put_u32(&out[5u + 4u * i], m->exposures_us[i]);
+    }
+    return (int)len;
+}
+
+int bproto_pack_start(const bproto_start_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_START) {
+        return -1;
+    }
+    bproto_put_u32(&out[0], m->session_id);
+    return (int)BPROTO_LEN_START;
+}
+
+int bproto_pack_trigger(const bproto_trigger_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_TRIGGER) {
+        return -1;
+    }
+    bproto_put_u32(&out[0], m->session_id);
+    bproto_put_u32(&out[4], m->trigger_seq);
+    out[8] = m->bracket_index;
+    bproto_put_u32(&out[9], m->exposure_us);
+    bproto_put_u64(&out[13], m->t_start_us);
+    return (int)BPROTO_LEN_TRIGGER;
+}
+
+int bproto_pack_panel_state(const bproto_panel_state_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_PANEL_STATE) {
+        return -1;
+    }
+    out[0] = m->cam_left;
+    out[1] = m->cam_right;
+    out[2] = m->trigger;
+    out[3] = m->imu;
+    out[4] = m->lidar;
+    out[5] = m->gnss;
+    bproto_put_u32(&out[6], m->free_disk_mb);
+    bproto_put_u16(&out[10], m->fps_left_centi);
+    bproto_put_u16(&out[12], m->fps_right_centi);
+    bproto_put_u32(&out[14], m->rec_seconds);
+    size_t i = 0;
+    for (; i < BPROTO_PANEL_MESSAGE_LEN && m->message[i] != '\0'; i++) {
+        uint8_t ch = (uint8_t)m->message[i];
+        if (!printable_ascii(ch)) {
+            return -1;
+        }
+        out[18u + i] = ch;
+    }
+    if (i == BPROTO_PANEL_MESSAGE_LEN && m->message[i] != '\0') {
+        return -1; /* longer than 20 characters (or not terminated) */
+    }
+    for (; i < BPROTO_PANEL_MESSAGE_LEN; i++) {
+        out[18u + i] = (uint8_t)' ';
+    }
+    return (int)BPROTO_LEN_PANEL_STATE;
+}
+
+int bproto_pack_button(const bproto_button_t *m, uint8_t *out, size_t out_cap)
+{
+    if (out_cap < BPROTO_LEN_BUTTON) {
+        return -1;
+    }
+    out[0] = m->button;
+    out[1] = m->action;
+    bproto_put_u16(&out[2], m->event_seq);
+    return (int)BPROTO_LEN_BUTTON;
+}
+
+uint8_t bproto_unpack_hello(const uint8_t *payload, size_t len, bproto_hello_t *m)
+{
+    if (len != BPROTO_LEN_HELLO) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->device_kind = payload[0];
+    m->proto_minor = payload[1];
+    m->fw_major = payload[2];
+    m->fw_minor = payload[3];
+    m->fw_patch = payload[4];
+    memcpy(m->uid, &payload[5], BPROTO_UID_LEN);
+    m->capabilities = bproto_get_u32(&payload[17]);
+    return 0;
+}
+
+uint8_t bproto_unpack_ack(const uint8_t *payload, size_t len, bproto_ack_t *m)
+{
+    if (len != BPROTO_LEN_ACK) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->acked_seq = bproto_get_u16(&payload[0]);
+    return 0;
+}
+
+uint8_t bproto_unpack_nack(const uint8_t *payload, size_t len, bproto_nack_t *m)
+{
+    if (len != BPROTO_LEN_NACK) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->acked_seq = bproto_get_u16(&payload[0]);
+    m->code = payload[2];
+    return 0;
+}
+
+uint8_t bproto_unpack_heartbeat(const uint8_t *payload, size_t len, bproto_heartbeat_t *m)
+{
+    if (len != BPROTO_LEN_HEARTBEAT) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->uptime_ms = bproto_get_u32(&payload[0]);
+    m->state = payload[4];
+    return 0;
+}
+
+uint8_t bproto_unpack_ping(const uint8_t *payload, size_t len, bproto_ping_t *m)
+{
+    if (len != BPROTO_LEN_PING) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->host_time_ns = bproto_get_u64(&payload[0]);
+    return 0;
+}
+
+uint8_t bproto_unpack_pong(const uint8_t *payload, size_t len, bproto_pong_t *m)
+{
+    if (len != BPROTO_LEN_PONG) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->host_time_ns = bproto_get_u64(&payload[0]);
+    m->device_time_us = bproto_get_u64(&payload[8]);
+    return 0;
+}
+
+uint8_t bproto_unpack_set_brackets(const uint8_t *payload, size_t len, bproto_set_brackets_t *m)
+{
+    if (len < 5u || !bproto_set_brackets_len_ok(payload, len)) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->period_us = bproto_get_u32(&payload[0]);
+    m->n = payload[4]; /* <= BPROTO_SET_BRACKETS_MAX_N, since len = 5 + 4 n <= 255 */
+    for (size_t i = 0; i < m->n; i++) {
+        m->exposures_us[i] = bproto_get_u32(&payload[5u + 4u * i]);
+    }
+    return 0;
+}
+
+uint8_t bproto_unpack_start(const uint8_t *payload, size_t len, bproto_start_t *m)
+{
+    if (len != BPROTO_LEN_START) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->session_id = bproto_get_u32(&payload[0]);
+    return 0;
+}
+
+uint8_t bproto_unpack_stop(const uint8_t *payload, size_t len)
+{
+    (void)payload;
+    return len == BPROTO_LEN_STOP ? 0u : BPROTO_NACK_BAD_LENGTH;
+}
+
+uint8_t bproto_unpack_trigger(const uint8_t *payload, size_t len, bproto_trigger_t *m)
+{
+    if (len != BPROTO_LEN_TRIGGER) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->session_id = bproto_get_u32(&payload[0]);
+    m->trigger_seq = bproto_get_u32(&payload[4]);
+    m->bracket_index = payload[8];
+    m->exposure_us = bproto_get_u32(&payload[9]);
+    m->t_start_us = bproto_get_u64(&payload[13]);
+    return 0;
+}
+
+uint8_t bproto_unpack_panel_state(const uint8_t *payload, size_t len, bproto_panel_state_t *m)
+{
+    if (len != BPROTO_LEN_PANEL_STATE) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    size_t end = 0; /* message length without the trailing spaces */
+    for (size_t i = 0; i < BPROTO_PANEL_MESSAGE_LEN; i++) {
+        uint8_t ch = payload[18u + i];
+        if (!printable_ascii(ch)) {
+            return BPROTO_NACK_BAD_VALUE;
+        }
+        m->message[i] = (char)ch;
+        if (ch != (uint8_t)' ') {
+            end = i + 1u;
+        }
+    }
+    m->message[end] = '\0';
+    m->cam_left = payload[0];
+    m->cam_right = payload[1];
+    m->trigger = payload[2];
+    m->imu = payload[3];
+    m->lidar = payload[4];
+    m->gnss = payload[5];
+    m->free_disk_mb = bproto_get_u32(&payload[6]);
+    m->fps_left_centi = bproto_get_u16(&payload[10]);
+    m->fps_right_centi = bproto_get_u16(&payload[12]);
+    m->rec_seconds = bproto_get_u32(&payload[14]);
+    return 0;
+}
+
+uint8_t bproto_unpack_button(const uint8_t *payload, size_t len, bproto_button_t *m)
+{
+    if (len != BPROTO_LEN_BUTTON) {
+        return BPROTO_NACK_BAD_LENGTH;
+    }
+    m->button = payload[0];
+    m->action = payload[1];
+    m->event_seq = bproto_get_u16(&payload[2]);
+    return 0;
+}
+
+int bproto_pack_msg(const bproto_msg_t *m, uint8_t *out, size_t out_cap)
+{
+    switch (m->type) {
+    case BPROTO_MSG_HELLO: return m->hello_request ? 0 : bproto_pack_hello(&m->u.hello, out, out_cap);
+    case BPROTO_MSG_ACK: return bproto_pack_ack(&m->u.ack, out, out_cap);
+    case BPROTO_MSG_NACK: return bproto_pack_nack(&m->u.nack, out, out_cap);
+    case BPROTO_MSG_HEARTBEAT: return bproto_pack_heartbeat(&m->u.heartbeat, out, out_cap);
+    case BPROTO_MSG_PING: return bproto_pack_ping(&m->u.ping, out, out_cap);
+    case BPROTO_MSG_PONG: return bproto_pack_pong(&m->u.pong, out, out_cap);
+    case BPROTO_MSG_SET_BRACKETS: return bproto_pack_set_brackets(&m->u.set_brackets, out, out_cap);
+    case BPROTO_MSG_START: return bproto_pack_start(&m->u.start, out, out_cap);
+    case BPROTO_MSG_STOP: return 0;
+    case BPROTO_MSG_TRIGGER: return bproto_pack_trigger(&m->u.trigger, out, out_cap);
+    case BPROTO_MSG_PANEL_STATE: return bproto_pack_panel_state(&m->u.panel_state, out, out_cap);
+    case BPROTO_MSG_BUTTON: return bproto_pack_button(&m->u.button, out, out_cap);
+    default: return -1;
+    }
+}
+
+uint8_t bproto_unpack_msg(uint8_t type, const uint8_t *payload, size_t len, bproto_msg_t *m)
+{
+    m->type = type;
+    m->hello_request = 0;
+    switch (type) {
+    case BPROTO_MSG_HELLO:
+        if (len == 0u) {
+            m->hello_request = 1;
+            return 0;
+        }
+        return bproto_unpack_hello(payload, len, &m->u.hello);
+    case BPROTO_MSG_ACK: return bproto_unpack_ack(payload, len, &m->u.ack);
+    case BPROTO_MSG_NACK: return bproto_unpack_nack(payload, len, &m->u.nack);
+    case BPROTO_MSG_HEARTBEAT: return bproto_unpack_heartbeat(payload, len, &m->u.heartbeat);
+    case BPROTO_MSG_PING: return bproto_unpack_ping(payload, len, &m->u.ping);
+    case BPROTO_MSG_PONG: return bproto_unpack_pong(payload, len, &m->u.pong);
+    case BPROTO_MSG_SET_BRACKETS: return bproto_unpack_set_brackets(payload, len, &m->u.set_brackets);
+    case BPROTO_MSG_START: return bproto_unpack_start(payload, len, &m->u.start);
+    case BPROTO_MSG_STOP: return bproto_unpack_stop(payload, len);
+    case BPROTO_MSG_TRIGGER: return bproto_unpack_trigger(payload, len, &m->u.trigger);
+    case BPROTO_MSG_PANEL_STATE: return bproto_unpack_panel_state(payload, len, &m->u.panel_state);
+    case BPROTO_MSG_BUTTON: return bproto_unpack_button(payload, len, &m->u.button);
+    default: return BPROTO_NACK_UNKNOWN_TYPE;
+    }
+}

@@ -122,6 +122,143 @@ int bproto_set_brackets_len_ok(const uint8_t *payload, size_t len);
 /* 0 if SET_BRACKETS values are acceptable, else BPROTO_NACK_BAD_VALUE (see PROTOCOL.md). */
 uint8_t bproto_check_set_brackets(uint32_t period_us, const uint32_t *exposures_us, size_t n);
 
+/* ---------------------------------------------------------------------------------------------- message payloads
+ * One struct per message type with its fields as in PROTOCOL.md section 3 (names as in the Python codec), a pack
+ * function (struct -> payload bytes, explicit little-endian) and an unpack function (payload bytes -> struct).
+ *
+ * pack:   returns the payload length written to out (0..255), or -1 if out_cap is too small or a field cannot be
+ *         packed (SET_BRACKETS n > BPROTO_SET_BRACKETS_MAX_N; PANEL_STATE message longer than 20 characters or not
+ *         printable ASCII) - the cases where the Python pack_payload raises ValueError.
+ * unpack: returns 0 and fills *m, or the NACK code a device answers (*m then unspecified), exactly like the Python
+ *         unpack_payload / nack_code_for: BPROTO_NACK_BAD_LENGTH for a length that does not match the layout,
+ *         BPROTO_NACK_BAD_VALUE for a PANEL_STATE message that is not printable ASCII (0x20..0x7E). Value ranges of
+ *         the semantics (SET_BRACKETS bounds, PANEL_STATE states <= 4, ...) are not checked here: see
+ *         bproto_check_set_brackets().
+ */
+#define BPROTO_UID_LEN 12u
+#define BPROTO_PANEL_MESSAGE_LEN 20u
+/* most exposures a SET_BRACKETS payload can carry (the structural limit; the value rule allows 1..16) */
+#define BPROTO_SET_BRACKETS_MAX_N ((BPROTO_MAX_PAYLOAD - 5u) / 4u)
+
+typedef struct { /* 0x01 HELLO, device->host (the host's request is the empty payload) */
+    uint8_t device_kind; /* BPROTO_DEVICE_TRIGGER / BPROTO_DEVICE_PANEL */
+    uint8_t proto_minor, fw_major, fw_minor, fw_patch;
+    uint8_t uid[BPROTO_UID_LEN]; /* STM32 96-bit UID, or ESP32 MAC zero-padded */
+    uint32_t capabilities;
+} bproto_hello_t;
+
+typedef struct { /* 0x02 ACK */
+    uint16_t acked_seq;
+} bproto_ack_t;
+
+typedef struct { /* 0x03 NACK */
+    uint16_t acked_seq;
+    uint8_t code; /* BPROTO_NACK_* */
+} bproto_nack_t;
+
+typedef struct { /* 0x04 HEARTBEAT */
+    uint32_t uptime_ms;
+    uint8_t state;
+} bproto_heartbeat_t;
+
+typedef struct { /* 0x05 PING */
+    uint64_t host_time_ns;
+} bproto_ping_t;
+
+typedef struct { /* 0x06 PONG */
+    uint64_t host_time_ns;   /* echoed from the PING */
+    uint64_t device_time_us; /* 64-bit device microsecond clock */
+} bproto_pong_t;
+
+typedef struct { /* 0x10 SET_BRACKETS: 5 + 4 * n bytes */
+    uint32_t period_us;
+    uint8_t n; /* number of exposures_us entries */
+    uint32_t exposures_us[BPROTO_SET_BRACKETS_MAX_N];
+} bproto_set_brackets_t;
+
+typedef struct { /* 0x11 START */
+    uint32_t session_id;
+} bproto_start_t;
+
+/* 0x12 STOP has no fields (empty payload). */
+
+typedef struct { /* 0x20 TRIGGER */
+    uint32_t session_id;
+    uint32_t trigger_seq;
+    uint8_t bracket_index;
+    uint32_t exposure_us;
+    uint64_t t_start_us;
+} bproto_trigger_t;
+
+typedef struct { /* 0x30 PANEL_STATE */
+    uint8_t cam_left, cam_right, trigger, imu, lidar, gnss; /* 0 OFF, 1 IDLE, 2 REC, 3 ERR, 4 CAL */
+    uint32_t free_disk_mb;
+    uint16_t fps_left_centi, fps_right_centi; /* fps x 100 */
+    uint32_t rec_seconds;
+    /* NUL-terminated printable ASCII, at most 20 characters; packed space padded, unpacked without the trailing
+     * spaces (as the Python codec) */
+    char message[BPROTO_PANEL_MESSAGE_LEN + 1u];
+} bproto_panel_state_t;
+
+typedef struct { /* 0x31 BUTTON */
+    uint8_t button; /* 1 SENSORS, 2 RECORD */
+    uint8_t action; /* 1 short, 2 long */
+    uint16_t event_seq;
+} bproto_button_t;
+
+int bproto_pack_hello(const bproto_hello_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_ack(const bproto_ack_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_nack(const bproto_nack_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_heartbeat(const bproto_heartbeat_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_ping(const bproto_ping_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_pong(const bproto_pong_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_set_brackets(const bproto_set_brackets_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_start(const bproto_start_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_trigger(const bproto_trigger_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_panel_state(const bproto_panel_state_t *m, uint8_t *out, size_t out_cap);
+int bproto_pack_button(const bproto_button_t *m, uint8_t *out, size_t out_cap);
+
+/* bproto_unpack_hello takes the 21-byte device HELLO only (the empty request is BAD_LENGTH here; see
+ * bproto_unpack_msg); bproto_unpack_stop checks that the payload is empty. */
+uint8_t bproto_unpack_hello(const uint8_t *payload, size_t len, bproto_hello_t *m);
+uint8_t bproto_unpack_ack(const uint8_t *payload, size_t len, bproto_ack_t *m);
+uint8_t bproto_unpack_nack(const uint8_t *payload, size_t len, bproto_nack_t *m);
+uint8_t bproto_unpack_heartbeat(const uint8_t *payload, size_t len, bproto_heartbeat_t *m);
+uint8_t bproto_unpack_ping(const uint8_t *payload, size_t len, bproto_ping_t *m);
+uint8_t bproto_unpack_pong(const uint8_t *payload, size_t len, bproto_pong_t *m);
+uint8_t bproto_unpack_set_brackets(const uint8_t *payload, size_t len, bproto_set_brackets_t *m);
+uint8_t bproto_unpack_start(const uint8_t *payload, size_t len, bproto_start_t *m);
+uint8_t bproto_unpack_stop(const uint8_t *payload, size_t len);
+uint8_t bproto_unpack_trigger(const uint8_t *payload, size_t len, bproto_trigger_t *m);
+uint8_t bproto_unpack_panel_state(const uint8_t *payload, size_t len, bproto_panel_state_t *m);
+uint8_t bproto_unpack_button(const uint8_t *payload, size_t len, bproto_button_t *m);
+
+/* Any message: type plus the struct of that type. */
+typedef struct {
+    uint8_t type;          /* BPROTO_MSG_* */
+    uint8_t hello_request; /* HELLO only: 1 = the host's request (empty payload, u.hello unused) */
+    union {
+        bproto_hello_t hello;
+        bproto_ack_t ack;
+        bproto_nack_t nack;
+        bproto_heartbeat_t heartbeat;
+        bproto_ping_t ping;
+        bproto_pong_t pong;
+        bproto_set_brackets_t set_brackets;
+        bproto_start_t start;
+        bproto_trigger_t trigger;
+        bproto_panel_state_t panel_state;
+        bproto_button_t button;
+    } u;
+} bproto_msg_t;
+
+/* Payload of m (dispatch on m->type); -1 on an unknown type or as the per-type pack functions. */
+int bproto_pack_msg(const bproto_msg_t *m, uint8_t *out, size_t out_cap);
+/* Unpack a payload of any type into *m (m->type = type); returns 0, BPROTO_NACK_UNKNOWN_TYPE, BPROTO_NACK_BAD_LENGTH
+ * or BPROTO_NACK_BAD_VALUE: the same result as the Python nack_code_for(type, payload). HELLO: an empty payload is
+ * the request (hello_request = 1), 21 bytes a device HELLO, anything else BAD_LENGTH. */
+uint8_t bproto_unpack_msg(uint8_t type, const uint8_t *payload, size_t len, bproto_msg_t *m);
+
 #ifdef __cplusplus
 }
 #endif
