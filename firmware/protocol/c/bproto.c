@@ -493,7 +493,7 @@ uint8_t bproto_unpack_pong(const uint8_t *payload, size_t len, bproto_pong_t *m)
 
 uint8_t bproto_unpack_set_brackets(const uint8_t *payload, size_t len, bproto_set_brackets_t *m)
 {
-    if (len < 5u || !bproto_set_brackets_len_ok(payload, len)) {
+    if (!bproto_set_brackets_len_ok(payload, len)) {
         return BPROTO_NACK_BAD_LENGTH;
     }
     m->period_us = bproto_get_u32(&payload[0]);

@@ -1,5 +1,6 @@
 /*
- * bproto v1: the bracketry serial wire codec in C (frames, CRC-16/CCITT-FALSE, COBS, streaming decoder).
+ * bproto v1: the bracketry serial wire codec in C (frames, CRC-16/CCITT-FALSE, COBS, streaming decoder, and a
+ * struct with pack/unpack functions for every message payload).
  *
  * The single specification is firmware/protocol/PROTOCOL.md; firmware/protocol/protocol_vectors.json holds the
  * shared test vectors (tests/wire runs them against this file compiled for the host).

@@ -70,40 +70,52 @@ static int send_frame(trig_core_t *c, uint8_t type, const uint8_t *payload, size
     return 1;
 }
 
+/* Payloads are built by the codec's pack functions (bproto.h), never at hand-coded offsets; a pack that fails
+ * (cannot happen for these fixed layouts) counts as a dropped frame. */
+static int send_packed(trig_core_t *c, uint8_t type, const uint8_t *payload, int len)
+{
+    if (len < 0) {
+        c->frames_dropped_tx++;
+        return 0;
+    }
+    return send_frame(c, type, payload, (size_t)len);
+}
+
 static void send_ack(trig_core_t *c, uint16_t acked_seq)
 {
-    uint8_t p[2];
-    bproto_put_u16(p, acked_seq);
-    (void)send_frame(c, BPROTO_MSG_ACK, p, sizeof(p));
+    const bproto_ack_t m = {acked_seq};
+    uint8_t p[BPROTO_LEN_ACK];
+    (void)send_packed(c, BPROTO_MSG_ACK, p, bproto_pack_ack(&m, p, sizeof(p)));
 }
 
 static void send_nack(trig_core_t *c, uint16_t acked_seq, uint8_t code)
 {
-    uint8_t p[3];
-    bproto_put_u16(p, acked_seq);
-    p[2] = code;
-    (void)send_frame(c, BPROTO_MSG_NACK, p, sizeof(p));
+    const bproto_nack_t m = {acked_seq, code};
+    uint8_t p[BPROTO_LEN_NACK];
+    (void)send_packed(c, BPROTO_MSG_NACK, p, bproto_pack_nack(&m, p, sizeof(p)));
 }
 
 static void send_hello(trig_core_t *c)
 {
-    uint8_t p[21];
-    p[0] = TRIG_DEVICE_KIND;
-    p[1] = TRIG_PROTO_MINOR;
-    p[2] = TRIG_FW_MAJOR;
-    p[3] = TRIG_FW_MINOR;
-    p[4] = TRIG_FW_PATCH;
-    hal_uid(&p[5]);
-    bproto_put_u32(&p[17], c->capabilities);
-    (void)send_frame(c, BPROTO_MSG_HELLO, p, sizeof(p));
+    bproto_hello_t m;
+    uint8_t p[BPROTO_LEN_HELLO];
+    m.device_kind = TRIG_DEVICE_KIND;
+    m.proto_minor = TRIG_PROTO_MINOR;
+    m.fw_major = TRIG_FW_MAJOR;
+    m.fw_minor = TRIG_FW_MINOR;
+    m.fw_patch = TRIG_FW_PATCH;
+    hal_uid(m.uid);
+    m.capabilities = c->capabilities;
+    (void)send_packed(c, BPROTO_MSG_HELLO, p, bproto_pack_hello(&m, p, sizeof(p)));
 }
 
 static void send_heartbeat(trig_core_t *c, uint32_t now_ms)
 {
-    uint8_t p[5];
-    bproto_put_u32(p, now_ms);
-    p[4] = c->running ? 1u : 0u;
-    (void)send_frame(c, BPROTO_MSG_HEARTBEAT, p, sizeof(p));
+    bproto_heartbeat_t m;
+    uint8_t p[BPROTO_LEN_HEARTBEAT];
+    m.uptime_ms = now_ms;
+    m.state = c->running ? 1u : 0u;
+    (void)send_packed(c, BPROTO_MSG_HEARTBEAT, p, bproto_pack_heartbeat(&m, p, sizeof(p)));
 }
 
 /* Send queued TRIGGER events in order; an event that does not fit the TX buffer stays queued. */
@@ -111,14 +123,16 @@ static void drain_events(trig_core_t *c)
 {
     while (c->q_tail != c->q_head) {
         const trig_event_t *e = &c->queue[c->q_tail % TRIG_EVENT_QUEUE_LEN];
-        uint8_t p[21];
-        bproto_put_u32(&p[0], e->session_id);
-        bproto_put_u32(&p[4], e->trigger_seq);
-        p[8] = e->bracket_index;
-        bproto_put_u32(&p[9], e->exposure_us);
-        bproto_put_u64(&p[13], e->t_start_us);
+        bproto_trigger_t m;
+        uint8_t p[BPROTO_LEN_TRIGGER];
+        m.session_id = e->session_id;
+        m.trigger_seq = e->trigger_seq;
+        m.bracket_index = e->bracket_index;
+        m.exposure_us = e->exposure_us;
+        m.t_start_us = e->t_start_us;
+        int len = bproto_pack_trigger(&m, p, sizeof(p));
         uint8_t out[BPROTO_MAX_FRAME];
-        size_t n = bproto_encode_frame(BPROTO_MSG_TRIGGER, c->tx_seq, p, sizeof(p), out, sizeof(out));
+        size_t n = len < 0 ? 0u : bproto_encode_frame(BPROTO_MSG_TRIGGER, c->tx_seq, p, (size_t)len, out, sizeof(out));
         if (n == 0u || hal_uart_write(out, n) != n) {
             return; /* retry on the next poll */
         }
@@ -138,45 +152,35 @@ static void stop(trig_core_t *c)
 
 static void handle_set_brackets(trig_core_t *c, const bproto_frame_t *f)
 {
-    if (f->len < 5u) {
-        send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
-        return;
-    }
-    uint8_t n = f->payload[4];
-    if (f->len != 5u + 4u * (uint16_t)n) {
-        send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+    bproto_set_brackets_t m;
+    uint8_t code = bproto_unpack_set_brackets(f->payload, f->len, &m); /* BAD_LENGTH unless 5 + 4 n bytes */
+    if (code != 0u) {
+        send_nack(c, f->seq, code);
         return;
     }
     if (c->running) {
         send_nack(c, f->seq, BPROTO_NACK_BAD_STATE);
         return;
     }
-    uint32_t period_us = bproto_get_u32(&f->payload[0]);
-    uint32_t exp[TRIG_MAX_BRACKETS];
-    if (n < 1u || n > TRIG_MAX_BRACKETS) {
+    if (trig_validate_table(m.period_us, m.n, m.exposures_us) != 0u) { /* also n outside 1..16 */
         send_nack(c, f->seq, BPROTO_NACK_BAD_VALUE);
         return;
     }
-    for (uint8_t i = 0; i < n; i++) {
-        exp[i] = bproto_get_u32(&f->payload[5u + 4u * i]);
-    }
-    if (trig_validate_table(period_us, n, exp) != 0u) {
-        send_nack(c, f->seq, BPROTO_NACK_BAD_VALUE);
-        return;
-    }
-    c->table.period_us = period_us;
-    c->table.n = n;
-    memcpy(c->table.exposure_us, exp, sizeof(uint32_t) * n);
+    c->table.period_us = m.period_us;
+    c->table.n = m.n;
+    memcpy(c->table.exposure_us, m.exposures_us, sizeof(uint32_t) * m.n);
     send_ack(c, f->seq);
 }
 
 static void handle_start(trig_core_t *c, const bproto_frame_t *f)
 {
-    if (f->len != 4u) {
-        send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+    bproto_start_t m;
+    uint8_t code = bproto_unpack_start(f->payload, f->len, &m);
+    if (code != 0u) {
+        send_nack(c, f->seq, code);
         return;
     }
-    uint32_t session_id = bproto_get_u32(f->payload);
+    uint32_t session_id = m.session_id;
     if (c->running) {
         if (session_id == c->session_id) {
             send_ack(c, f->seq); /* repeated START of the same session: no restart */
@@ -204,21 +208,24 @@ void trig_core_handle_frame(trig_core_t *c, const bproto_frame_t *f)
     }
     switch (f->type) {
     case BPROTO_MSG_HELLO:
-        if (f->len != 0u) {
+        if (f->len != 0u) { /* another device's HELLO, or garbage: not a request */
             send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
         } else {
             send_hello(c);
         }
         break;
     case BPROTO_MSG_PING: {
-        if (f->len != 8u) {
-            send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+        bproto_ping_t ping;
+        uint8_t code = bproto_unpack_ping(f->payload, f->len, &ping);
+        if (code != 0u) {
+            send_nack(c, f->seq, code);
             break;
         }
-        uint8_t p[16];
-        memcpy(p, f->payload, 8u);
-        bproto_put_u64(&p[8], hal_time_us());
-        (void)send_frame(c, BPROTO_MSG_PONG, p, sizeof(p));
+        bproto_pong_t pong;
+        uint8_t p[BPROTO_LEN_PONG];
+        pong.host_time_ns = ping.host_time_ns;
+        pong.device_time_us = hal_time_us();
+        (void)send_packed(c, BPROTO_MSG_PONG, p, bproto_pack_pong(&pong, p, sizeof(p)));
         break;
     }
     case BPROTO_MSG_SET_BRACKETS:
@@ -227,15 +234,17 @@ void trig_core_handle_frame(trig_core_t *c, const bproto_frame_t *f)
     case BPROTO_MSG_START:
         handle_start(c, f);
         break;
-    case BPROTO_MSG_STOP:
-        if (f->len != 0u) {
-            send_nack(c, f->seq, BPROTO_NACK_BAD_LENGTH);
+    case BPROTO_MSG_STOP: {
+        uint8_t code = bproto_unpack_stop(f->payload, f->len);
+        if (code != 0u) {
+            send_nack(c, f->seq, code);
             break;
         }
         stop(c);
         drain_events(c); /* events of pulses that happened before STOP precede its ACK */
         send_ack(c, f->seq);
         break;
+    }
     case BPROTO_MSG_HEARTBEAT: /* host heartbeat: no reply */
     case BPROTO_MSG_ACK:
     case BPROTO_MSG_NACK:

@@ -228,13 +228,41 @@ def dumps(vectors: dict[str, Any]) -> str:
     return json.dumps(vectors, indent=1) + "\n"
 
 
+def _c_field_value(name: str, value: Any) -> str:
+    """One JSON field value (see :func:`fields_to_json`) as the C harness reads it: ints in decimal, ``uid`` hex,
+    ``message`` as the hex of its ASCII text, ``exposures_us`` comma separated; ``-`` for an empty string/list."""
+    if isinstance(value, bool) or not isinstance(value, int | str | list):
+        raise ValueError(f"field {name}: no C text form for {value!r}")
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, list):
+        return ",".join(str(int(e)) for e in value) or "-"
+    text = value.encode("ascii").hex() if name == "message" else value
+    return text or "-"
+
+
+def c_message_line(msg_type: int, seq: int, frame_hex: str, payload_hex: str, fields: dict[str, Any]) -> str:
+    """``M`` line of the C harness: a valid frame and the decoded ``fields`` (JSON form, as in ``valid``)."""
+    parts = [f"M {msg_type} {seq} {frame_hex} {payload_hex or '-'}"]
+    parts += [f"{k}={_c_field_value(k, v)}" for k, v in fields.items()]
+    return " ".join(parts)
+
+
+def c_payload_line(msg_type: int, payload_hex: str, nack: int) -> str:
+    """``P`` line of the C harness: a payload of ``msg_type`` and the NACK code its check must give (0 = valid)."""
+    return f"P {msg_type} {payload_hex or '-'} {nack}"
+
+
 def to_c_text(vectors: dict[str, Any]) -> str:
     """Line format read by ``firmware/protocol/c/bproto_test.c`` (one record per line, hex without spaces):
 
     ``C <data hex|-> <crc>``, ``B <decoded hex|-> <encoded hex>`` (COBS), ``E <type> <seq> <payload hex|->
-    <frame hex>`` (encode), ``S <name>`` starts a stream, ``K <chunk hex>`` a chunk, ``F <type> <seq> <payload
-    hex|->`` an expected frame, ``X <frames_ok> <crc> <length> <cobs> <version> <overflows> <discarded>`` ends it,
-    ``P <type> <payload hex|-> <nack>`` (payload checks), ``R <period_us> <nack> <exposure_us>...`` (bracket checks).
+    <frame hex>`` (encode), ``M <type> <seq> <frame hex> <payload hex|-> <field>=<value>...`` (a valid frame with
+    its decoded fields: the harness decodes and unpacks it, compares every field, packs the fields and the decoded
+    struct and compares the bytes; values as :func:`_c_field_value`), ``S <name>`` starts a stream, ``K <chunk
+    hex>`` a chunk, ``F <type> <seq> <payload hex|->`` an expected frame, ``X <frames_ok> <crc> <length> <cobs>
+    <version> <overflows> <discarded>`` ends it, ``P <type> <payload hex|-> <nack>`` (payload checks: the C
+    ``bproto_unpack_msg`` must return ``nack``), ``R <period_us> <nack> <exposure_us>...`` (bracket checks).
     """
     def h(s: str) -> str:
         return s if s else "-"
@@ -242,15 +270,15 @@ def to_c_text(vectors: dict[str, Any]) -> str:
     lines = [f"C {h(c['data'])} {c['crc']}" for c in vectors["crc16"]]
     lines += [f"B {h(c['decoded'])} {h(c['encoded'])}" for c in vectors["cobs"]]
     lines += [f"E {v['msg_type']} {v['seq']} {h(v['payload'])} {v['frame']}" for v in vectors["valid"]]
+    lines += [c_message_line(v["msg_type"], v["seq"], v["frame"], v["payload"], v["fields"])
+              for v in vectors["valid"]]
     for s in vectors["streams"]:
         lines.append(f"S {s['name']}")
         lines += [f"K {h(c)}" for c in s["chunks"]]
         lines += [f"F {f['msg_type']} {f['seq']} {h(f['payload'])}" for f in s["frames"]]
         lines.append("X " + " ".join(str(s["stats"][k]) for k in COUNTERS))
-    lines += [f"P {p['msg_type']} {h(p['payload'])} {p['nack']}" for p in vectors["payload_errors"]]
-    for v in vectors["valid"]:
-        if v["msg_type"] != bproto.MSG_HELLO:  # HELLO replies are not commands a device checks
-            lines.append(f"P {v['msg_type']} {h(v['payload'])} 0")
+    lines += [c_payload_line(p["msg_type"], p["payload"], p["nack"]) for p in vectors["payload_errors"]]
+    lines += [c_payload_line(v["msg_type"], v["payload"], 0) for v in vectors["valid"]]
     lines += [f"R {r['period_us']} {r['nack']} " + " ".join(str(e) for e in r["exposures_us"])
               for r in vectors["set_brackets_checks"]]
     return "\n".join(lines) + "\n"
