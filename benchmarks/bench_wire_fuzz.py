@@ -219,7 +219,8 @@ def micropython_rate(stream: bytes, tmp: Path) -> tuple[int, float] | None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="20,000 records, one Python repeat")
-    ap.add_argument("--frames", type=int, default=None, help="number of records (default 150,000: >= 100,000 random or mutated)")
+    ap.add_argument("--frames", type=int, default=None,
+                    help="number of records (default 150,000: >= 100,000 random or mutated)")
     ap.add_argument("--seed", type=int, default=20261122)
     ap.add_argument("--repeats", type=int, default=None, help="timing repeats of the Python pass (default 3)")
     args = ap.parse_args()

@@ -30,7 +30,8 @@ def test_wire_vectors_cover_every_message_type() -> None:
     for needed in ("bad_crc", "truncated_frame", "over_long", "garbage_between_frames", "split_across_reads",
                    "unknown_type_is_a_valid_frame", "wrong_payload_length_is_a_valid_frame", "wrong_version"):
         assert needed in names
-    assert {p["nack"] for p in v["payload_errors"]} == {bproto.NACK_UNKNOWN_TYPE, bproto.NACK_BAD_LENGTH}
+    assert {p["nack"] for p in v["payload_errors"]} == {bproto.NACK_UNKNOWN_TYPE, bproto.NACK_BAD_LENGTH,
+                                                         bproto.NACK_BAD_VALUE}
 
 
 def test_wire_vectors_independent_of_codec() -> None:

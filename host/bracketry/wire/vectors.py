@@ -192,6 +192,8 @@ def _payload_errors() -> list[dict[str, Any]]:
         ("set_brackets_count_mismatch", bproto.MSG_SET_BRACKETS, (5000).to_bytes(4, "little") + b"\x02"
          + (100).to_bytes(4, "little"), bproto.NACK_BAD_LENGTH),
         ("panel_state_short", bproto.MSG_PANEL_STATE, bytes(37), bproto.NACK_BAD_LENGTH),
+        ("panel_state_message_not_ascii", bproto.MSG_PANEL_STATE, bytes(18) + b"\xe9t\xe9" + b" " * 17,
+         bproto.NACK_BAD_VALUE),
         ("button_long", bproto.MSG_BUTTON, bytes(5), bproto.NACK_BAD_LENGTH),
     ]
     return [{"name": n, "msg_type": t, "payload": p.hex(), "nack": c} for n, t, p, c in rows]
