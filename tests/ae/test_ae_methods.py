@@ -16,6 +16,10 @@ from bracketry_emulator.ae.shim import best_gamma, gradient_information, shim_up
 from bracketry_emulator.ae.wang import wang_quality, wang_weight
 from bracketry_emulator.ae.zhang import soft_percentile_metric, soft_percentile_weights
 
+# drl is left out of the direction and convergence checks: its public weights are not shipped (the tests only have a
+# seeded random actor, which has no reason to move the right way), and its first 4 calls are the classical-50
+# warm-up, so a 3-step trajectory would only test ae50 again. The actor maths and the t * 2^(2a) step are checked
+# with a constructed actor in test_ae_metrics_exact.py and with a random one in test_ae_drl.py.
 METHODS = ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "zhang"]
 DARK_US, BRIGHT_US = 500.0, 30_000.0  # mean 18 % and 99 % of full scale (89 % of pixels saturated)
 
@@ -111,12 +115,32 @@ def test_kim_metric_hand_computed() -> None:
 
 
 def test_kim_weights_follow_the_paper_sign() -> None:
-    """Pixels whose entropy term is far from the mean get LESS weight (the authors' +exponent quirk is fixed)."""
-    rng = np.random.default_rng(1)
-    base = rng.integers(50, 200, size=(60, 60)).astype(np.float64)
-    rare = base.copy()
-    rare[:5, :5] = 0.0  # a rare value with a strongly different entropy term
-    assert np.isfinite(kim_metric(rare)) and np.isfinite(kim_metric(base))
+    """Hand-computed metric of vertical stripes 0,0,0,0,0,60,60,120 (3 rows): the weights are the paper's Gaussian
+    w = exp(-(H - mean H)^2 / (2 std^2)); the authors' positive exponent would give another value."""
+    row = [0, 0, 0, 0, 0, 60, 60, 120]
+    img = np.tile(np.array(row, dtype=np.float64), (3, 1))
+    # histogram: p(0) = 5/8, p(60) = 2/8, p(120) = 1/8 -> H = -p log2 p per column
+    h_of = {0: -(5 / 8) * math.log2(5 / 8), 60: -(2 / 8) * math.log2(2 / 8), 120: -(1 / 8) * math.log2(1 / 8)}
+    h = np.array([h_of[v] for v in row])
+    assert h_of[60] == 0.5 and h_of[120] == 0.375  # exact: the rare 120 and the 60s lie either side of the mean
+    # Sobel x (reflect-101 border, constant columns): 4 (I[x+1] - I[x-1]) = 240 at x = 4, 5, 6, 0 elsewhere; gy = 0
+    g = np.array([0, 0, 0, 0, 240.0**2, 240.0**2, 240.0**2, 0])
+    hn = (h - 0.375) / (0.5 - 0.375)  # min-max: 0 -> 0.39, 60 -> 1, 120 -> 0
+    act = 2.0 / (1.0 + np.exp(-16.0 * hn + 4.0)) - 1.0
+    mask = hn < 0.6  # the 0s and the 120
+
+    def metric(sign: float) -> float:  # every row is the same, so per-column sums stand for the image
+        w = np.exp(sign * (h - h.mean()) ** 2 / (2.0 * h.var()))
+        w /= w.sum()
+        return float(np.sum(w * g) + np.sum(act * mask * w) * g.mean())
+
+    paper, authors = metric(-1.0), metric(+1.0)
+    assert paper == pytest.approx(29204.9629028, rel=1e-9)
+    assert authors == pytest.approx(31309.8154204, rel=1e-9)
+    assert kim_metric(img) == pytest.approx(paper, rel=1e-9)
+    assert kim_metric(img) != pytest.approx(authors, rel=1e-3)
+    # uint8 codes and float input give the same metric
+    assert kim_metric(img.astype(np.uint8)) == pytest.approx(paper, rel=1e-9)
 
 
 def test_zhang_soft_percentile_weights_hand_computed() -> None:
@@ -125,10 +149,15 @@ def test_zhang_soft_percentile_weights_hand_computed() -> None:
                    + [math.sin(math.pi / 2 - math.pi * (i - 8) / 4) ** 5 for i in (8, 9)])
     np.testing.assert_allclose(w, raw / raw.sum())
     assert int(np.argmax(w)) == 8  # peak at the 80th percentile
-    # constant gradient image: M = the common squared Scharr magnitude (/32): ramp of slope 1 -> 1.0
+    # ramp of slope 1, 12x12: Scharr/32 x = 16 (I[x+1] - I[x-1]) / 32 = 1 inside, 0 in the two border columns
+    # (reflect-101), y = 0 -> sorted G = 24 zeros then 120 ones; M = 1 - (sum of the first 24 weights)
     ramp = np.tile(np.arange(12, dtype=np.float32), (12, 1))
-    interior = soft_percentile_metric(ramp[:, :])
-    assert 0.5 < interior <= 1.0 + 1e-6
+    n, t = 144, 115  # t = floor(0.8 n)
+    raw144 = [math.sin(math.pi * i / (2 * t)) ** 5 if i < t
+              else math.sin(math.pi / 2 - math.pi * (i - t) / (2 * (n - t))) ** 5 for i in range(n)]
+    expected = 1.0 - sum(raw144[:24]) / sum(raw144)
+    assert soft_percentile_metric(ramp) == pytest.approx(expected, rel=1e-12)
+    assert expected == pytest.approx(0.999744605, rel=1e-9)
 
 
 def test_wang_weight_and_quality_hand_computed() -> None:

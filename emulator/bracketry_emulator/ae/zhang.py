@@ -19,6 +19,18 @@ Deliberate deviations:
   per step, gain 0.5. Direction and fixed point (dM/dt = 0) are unchanged.
 - Quirk NOT reproduced: the later revision's product of squared magnitudes (not a dot product), its degree-10
   polynomial CRF derivative and its 0.008 ms/DN fallback gain (a positional-argument slip); we follow the paper.
+- Quirk FIXED: the later revision's override sets the per-pixel derivative term to +2 where I = 0 and -2 where
+  I = 255 AFTER the sort order was computed, so each constant takes the weight of the rank the pixel's gradient
+  had, and a bare 2 has no common scale with the gradient terms (DN^2 per unit time: negligible or dominant
+  depending on image size, bit depth and exposure). We do not apply it: saturated pixels get dI/dt = 0 instead (see
+  "Saturation"), black pixels keep their CRF derivative, and M and dM/dt use the same ranking by G.
+- Quirk FIXED: the older public version divides the weights by their L2 norm (not their sum) and computes the
+  per-pixel terms in float128 (it also sorts the derivative terms themselves instead of ranking them by G; we rank
+  by G, as the paper). We normalise to sum 1 (the paper, the later revision) and use float64: the L2 norm only
+  scales M and dM/dt by the same constant, which cancels in the elasticity step above; np.float128 is the
+  platform's long double (x87 80-bit on x86-64 Linux, missing where long double is float64, e.g. Windows), and
+  float64 is ample for terms that come from float32 Scharr output (the weighted sum over ~0.14 Mpx has a relative
+  rounding error below 1e-10).
 - Saturation: pixels at the saturated code get dI/dt = 0 (the camera clips; Zhang's paper relies on a CRF that
   flattens there, which the emulator's response does not model), so the derivative sees highlights being lost.
 - Speed: gray area-downscaled to ``work_width`` = 480 columns (sorting 2.3 Mpx per frame is the authors' main cost).
