@@ -133,11 +133,11 @@ def test_wang_refinement_matches_an_independent_computation() -> None:
     gx, gy = _sobel_reflect101(WANG_IMG)
     jx, jy = _sobel_reflect101((WANG_IMG + 8.0) / t_ms)
     term = 2.0 * (gx * jx + gy * jy)
-    w = np.vectorize(_wang_w)(WANG_IMG)
+    w = np.abs(np.vectorize(_wang_w)(WANG_IMG))  # the refinement averages with |W| (quirk fixed)
     with_overrides = np.where(WANG_IMG < 30, 2.0, np.where(WANG_IMG > 225, -2.0, term))
     expected = float(np.sum(w * with_overrides) / np.sum(w))
     assert wang_refinement(WANG_IMG, t_ms, slope8) == pytest.approx(expected, rel=1e-9)
-    assert expected == pytest.approx(71189.8813434, rel=1e-9)
+    assert expected == pytest.approx(71161.7772598, rel=1e-9)
     # no override (thresholds out of range): the plain weighted mean of the gradient terms, a different value
     plain = float(np.sum(w * term) / np.sum(w))
     assert wang_refinement(WANG_IMG, t_ms, slope8, low=-1.0, high=1e9) == pytest.approx(plain, rel=1e-9)
@@ -147,7 +147,7 @@ def test_wang_refinement_matches_an_independent_computation() -> None:
 def test_wang_refinement_saturation_overrides_exact() -> None:
     """Constant g' -> 1/(t g') is flat, every gradient term is 0: d = (2 sum W[I<30] - 2 sum W[I>225]) / sum W."""
     slope8 = np.full(256, 0.01)
-    w = np.vectorize(_wang_w)(WANG_IMG)
+    w = np.abs(np.vectorize(_wang_w)(WANG_IMG))
     low, high = WANG_IMG < 30, WANG_IMG > 225
     expected = (2.0 * w[low].sum() - 2.0 * w[high].sum()) / w.sum()
     assert wang_refinement(WANG_IMG, 4.0, slope8) == pytest.approx(expected, rel=1e-9)
@@ -157,6 +157,10 @@ def test_wang_refinement_saturation_overrides_exact() -> None:
     # all pixels dark (but with positive weight) -> +2; all bright -> -2, whatever t
     assert wang_refinement(np.full((3, 3), 28.0), 2.0, slope8) == pytest.approx(2.0)
     assert wang_refinement(np.full((3, 3), 228.0), 9.0, slope8) == pytest.approx(-2.0)
+    # very dark pixels (W < 0 as published) still push towards a longer exposure, very bright ones shorter
+    dark = np.array([[5.0, 5.0], [40.0, 40.0]])
+    assert wang_refinement(dark, 4.0, slope8) > 0
+    assert wang_refinement(np.array([[250.0, 250.0], [200.0, 200.0]]), 4.0, slope8) < 0
 
 
 def _wang_gray(t_us: float) -> np.ndarray:

@@ -23,6 +23,9 @@ Deliberate deviations:
   authors fit degree-5 polynomials to pcalib_forest2024).
 - Quirk FIXED: in Wang's code the saturation branches (I > 225 -> -2 W, I < 30 -> +2 W) never fire because the
   intensity index is hard-coded to 100; we apply them (the paper's intent).
+- Quirk FIXED: the -0.001 offset makes W negative for I <= 22 and I >= 233, where the refinement's saturation
+  overrides apply: weighted by W, the +2 of a very dark pixel pushed towards a shorter exposure (and a sum of
+  weights near 0 could flip or blow up d). The refinement averages with |W|; the quality Q keeps W as published.
 - Speed: gray area-downscaled to ``work_width`` = 480 columns (7 syntheses per frame).
 - The paper's frame-to-frame photometric compensation is not needed in the emulator and is left out.
 """
@@ -65,7 +68,7 @@ def wang_refinement(i8: np.ndarray, t_ms: float, slope_per_code8: np.ndarray, a:
     jx, jy = cv2.Sobel(inv, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(inv, cv2.CV_32F, 0, 1, ksize=3)
     term = 2.0 * (gx.astype(np.float64) * jx + gy.astype(np.float64) * jy)
     term = np.where(f < low, 2.0, np.where(f > high, -2.0, term))
-    w = wang_weight(f, a, b)
+    w = np.abs(wang_weight(f, a, b))  # |W|: see the module docstring (negative weights flip the overrides)
     sw = float(w.sum())
     return float(np.sum(w * term) / sw) if sw != 0 else 0.0
 
