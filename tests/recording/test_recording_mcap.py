@@ -234,3 +234,29 @@ def test_daemon_recording_root_with_segments_and_a_repaired_file(tmp_path: Path,
     assert len(list((out / "seg00" / "camera_left").rglob("*.png"))) == 40
     assert cli_main(["export", str(root), "--format", "rosbag1", "--out", str(tmp_path / "x.bag")]) != 0
     assert "segments" in capsys.readouterr().err
+
+
+def test_rosbag1_export_carries_the_camera_temperature_of_rig_status(tmp_path: Path) -> None:
+    from rosbags.highlevel import AnyReader
+
+    rec = Recorder(tmp_path / "r", "t", RecorderConfig(queue_max_items=1000),
+                   metadata={"brackets_us": ",".join(map(str, BRACKETS)), "fps": "22.0"}).start()
+    for k in range(12):
+        if k == 6:  # the 1 Hz status arrives mid-recording: frames before it have no reading yet
+            assert rec.put_status({"temperature_left_c": 41.5, "temperature_right_c": 39.0})
+            time.sleep(0.01)
+        pset = make_set(k)
+        assert rec.put_event(pset.event) and rec.put_set(pset)
+        time.sleep(0.01)
+    rec.stop()
+    bag = tmp_path / "r.bag"
+    assert cli_main(["export", str(rec.summary.files[0]), "--format", "rosbag1", "--out", str(bag)]) == 0
+    temps = {}
+    with AnyReader([bag]) as reader:
+        for side, topic in (("left", "/stereo/camera1/metadata"), ("right", "/stereo/camera2/metadata")):
+            conns = [c for c in reader.connections if c.topic == topic]
+            temps[side] = [reader.deserialize(raw, c.msgtype).DeviceTemperature
+                           for c, _t, raw in reader.messages(conns)]
+    for side, value in (("left", 41.5), ("right", 39.0)):
+        assert len(temps[side]) == 12
+        assert all(np.isnan(t) for t in temps[side][:6]) and temps[side][6:] == [value] * 6, temps[side]

@@ -4,7 +4,8 @@ Topics: ``/stereo/left|right/image_raw`` (sensor_msgs/Image, bayer_rggb16), ``/s
 ``/stereo/left|right/frame_meta`` (our FrameMeta), ``/trigger/events``, and for the upstream drop checker
 (``check_bag_bracketing.py``) ``/stereo/camera1/metadata`` (left) and ``/stereo/camera2/metadata`` (right) of type
 ``norlab_basler_camera_driver/metadata_msg``: ``Header header, int32 FrameId, int64 Timestamp, float32 ExposureTime
-(microseconds, the commanded pulse width as in the version that script reads), float32 DeviceTemperature`` (NaN).
+(microseconds, the commanded pulse width as in the version that script reads), float32 DeviceTemperature`` (°C:
+the camera's last temperature in ``/rig/status`` before the frame, NaN before the first or when it has none).
 """
 
 from __future__ import annotations
@@ -66,14 +67,19 @@ def export_rosbag1(recording: str | Path, out_bag: str | Path) -> dict[str, int]
             writer.write(conn(topic, msgtype), t_ns, store.serialize_ros1(msg, msgtype))
             counts[topic] = counts.get(topic, 0) + 1
 
+        temperature_c = {"left": float("nan"), "right": float("nan")}  # latest /rig/status reading per camera
         for path in files:
             for raw in RecordingReader(path).messages():
+                if raw.schema_name == T.SCHEMA_STATUS:
+                    st = decode(raw.schema_name, raw.data)
+                    for s in temperature_c:
+                        temperature_c[s] = float(getattr(st, f"temperature_{s}_c", float("nan")))
                 if raw.schema_name == T.SCHEMA_FRAME_META:
                     m = decode(raw.schema_name, raw.data)
                     side = raw.topic.split("/")[2]
                     meta = Meta(header=header(m.header, int(m.trigger_seq)), FrameId=int(m.cam_frame_id),
                                 Timestamp=int(m.cam_timestamp_ns), ExposureTime=float(m.exposure_us),
-                                DeviceTemperature=float("nan"))
+                                DeviceTemperature=temperature_c.get(side, float("nan")))
                     write(UPSTREAM_TOPICS.get(side, f"/stereo/{side}/metadata"), UPSTREAM_METADATA_TYPE,
                           raw.log_time, meta)
                 # CDR (ROS 2) -> ROS 1 wire format by rosbags (adds the ROS 1 Header.seq)
