@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import functools
 import os
+import shutil
 import socket
 import subprocess
 from pathlib import Path
@@ -75,3 +76,15 @@ def stop_process(proc: subprocess.Popen, timeout_s: float = 5.0) -> None:
     except subprocess.TimeoutExpired:
         proc.kill()
         proc.wait(timeout=timeout_s)
+
+
+def build_c_under_asan(sources: list[Path], exe: Path, extra_flags: tuple[str, ...] = ()) -> Path:
+    """Compile C99 ``sources`` into ``exe`` with the host gcc, -Werror, ASan and UBSan (no recovery); a missing gcc is
+    a missing component. Returns ``exe``."""
+    gcc = shutil.which("gcc")
+    if gcc is None:
+        missing_component("host gcc not found; fix: apt-get install gcc")
+    subprocess.run([str(gcc), "-std=c99", "-Wall", "-Wextra", "-Werror", *extra_flags, "-g", "-O1",
+                    "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer",
+                    *map(str, sources), "-o", str(exe)], check=True, timeout=120)
+    return exe

@@ -9,27 +9,20 @@ bytes (``M`` lines), and give the same NACK code for the rejected ones (``P`` li
 from __future__ import annotations
 
 import random
-import shutil
 import subprocess
 from pathlib import Path
 
 from bracketry import paths
 from bracketry.wire import bproto, vectors
-from bracketry_testkit import missing_component
+from bracketry_testkit import build_c_under_asan
 
 C_DIR = paths.firmware_dir() / "protocol" / "c"
 UNKNOWN_TYPES = (0x00, 0x07, 0x13, 0x21, 0x32, 0x7E, 0xFF)
 
 
 def _build_harness(tmp_path: Path) -> Path:
-    gcc = shutil.which("gcc")
-    if gcc is None:
-        missing_component("host gcc not found; fix: apt-get install gcc")
-    exe = tmp_path / "bproto_test"
-    subprocess.run([str(gcc), "-std=c99", "-Wall", "-Wextra", "-Werror", "-Wconversion", "-g", "-O1",
-                    "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer",
-                    str(C_DIR / "bproto.c"), str(C_DIR / "bproto_test.c"), "-o", str(exe)], check=True, timeout=120)
-    return exe
+    return build_c_under_asan([C_DIR / "bproto.c", C_DIR / "bproto_test.c"], tmp_path / "bproto_test",
+                              ("-Wconversion",))
 
 
 def _run_harness(exe: Path, tmp_path: Path, lines: list[str]) -> str:

@@ -13,7 +13,7 @@ from wire_corpus import frames_fnv1a, make_corpus
 
 from bracketry import paths
 from bracketry.wire import bproto
-from bracketry_testkit import missing_component
+from bracketry_testkit import build_c_under_asan
 
 C_DIR = paths.firmware_dir() / "protocol" / "c"
 HERE = Path(__file__).resolve().parent
@@ -29,13 +29,7 @@ def _python(records: list[bytes]) -> list[tuple[list[bproto.Frame], list[int]]]:
 
 
 def test_wire_c_decoder_matches_python_under_asan(tmp_path: Path) -> None:
-    gcc = shutil.which("gcc")
-    if gcc is None:
-        missing_component("host gcc not found")
-    exe = tmp_path / "bproto_fuzz"
-    subprocess.run([str(gcc), "-std=c99", "-Wall", "-Wextra", "-Werror", "-O1", "-g", "-fsanitize=address,undefined",
-                    "-fno-sanitize-recover=all", str(C_DIR / "bproto.c"), str(C_DIR / "bproto_fuzz.c"), "-o",
-                    str(exe)], check=True, timeout=120)
+    exe = build_c_under_asan([C_DIR / "bproto.c", C_DIR / "bproto_fuzz.c"], tmp_path / "bproto_fuzz")
     records = make_corpus(4000, seed=11)
     blob = b"".join(struct.pack("<I", len(r)) + r for r in records)
     proc = subprocess.run([str(exe)], input=blob, capture_output=True, timeout=300)
