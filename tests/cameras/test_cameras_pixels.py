@@ -69,3 +69,18 @@ def test_frame_id_wrap_skips_zero() -> None:
     assert [r[1] for r in results] == [0, 0, 0, 0, 0, 1, 0]
     # a repeated id is flagged, not turned into a 65534-frame gap
     assert u.update(5) == (8, -1)
+
+
+def test_a_late_buffer_gets_its_own_index_and_does_not_shift_the_next_frames() -> None:
+    """Aravis hands over a timed-out buffer after newer frames: it takes its own place, later frames keep theirs
+    (arrival order would shift every following frame by one pulse)."""
+    u = FrameIdUnwrapper()
+    got = [u.update(i) for i in (65420, 65421, 65422, 65424, 65425)]  # 65423 not there yet
+    assert [g[0] for g in got] == [0, 1, 2, 4, 5] and got[3][1] == 1
+    assert u.update(65423) == (3, -1)  # late: its own index, flagged
+    assert u.update(65426) == (6, 0)  # the next frame is not shifted
+    assert u.update(65535) == (115, 108) and u.update(2) == (117, 1)  # across the wrap (0 is skipped)
+    assert u.update(65534) == (114, -1)  # late across the wrap
+    assert u.update(3) == (118, 0)
+    # a camera reset (ids far behind) is not a late buffer: the index just goes on
+    assert u.update(40000) == (119, -1)

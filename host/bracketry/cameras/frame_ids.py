@@ -21,9 +21,14 @@ class FrameIdUnwrapper:
     """Turns 16-bit block ids into a frame index counted from the first frame seen (index 0).
 
     ``update(frame_id) -> (index, skipped)``: ``skipped`` is the number of ids missing since the previous frame
-    (0 normally). A repeated or backwards id (delta 0 or more than half a cycle) is reported with ``skipped = -1``
-    and keeps the previous index + 1, so a camera reset cannot produce a huge fake gap.
+    (0 normally). A buffer that arrives late, behind newer ones (Aravis hands over a timed-out buffer after the
+    next frames: at most ``LATE_WINDOW`` ids back), gets its own index back and ``skipped = -1``; it does not move
+    the newest id, so the frames after it keep their indices. Any other repeated or backwards id (a camera reset) is
+    reported with ``skipped = -1`` and takes the previous index + 1, so a reset cannot produce a huge fake gap.
     """
+
+    #: how far behind the newest id a buffer may arrive and still be a late buffer (not a camera reset)
+    LATE_WINDOW = 256
 
     def __init__(self) -> None:
         self._last_id: int | None = None
@@ -40,6 +45,9 @@ class FrameIdUnwrapper:
             self._index += 1
             return self._index, 0
         delta = id_delta(self._last_id, frame_id)
+        behind = id_delta(frame_id, self._last_id) if delta else 0
+        if delta > ID_CYCLE // 2 and 0 < behind <= min(self.LATE_WINDOW, self._index):
+            return self._index - behind, -1  # a late buffer: its own place, the newest id stays
         self._last_id = frame_id
         if delta == 0 or delta > ID_CYCLE // 2:
             self._index += 1

@@ -74,6 +74,7 @@ class _SideState:
     recent: dict[int, int] = field(default_factory=dict)  # seq -> offset of recent frames (accepted or not)
     waiting: list = field(default_factory=list)  # frames before any event (host_time alignment)
     last_ok_seq: int | None = None  # last frame whose timestamp agreed with its pulse
+    newest_seq: int = -1  # newest trigger_seq a frame of this side was assigned
 
 
 class Pairer:
@@ -174,6 +175,7 @@ class Pairer:
             return seq
         slot[side] = frame
         seq = self._check_time(side, seq, frame)
+        st.newest_seq = max(st.newest_seq, seq)
         self._touch(seq)
         return seq
 
@@ -199,8 +201,8 @@ class Pairer:
     def _check_time(self, side: str, seq: int, frame: Any) -> int:
         """Timestamp cross-check (see module doc); returns the frame's (possibly moved) trigger_seq."""
         st = self._state[side]
-        if self._period_us is None or not self._events or frame.status != "success" or not frame.cam_timestamp_ns:
-            return seq  # incomplete buffers may carry no timestamp
+        if self._period_us is None or not self._events or not frame.cam_timestamp_ns:
+            return seq  # an incomplete buffer whose leader was lost carries no timestamp
         period_ns = self._period_us * 1000.0
         offset = frame.cam_timestamp_ns - self._pulse_device_ns(seq)
         st.recent[seq] = offset
@@ -248,6 +250,10 @@ class Pairer:
         for seq_before in range(st.last_ok_seq + 1 if st.last_ok_seq is not None else first, first):
             if seq_before > self._emitted_upto and side in self._pending.get(seq_before, {}):
                 st.candidate.append(seq_before)
+        # and the undecided frames between the candidates (incomplete ones carry no timestamp): they shifted too
+        for seq_between in range(first + 1, max(st.candidate)):
+            if seq_between not in st.candidate and side in self._pending.get(seq_between, {}):
+                st.candidate.append(seq_between)
         moved_seq = seq
         first_moved = min(st.candidate)
         first = True
@@ -284,20 +290,34 @@ class Pairer:
 
     def _ready(self, seq: int) -> bool:
         slot = self._pending.get(seq, {})
-        if any(st.candidate and seq >= min(st.candidate) for st in self._state.values()):
+        if self._shift_may_move(seq):
             return False
-        # a frame not yet confirmed by a later timestamp check may still move: wait up to confirm_frames pulses
-        if any(st.last_ok_seq is not None and seq > st.last_ok_seq for st in self._state.values()) and \
-                self._newest < seq + self.confirm_frames:
+        # a frame not yet confirmed by a timestamp check (an incomplete frame carries none) may still move: wait until
+        # its own camera has confirm_frames frames after it (the window still gives up on a silent camera)
+        if any(st.last_ok_seq is not None and seq > st.last_ok_seq and st.newest_seq < seq + self.confirm_frames
+               for st in self._state.values()):
             return False
         return seq in self._events and all(s in slot for s in self.sides)
+
+    def _shift_may_move(self, seq: int) -> bool:
+        """True while a timestamp shift under confirmation could still move this seq's frames: the candidates and
+        every frame after the last frame whose timestamp agreed (see ``_apply_shift``)."""
+        for st in self._state.values():
+            if st.candidate:
+                start = st.last_ok_seq + 1 if st.last_ok_seq is not None else min(st.candidate)
+                if seq >= min(start, min(st.candidate)):
+                    return True
+        return False
 
     def _release(self, everything: bool = False) -> None:
         while True:
             nxt = self._emitted_upto + 1
             if nxt > self._newest:
                 return
-            if not (everything or self._ready(nxt) or nxt <= self._newest - self.window):
+            # a set is given up on ``window`` pulses behind the newest; twice that while a shift under confirmation
+            # may still move its frames (an incomplete frame in the middle needs one more pulse to confirm)
+            hopeless = nxt <= self._newest - self.window * (2 if self._shift_may_move(nxt) else 1)
+            if not (everything or self._ready(nxt) or hopeless):
                 # complete sets further on wait for this one (ordered output), unless it is hopeless
                 return
             self._emit(nxt)

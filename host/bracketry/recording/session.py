@@ -24,13 +24,17 @@ from bracketry.recording.recorder import Recorder
 log = logging.getLogger(__name__)
 
 
+#: exposure (us) of the priming trigger fired after AcquisitionStart: marks a frame that is not a bracket
+PRIMING_EXPOSURE_US = 77
+
+
 class SoftwareTrigger:
     """Stands for the STM32 with fake cameras: per event, set each camera's exposure then fire TriggerSoftware."""
 
     def __init__(self, cameras: dict[str, Any]) -> None:
         self.cameras = cameras
 
-    def prime(self, settle_s: float = 0.2, exposure_us: int = 77) -> None:
+    def prime(self, settle_s: float = 0.2, exposure_us: int = PRIMING_EXPOSURE_US) -> None:
         """Fire one trigger per camera right after AcquisitionStart: the Aravis 0.8 fake camera loses the first
         software trigger of each acquisition. A frame it may still give precedes every TRIGGER event, and the
         pairer (``initial_alignment="host_time"``) ignores it. ``exposure_us`` marks such a frame (not a bracket)."""
@@ -144,18 +148,23 @@ class RecordingSession:
             out["free_disk_mb"] = 0
         return out
 
-    def stop(self, drain_s: float = 0.5, expect_frames: int | None = None) -> dict[str, Any]:
+    def stop(self, drain_s: float = 0.5, expect_frames: int | dict[str, int] | None = None) -> dict[str, Any]:
         """Let in-flight frames arrive, stop cameras, flush pairing, finish the recording.
 
-        Waits ``drain_s``, or, with ``expect_frames`` (pulses fired), until every camera delivered that many buffers
-        or ``drain_s`` passed without any new one.
+        Waits ``drain_s``, or, with ``expect_frames`` (buffers each camera will deliver: one number, or one per side,
+        e.g. pulses fired plus a priming frame), until every camera delivered that many or ``drain_s`` passed
+        without any new one.
         """
         deadline = time.monotonic() + drain_s
         last = -1
+        want = (expect_frames if isinstance(expect_frames, dict) else dict.fromkeys(self.cameras, expect_frames)
+                if expect_frames is not None else None)
         while time.monotonic() < deadline:
             with self._lock:
                 counts = [self.frames_received.get(s, 0) for s in self.cameras]
-            if expect_frames is not None and min(counts) >= expect_frames:
+                done = want is not None and all(self.frames_received.get(s, 0) >= want.get(s, 0)
+                                                for s in self.cameras)
+            if done:
                 break
             if sum(counts) != last:
                 last = sum(counts)

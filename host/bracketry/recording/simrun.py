@@ -26,7 +26,7 @@ from bracketry.cameras.fake import FakeCameraServer
 from bracketry.cameras.profiles import CameraSettings
 from bracketry.events import TriggerEvent
 from bracketry.recording.recorder import Recorder, RecorderConfig
-from bracketry.recording.session import RecordingSession, SoftwareTrigger
+from bracketry.recording.session import PRIMING_EXPOSURE_US, RecordingSession, SoftwareTrigger
 
 SIDE_OFFSET = {"left": 0, "right": 1000}
 
@@ -149,7 +149,9 @@ def main(argv: list[str] | None = None) -> int:
         fired = run_with_trigger_simulator(cams, session, brackets, period_ns // 1000, n, drop_events, skip, progress)
     else:
         fired = run_internal(cams, session, brackets, period_ns, n, args.lead_s, drop_events, skip, progress)
-    result = session.stop(drain_s=2.0, expect_frames=len(fired))
+    # every buffer a fake served reaches us (the priming frame too, when the fake gave one): wait for all of them
+    primed = {s: sum(1 for e in srv.exposures() if e == PRIMING_EXPOSURE_US) for s, srv in servers.items()}
+    result = session.stop(drain_s=2.0, expect_frames={s: len(fired) + primed.get(s, 0) for s in cams})
     summary = {"fired": len(fired), "dropped_events": sorted(drop_events), "skipped_triggers": sorted(skip),
                "served_exposures_us": {s: srv.exposures() for s, srv in servers.items()},
                "fill_errors": {s: srv.fill_errors for s, srv in servers.items()}, **result}

@@ -42,8 +42,6 @@ from bracketry.sim.rig import CAMERA_ADDRESSES, NETNS_ENV, SimOptions, Simulated
 
 ALL = ("cam_left", "cam_right", "trigger")
 SCENARIOS = ("e2e", "faults", "disk")
-#: exposure the daemon's priming trigger uses at each segment start (not a bracket; see SoftwareTrigger.prime)
-PRIMING_EXPOSURE_US = 77
 
 
 def scenario_argv(scenario: str, out: Path, result: Path, *args: str, tmpfs_mb: int | None = None) -> list[str]:
