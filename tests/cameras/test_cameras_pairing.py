@@ -33,11 +33,13 @@ def frame(side: str, index: int, pulse: int, status: str = "success") -> FakeFra
     return FakeFrame(side, (65400 + index) % 65535 or 65535, index, status, cam_ns, 5_000_000_000 + pulse * 45_454_000)
 
 
-def run(n: int, *, lose_frame=(), lose_event=(), miss_trigger=(), incomplete=()) -> tuple[Pairer, list[PairedSet]]:
+def run(n: int, *, lose_frame=(), lose_event=(), miss_trigger=(), incomplete=(), no_timestamp=(),
+        window: int = 8) -> tuple[Pairer, list[PairedSet]]:
     """Simulate n pulses. lose_frame: (side, k) never received (the camera's id still advanced);
-    miss_trigger: (side, k) the camera never saw the pulse (its ids do not advance)."""
+    miss_trigger: (side, k) the camera never saw the pulse (its ids do not advance); no_timestamp: (side, k)
+    delivered incomplete with no timestamp (its leader packet was lost)."""
     sets: list[PairedSet] = []
-    p = Pairer(("left", "right"), sets.append, window=8)
+    p = Pairer(("left", "right"), sets.append, window=window)
     index = {"left": 0, "right": 0}
     for k in range(n):
         if k not in lose_event:
@@ -46,7 +48,11 @@ def run(n: int, *, lose_frame=(), lose_event=(), miss_trigger=(), incomplete=())
             if (side, k) in miss_trigger:
                 continue
             if (side, k) not in lose_frame:
-                p.add_frame(frame(side, index[side], k, "missing_packets" if (side, k) in incomplete else "success"))
+                bad = (side, k) in incomplete or (side, k) in no_timestamp
+                f = frame(side, index[side], k, "missing_packets" if bad else "success")
+                if (side, k) in no_timestamp:
+                    f.cam_timestamp_ns = 0
+                p.add_frame(f)
             index[side] += 1
     p.flush()
     return p, sets
@@ -105,3 +111,47 @@ def test_counter_value_chunk_aligns_only_when_asked() -> None:
         f = frame("left", 0, 4)
         f.counter_value = 5  # type: ignore[attr-defined]  (the 5th pulse since the counter's reset)
         assert p.add_frame(f) == expected, mode
+
+
+def test_missed_trigger_followed_by_frames_without_timestamps_is_placed_exactly() -> None:
+    """The right camera never saw pulse 50 and the next two frames lost their leader (no timestamp): they cannot
+    be checked, but they move with the first frames whose timestamps show the shift, so the drop is at 50."""
+    for window in (4, 8):
+        p, sets = run(100, miss_trigger={("right", 50)}, no_timestamp={("right", 51), ("right", 52)}, window=window)
+        by_seq = {s.trigger_seq: s for s in sets}
+        assert [k for k, s in by_seq.items() if s.frames["right"] is None] == [50], window
+        assert by_seq[51].frames["right"].frame_index == 50 and by_seq[52].frames["right"].frame_index == 51
+        assert p.counters["right"].drops == 1 and p.counters["right"].unpaired == 0
+        assert all(by_seq[k].complete for k in range(53, 100))
+
+
+def test_a_late_buffer_is_paired_with_its_own_pulse_or_reported_late() -> None:
+    """Aravis hands a timed-out buffer over after newer ones: it carries its own frame index, so the frames after
+    it keep their pulses; if its set already left, it is recorded as a late, unpaired frame."""
+    sets: list[PairedSet] = []
+    p = Pairer(("left", "right"), sets.append, window=8)
+    late = frame("right", 20, 20, "timeout")
+    for k in range(60):
+        p.add_event(event(k))
+        p.add_frame(frame("left", k, k))
+        if k != 20:
+            p.add_frame(frame("right", k, k))
+        if k == 22:
+            assert p.add_frame(late) == 20  # two pulses late: still waiting in the window, paired
+    p.flush()
+    by_seq = {s.trigger_seq: s for s in sets}
+    assert by_seq[20].frames["right"] is late and all(by_seq[k].complete for k in range(60) if k != 20)
+    assert p.counters["right"].drops == 0
+    sets.clear()
+    p = Pairer(("left", "right"), sets.append, window=8)
+    for k in range(60):
+        p.add_event(event(k))
+        p.add_frame(frame("left", k, k))
+        if k != 20:
+            p.add_frame(frame("right", k, k))
+        if k == 40:
+            p.add_frame(frame("right", 20, 20, "timeout"))  # far too late: its set was given up on
+    p.flush()
+    assert p.counters["right"].drops == 1 and p.counters["right"].late == 1
+    assert all(s.complete for s in sets if s.trigger_seq != 20 and s.frames.get("right") is not None
+               and s.frames.get("left") is not None)
