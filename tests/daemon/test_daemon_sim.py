@@ -22,8 +22,9 @@ import pytest
 from bracketry.cameras.netns import netns_available
 from bracketry.cli import main as cli_main
 from bracketry.recording.reader import RecordingReader
+from bracketry.recording.session import PRIMING_EXPOSURE_US
 from bracketry.recording.verify import VerifyReport, recording_files, verify_recording
-from bracketry.sim.faults import PRIMING_EXPOSURE_US, scenario_argv
+from bracketry.sim.faults import scenario_argv
 from bracketry_testkit import missing_component
 
 pytestmark = [pytest.mark.aravis, pytest.mark.socat, pytest.mark.slow]
