@@ -128,30 +128,28 @@ def test_missed_trigger_followed_by_frames_without_timestamps_is_placed_exactly(
 def test_a_late_buffer_is_paired_with_its_own_pulse_or_reported_late() -> None:
     """Aravis hands a timed-out buffer over after newer ones: it carries its own frame index, so the frames after
     it keep their pulses; if its set already left, it is recorded as a late, unpaired frame."""
-    sets: list[PairedSet] = []
-    p = Pairer(("left", "right"), sets.append, window=8)
-    late = frame("right", 20, 20, "timeout")
-    for k in range(60):
-        p.add_event(event(k))
-        p.add_frame(frame("left", k, k))
-        if k != 20:
-            p.add_frame(frame("right", k, k))
-        if k == 22:
-            assert p.add_frame(late) == 20  # two pulses late: still waiting in the window, paired
-    p.flush()
+    def feed(late_at: int) -> tuple[Pairer, list[PairedSet], int | None]:
+        """60 pulses; right frame 20 arrives (timed out) right after pulse ``late_at``; returns its add_frame result."""
+        sets: list[PairedSet] = []
+        p = Pairer(("left", "right"), sets.append, window=8)
+        placed = None
+        for k in range(60):
+            p.add_event(event(k))
+            p.add_frame(frame("left", k, k))
+            if k != 20:
+                p.add_frame(frame("right", k, k))
+            if k == late_at:
+                placed = p.add_frame(frame("right", 20, 20, "timeout"))
+        p.flush()
+        return p, sets, placed
+
+    p, sets, placed = feed(22)
+    assert placed == 20  # two pulses late: still waiting in the window, paired
     by_seq = {s.trigger_seq: s for s in sets}
-    assert by_seq[20].frames["right"] is late and all(by_seq[k].complete for k in range(60) if k != 20)
+    assert by_seq[20].frames["right"] is not None and by_seq[20].frames["right"].frame_index == 20
+    assert all(by_seq[k].complete for k in range(60) if k != 20)
     assert p.counters["right"].drops == 0
-    sets.clear()
-    p = Pairer(("left", "right"), sets.append, window=8)
-    for k in range(60):
-        p.add_event(event(k))
-        p.add_frame(frame("left", k, k))
-        if k != 20:
-            p.add_frame(frame("right", k, k))
-        if k == 40:
-            p.add_frame(frame("right", 20, 20, "timeout"))  # far too late: its set was given up on
-    p.flush()
+    p, sets, _ = feed(40)  # far too late: its set was given up on
     assert p.counters["right"].drops == 1 and p.counters["right"].late == 1
     assert all(s.complete for s in sets if s.trigger_seq != 20 and s.frames.get("right") is not None
                and s.frames.get("left") is not None)
