@@ -159,3 +159,41 @@ def test_cameras_cli_bad_address_is_one_line() -> None:
 
     # 127.0.0.9 has no camera: a clear one-line error and exit 2, not a traceback
     assert cli_main(["cameras", "probe", "--address", "127.0.0.9"]) == 2
+
+
+HOLDER = """
+import time
+from bracketry.cameras.camera import GigECamera
+cam = GigECamera("127.0.0.1", side="holder")
+print("held", flush=True)
+time.sleep(120)
+"""
+
+
+def test_control_privilege_of_a_killed_controller_is_taken_over(fake_camera) -> None:  # type: ignore[no-untyped-def]
+    """A daemon restarted right after SIGKILL finds the camera still controlled by its dead predecessor: opening
+    waits for the heartbeat timeout and takes control (streaming works); a live controller is refused clearly."""
+    import signal
+    import subprocess
+    import sys
+
+    from bracketry.cameras.camera import GigECamera
+    from bracketry.cameras.profiles import CameraSettings
+
+    holder = subprocess.Popen([sys.executable, "-c", HOLDER], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "held"
+        with pytest.raises(CameraError, match=r"another application controls the camera at 127\.0\.0\.1"):
+            GigECamera("127.0.0.1", side="left", control_wait_s=0.5)
+        holder.send_signal(signal.SIGKILL)
+        holder.wait(10)
+        with GigECamera("127.0.0.1", side="left") as cam:
+            assert cam.device.is_controller()
+            cam.configure(CameraSettings(profile="aravis_fake", pixel_format="Mono16", width=W,
+                                         height=H)).raise_if_mismatch()
+            frames = grab(cam, [2000, 4000])
+        assert [f.status for f in frames] == ["success", "success"]
+    finally:
+        if holder.poll() is None:
+            holder.kill()
+            holder.wait(10)

@@ -8,6 +8,7 @@ that every frame carries the missing-packet count that arrived with it.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import threading
 import time
@@ -24,6 +25,11 @@ from bracketry.cameras.pixels import PIXEL_FORMAT_NAMES, payload_to_image
 from bracketry.cameras.profiles import CameraSettings, ConfigReport, apply_writes, probe_features, profile_writes
 
 log = logging.getLogger(__name__)
+
+#: how long opening a camera waits for the GigE Vision control privilege (heartbeat timeout 3 s + margin), seconds
+CONTROL_WAIT_S = 5.0
+#: retry period while waiting for the control privilege, seconds
+CONTROL_POLL_S = 0.25
 
 #: Aravis stream statistics we report (name in ``get_info_uint64_by_name``)
 STREAM_COUNTERS = ("n_completed_buffers", "n_failures", "n_underruns", "n_missing_packets", "n_resent_packets",
@@ -101,7 +107,7 @@ class GigECamera:
     """
 
     def __init__(self, address: str | None = None, *, device_id: str | None = None, side: str = "camera",
-                 allow_discovery: bool = False) -> None:
+                 allow_discovery: bool = False, control_wait_s: float = CONTROL_WAIT_S) -> None:
         if not address and not device_id:
             raise CameraError(f"camera {side}: give an IP address or a device id")
         if device_id and not address and not allow_discovery:
@@ -119,6 +125,7 @@ class GigECamera:
         if self._camera is None:
             raise CameraError(f"camera {side}: cannot open {target}")
         self._device = self._camera.get_device()
+        self._take_control(control_wait_s)
         self._stream: Any = None
         self._thread: threading.Thread | None = None
         self._running = threading.Event()
@@ -128,6 +135,30 @@ class GigECamera:
         self._chunk_parser: Any = None
         self._chunks_on = False
         self._counter_names: tuple[str, ...] = ()
+
+    def _take_control(self, wait_s: float) -> None:
+        """Hold the GigE Vision control privilege (writes and streaming need it), waiting up to ``wait_s`` seconds.
+
+        A controller that died without releasing it (our own daemon after SIGKILL) keeps it until the camera's
+        heartbeat timeout (GevHeartbeatTimeout, 3 s by default on the fake and on Basler cameras) runs out; Aravis
+        then opens the camera read-only, so we retry ``take_control`` until the privilege is free.
+        """
+        dev = self._device
+        if not hasattr(dev, "is_controller") or dev.is_controller():
+            return
+        deadline = time.monotonic() + max(wait_s, 0.0)
+        while True:
+            with contextlib.suppress(Exception):
+                if dev.take_control() and dev.is_controller():
+                    log.info("camera %s: control privilege taken over after the previous controller's timeout",
+                             self.side)
+                    return
+            if time.monotonic() >= deadline:
+                break
+            time.sleep(CONTROL_POLL_S)
+        raise CameraError(f"camera {self.side}: another application controls the camera at "
+                          f"{self.address or self.device_id} (GigE Vision control privilege still held after "
+                          f"{wait_s:.1f} s); close it or wait for its heartbeat timeout")
 
     # -- identity and features -------------------------------------------------------------------------------------
     def check_identity(self, expected: str) -> None:
