@@ -197,3 +197,24 @@ def test_control_privilege_of_a_killed_controller_is_taken_over(fake_camera) -> 
         if holder.poll() is None:
             holder.kill()
             holder.wait(10)
+
+
+def test_a_camera_that_cannot_stream_fails_the_session_start_cleanly(fake_camera, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """A camera without the control privilege cannot create its stream: the session names the camera, ends its
+    pairing thread, and the recorder still closes a readable (empty) recording."""
+    from bracketry.cameras.camera import GigECamera
+    from bracketry.recording.reader import RecordingReader
+    from bracketry.recording.recorder import Recorder, RecorderConfig
+    from bracketry.recording.session import RecordingSession, SessionStartError
+
+    with GigECamera("127.0.0.1", side="left") as cam:
+        cam.device.leave_control()
+        recorder = Recorder(tmp_path, "s", RecorderConfig(sides=("left",))).start()
+        session = RecordingSession({"left": cam}, recorder)
+        with pytest.raises(SessionStartError, match="Controller privilege required") as exc:
+            session.start()
+        assert exc.value.side == "left"
+        assert not any(t.name == "pairing" and t.is_alive() for t in threading.enumerate())
+        summary = recorder.stop()
+    assert summary.error is None and summary.files
+    assert not list(RecordingReader(summary.files[0]).messages({"/stereo/left/image_raw"}))

@@ -16,6 +16,7 @@ import contextlib
 import logging
 import queue
 import random
+import shutil
 import threading
 import time
 from collections.abc import Callable
@@ -349,7 +350,7 @@ class RigDaemon:
 
     def _segment_start(self) -> bool:
         from bracketry.recording.recorder import Recorder, RecorderConfig
-        from bracketry.recording.session import RecordingSession
+        from bracketry.recording.session import RecordingSession, SessionStartError
 
         if self.trigger is None or not self.cameras:
             return False
@@ -364,8 +365,20 @@ class RigDaemon:
         recorder = Recorder(seg_dir, name, cfg, metadata=metadata,
                             calibration=self.options.calibration).start()
         soft = self.options.software_trigger
-        session = RecordingSession(dict(self.cameras), recorder, disk_path=self.config.output_dir,
-                                   initial_alignment="host_time" if soft else "count").start()
+        try:
+            session = RecordingSession(dict(self.cameras), recorder, disk_path=self.config.output_dir,
+                                       initial_alignment="host_time" if soft else "count").start()
+        except SessionStartError as exc:
+            # this camera cannot stream: ERR (reconnected by the supervisor); the empty segment is closed and the
+            # recording goes on with the cameras that work
+            log.error("camera %s cannot stream: %s", exc.side, exc)
+            with contextlib.suppress(Exception):
+                recorder.stop()
+            shutil.rmtree(seg_dir, ignore_errors=True)  # it holds no frame
+            self.segment_index -= 1
+            self._camera_down(exc.side, SensorState.ERR, str(exc))
+            self._backoff[exc.side].failed()
+            return self._segment_start()
         if soft:
             from bracketry.recording.session import SoftwareTrigger
 

@@ -8,6 +8,7 @@ come from the trigger link's listener (``on_trigger_event``), or from a simulato
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 import queue
@@ -17,6 +18,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet, Pairer
 from bracketry.recording.recorder import Recorder
@@ -50,6 +52,14 @@ class SoftwareTrigger:
             cam.software_trigger()
 
 
+class SessionStartError(BracketryError):
+    """A camera's stream could not start; ``side`` names the camera."""
+
+    def __init__(self, side: str, message: str) -> None:
+        super().__init__(message)
+        self.side = side
+
+
 class RecordingSession:
     """Record ``cameras`` (side -> ``GigECamera``, already configured) through ``recorder``.
 
@@ -77,10 +87,27 @@ class RecordingSession:
         self._lock = threading.Lock()
 
     def start(self) -> RecordingSession:
+        """Start pairing and every camera's stream.
+
+        Raises:
+            SessionStartError: a camera could not stream (``.side`` names it); the cameras already started are
+                stopped again and the pairing thread ends; the recorder is left to the caller.
+        """
         self._thread = threading.Thread(target=self._run, name="pairing", daemon=True)
         self._thread.start()
-        for cam in self.cameras.values():
-            cam.start(self._on_frame)
+        started: list[Any] = []
+        for side, cam in self.cameras.items():
+            try:
+                cam.start(self._on_frame)
+            except Exception as exc:
+                for other in started:
+                    with contextlib.suppress(Exception):
+                        other.stop()
+                self._inbox.put(("stop", None))
+                self._thread.join(timeout=30)
+                self._thread = None
+                raise SessionStartError(side, str(exc)) from exc
+            started.append(cam)
         return self
 
     def _on_frame(self, frame: Any) -> None:
