@@ -186,7 +186,14 @@ class RigDaemon:
 
     def _on_panel_button(self, ev: Any) -> None:
         name = "sensors" if ev.button == 1 else "record"
-        threading.Thread(target=self.on_button, args=(name, ev.action == 2), name="button", daemon=True).start()
+        threading.Thread(target=self._button_thread, args=(name, ev.action == 2), name="button", daemon=True).start()
+
+    def _button_thread(self, button: str, long_press: bool) -> None:
+        try:
+            self.on_button(button, long_press)
+        except Exception:  # the daemon survives any failure of a button action; the panel shows it
+            log.exception("button %s failed", button)
+            self.state.set_message(f"{button.upper()} FAILED")
 
     def on_button(self, button: str, long_press: bool = False) -> None:
         """SENSORS: bring sensors up (or down when idle and already up); RECORD: start/stop recording."""
