@@ -378,7 +378,7 @@ class RigDaemon:
         except SessionStartError as exc:
             # this camera cannot stream: ERR (reconnected by the supervisor); the empty segment is closed and the
             # recording goes on with the cameras that work
-            log.error("camera %s cannot stream: %s", exc.side, exc)
+            log.error("segment start: %s", exc)  # names the camera
             with contextlib.suppress(Exception):
                 recorder.stop()
             shutil.rmtree(seg_dir, ignore_errors=True)  # it holds no frame
