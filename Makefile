@@ -1,5 +1,5 @@
 # The README's two commands: `make demo` (main job) and `make test` (the test-suite). Both set up first.
-.PHONY: setup demo test lint typecheck check
+.PHONY: setup demo test lint typecheck check protocol
 
 setup:
 	./setup.sh
@@ -17,3 +17,7 @@ typecheck:
 	.venv/bin/mypy
 
 check: lint typecheck test
+
+# Rewrite the generated parts of the wire codec (C, Python, PROTOCOL.md) from firmware/protocol/messages.json.
+protocol:
+	python3 firmware/protocol/generate.py

@@ -13,7 +13,6 @@
 import bproto
 from panel_clock import ticks_diff
 
-DEVICE_KIND_PANEL = 2
 PROTO_MINOR = 0
 CAP_LCD_4X20 = 1
 CAP_BUTTONS = 2
@@ -24,9 +23,6 @@ RESEND_MS = 200
 MAX_PENDING_BUTTONS = 8
 HB_NORMAL = 0
 HB_HOST_LOST = 1
-MAX_STATE = 4
-
-_STATE_KEYS = ("cam_left", "cam_right", "trigger", "imu", "lidar", "gnss")
 _HOST_TYPES = (bproto.MSG_HELLO, bproto.MSG_ACK, bproto.MSG_NACK, bproto.MSG_HEARTBEAT, bproto.MSG_PING,
                bproto.MSG_PANEL_STATE)
 
@@ -72,7 +68,7 @@ class PanelLink:
         return seq
 
     def _hello_fields(self):
-        return {"device_kind": DEVICE_KIND_PANEL, "proto_minor": PROTO_MINOR, "fw_major": self.fw_version[0],
+        return {"device_kind": bproto.DEVICE_PANEL, "proto_minor": PROTO_MINOR, "fw_major": self.fw_version[0],
                 "fw_minor": self.fw_version[1], "fw_patch": self.fw_version[2], "uid": self.uid,
                 "capabilities": self.capabilities}
 
@@ -145,10 +141,10 @@ class PanelLink:
                 self._nack(frame.seq, bproto.nack_code_for(t, frame.payload) or bproto.NACK_BAD_LENGTH)
             return
         if t == bproto.MSG_PANEL_STATE:
-            for key in _STATE_KEYS:
-                if not 0 <= fields[key] <= MAX_STATE:
-                    self._nack(frame.seq, bproto.NACK_BAD_VALUE)
-                    return
+            code = bproto.check_values(t, fields)
+            if code:
+                self._nack(frame.seq, code)
+                return
             self.state = fields
             self.state_count += 1
             self._ack(frame.seq)

@@ -236,30 +236,6 @@ uint64_t bproto_get_u64(const uint8_t *p)
     return v;
 }
 
-int bproto_expected_len(uint8_t type)
-{
-    switch (type) {
-    case BPROTO_MSG_HELLO: return 0;
-    case BPROTO_MSG_ACK: return (int)BPROTO_LEN_ACK;
-    case BPROTO_MSG_NACK: return (int)BPROTO_LEN_NACK;
-    case BPROTO_MSG_HEARTBEAT: return (int)BPROTO_LEN_HEARTBEAT;
-    case BPROTO_MSG_PING: return (int)BPROTO_LEN_PING;
-    case BPROTO_MSG_PONG: return (int)BPROTO_LEN_PONG;
-    case BPROTO_MSG_SET_BRACKETS: return -1;
-    case BPROTO_MSG_START: return (int)BPROTO_LEN_START;
-    case BPROTO_MSG_STOP: return (int)BPROTO_LEN_STOP;
-    case BPROTO_MSG_TRIGGER: return (int)BPROTO_LEN_TRIGGER;
-    case BPROTO_MSG_PANEL_STATE: return (int)BPROTO_LEN_PANEL_STATE;
-    case BPROTO_MSG_BUTTON: return (int)BPROTO_LEN_BUTTON;
-    default: return -2;
-    }
-}
-
-int bproto_set_brackets_len_ok(const uint8_t *payload, size_t len)
-{
-    return len >= 5u && len == 5u + 4u * (size_t)payload[4];
-}
-
 uint8_t bproto_check_set_brackets(uint32_t period_us, const uint32_t *exposures_us, size_t n)
 {
     if (n < 1u || n > BPROTO_MAX_BRACKETS) {
@@ -281,6 +257,72 @@ uint8_t bproto_check_set_brackets(uint32_t period_us, const uint32_t *exposures_
 static int printable_ascii(uint8_t c)
 {
     return c >= 0x20u && c <= 0x7Eu;
+}
+
+/* A NUL-terminated text of at most size printable ASCII characters into size bytes, space padded; -1 if longer
+ * (or not terminated) or not printable. */
+static int pack_ascii(const char *text, uint8_t *out, size_t size)
+{
+    size_t i = 0;
+    for (; i < size && text[i] != '\0'; i++) {
+        uint8_t ch = (uint8_t)text[i];
+        if (!printable_ascii(ch)) {
+            return -1;
+        }
+        out[i] = ch;
+    }
+    if (i == size && text[i] != '\0') {
+        return -1;
+    }
+    for (; i < size; i++) {
+        out[i] = (uint8_t)' ';
+    }
+    return 0;
+}
+
+/* size bytes of printable ASCII into a NUL-terminated text without the trailing spaces (text holds size + 1
+ * bytes); -1 if a byte is not printable. */
+static int unpack_ascii(const uint8_t *in, size_t size, char *text)
+{
+    size_t end = 0;
+    for (size_t i = 0; i < size; i++) {
+        uint8_t ch = in[i];
+        if (!printable_ascii(ch)) {
+            return -1;
+        }
+        text[i] = (char)ch;
+        if (ch != (uint8_t)' ') {
+            end = i + 1u;
+        }
+    }
+    text[end] = '\0';
+    return 0;
+}
+
+/* BEGIN GENERATED messages by firmware/protocol/generate.py from messages.json: do not edit (make protocol) */
+int bproto_expected_len(uint8_t type)
+{
+    switch (type) {
+    case BPROTO_MSG_HELLO: return 0;
+    case BPROTO_MSG_ACK: return (int)BPROTO_LEN_ACK;
+    case BPROTO_MSG_NACK: return (int)BPROTO_LEN_NACK;
+    case BPROTO_MSG_HEARTBEAT: return (int)BPROTO_LEN_HEARTBEAT;
+    case BPROTO_MSG_PING: return (int)BPROTO_LEN_PING;
+    case BPROTO_MSG_PONG: return (int)BPROTO_LEN_PONG;
+    case BPROTO_MSG_SET_BRACKETS: return -1;
+    case BPROTO_MSG_START: return (int)BPROTO_LEN_START;
+    case BPROTO_MSG_STOP: return (int)BPROTO_LEN_STOP;
+    case BPROTO_MSG_TRIGGER: return (int)BPROTO_LEN_TRIGGER;
+    case BPROTO_MSG_PANEL_STATE: return (int)BPROTO_LEN_PANEL_STATE;
+    case BPROTO_MSG_BUTTON: return (int)BPROTO_LEN_BUTTON;
+    default: return -2;
+    }
+}
+
+int bproto_set_brackets_len_ok(const uint8_t *payload, size_t len)
+{
+    return len >= BPROTO_LEN_SET_BRACKETS_MIN &&
+           len == BPROTO_LEN_SET_BRACKETS_MIN + BPROTO_LEN_SET_BRACKETS_ITEM * (size_t)payload[4];
 }
 
 int bproto_pack_hello(const bproto_hello_t *m, uint8_t *out, size_t out_cap)
@@ -351,14 +393,14 @@ int bproto_pack_set_brackets(const bproto_set_brackets_t *m, uint8_t *out, size_
     if (m->n > BPROTO_SET_BRACKETS_MAX_N) {
         return -1;
     }
-    size_t len = 5u + 4u * (size_t)m->n;
+    size_t len = BPROTO_LEN_SET_BRACKETS_MIN + BPROTO_LEN_SET_BRACKETS_ITEM * (size_t)m->n;
     if (out_cap < len) {
         return -1;
     }
     bproto_put_u32(&out[0], m->period_us);
     out[4] = m->n;
     for (size_t i = 0; i < m->n; i++) {
-        bproto_put_u32(&out[5u + 4u * i], m->exposures_us[i]);
+        bproto_put_u32(&out[BPROTO_LEN_SET_BRACKETS_MIN + BPROTO_LEN_SET_BRACKETS_ITEM * i], m->exposures_us[i]);
     }
     return (int)len;
 }
@@ -400,19 +442,8 @@ int bproto_pack_panel_state(const bproto_panel_state_t *m, uint8_t *out, size_t 
     bproto_put_u16(&out[10], m->fps_left_centi);
     bproto_put_u16(&out[12], m->fps_right_centi);
     bproto_put_u32(&out[14], m->rec_seconds);
-    size_t i = 0;
-    for (; i < BPROTO_PANEL_MESSAGE_LEN && m->message[i] != '\0'; i++) {
-        uint8_t ch = (uint8_t)m->message[i];
-        if (!printable_ascii(ch)) {
-            return -1;
-        }
-        out[18u + i] = ch;
-    }
-    if (i == BPROTO_PANEL_MESSAGE_LEN && m->message[i] != '\0') {
-        return -1; /* longer than 20 characters (or not terminated) */
-    }
-    for (; i < BPROTO_PANEL_MESSAGE_LEN; i++) {
-        out[18u + i] = (uint8_t)' ';
+    if (pack_ascii(m->message, &out[18], BPROTO_PANEL_MESSAGE_LEN) != 0) {
+        return -1;
     }
     return (int)BPROTO_LEN_PANEL_STATE;
 }
@@ -497,9 +528,9 @@ uint8_t bproto_unpack_set_brackets(const uint8_t *payload, size_t len, bproto_se
         return BPROTO_NACK_BAD_LENGTH;
     }
     m->period_us = bproto_get_u32(&payload[0]);
-    m->n = payload[4]; /* <= BPROTO_SET_BRACKETS_MAX_N, since len = 5 + 4 n <= 255 */
+    m->n = payload[4];
     for (size_t i = 0; i < m->n; i++) {
-        m->exposures_us[i] = bproto_get_u32(&payload[5u + 4u * i]);
+        m->exposures_us[i] = bproto_get_u32(&payload[BPROTO_LEN_SET_BRACKETS_MIN + BPROTO_LEN_SET_BRACKETS_ITEM * i]);
     }
     return 0;
 }
@@ -537,18 +568,6 @@ uint8_t bproto_unpack_panel_state(const uint8_t *payload, size_t len, bproto_pan
     if (len != BPROTO_LEN_PANEL_STATE) {
         return BPROTO_NACK_BAD_LENGTH;
     }
-    size_t end = 0; /* message length without the trailing spaces */
-    for (size_t i = 0; i < BPROTO_PANEL_MESSAGE_LEN; i++) {
-        uint8_t ch = payload[18u + i];
-        if (!printable_ascii(ch)) {
-            return BPROTO_NACK_BAD_VALUE;
-        }
-        m->message[i] = (char)ch;
-        if (ch != (uint8_t)' ') {
-            end = i + 1u;
-        }
-    }
-    m->message[end] = '\0';
     m->cam_left = payload[0];
     m->cam_right = payload[1];
     m->trigger = payload[2];
@@ -559,6 +578,9 @@ uint8_t bproto_unpack_panel_state(const uint8_t *payload, size_t len, bproto_pan
     m->fps_left_centi = bproto_get_u16(&payload[10]);
     m->fps_right_centi = bproto_get_u16(&payload[12]);
     m->rec_seconds = bproto_get_u32(&payload[14]);
+    if (unpack_ascii(&payload[18], BPROTO_PANEL_MESSAGE_LEN, m->message) != 0) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
     return 0;
 }
 
@@ -570,6 +592,29 @@ uint8_t bproto_unpack_button(const uint8_t *payload, size_t len, bproto_button_t
     m->button = payload[0];
     m->action = payload[1];
     m->event_seq = bproto_get_u16(&payload[2]);
+    return 0;
+}
+
+uint8_t bproto_check_panel_state(const bproto_panel_state_t *m)
+{
+    if (m->cam_left > BPROTO_PANEL_STATE_CAM_LEFT_MAX) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
+    if (m->cam_right > BPROTO_PANEL_STATE_CAM_RIGHT_MAX) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
+    if (m->trigger > BPROTO_PANEL_STATE_TRIGGER_MAX) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
+    if (m->imu > BPROTO_PANEL_STATE_IMU_MAX) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
+    if (m->lidar > BPROTO_PANEL_STATE_LIDAR_MAX) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
+    if (m->gnss > BPROTO_PANEL_STATE_GNSS_MAX) {
+        return BPROTO_NACK_BAD_VALUE;
+    }
     return 0;
 }
 
@@ -617,3 +662,4 @@ uint8_t bproto_unpack_msg(uint8_t type, const uint8_t *payload, size_t len, bpro
     default: return BPROTO_NACK_UNKNOWN_TYPE;
     }
 }
+/* END GENERATED messages */

@@ -5,6 +5,8 @@
  * The single specification is firmware/protocol/PROTOCOL.md; firmware/protocol/protocol_vectors.json holds the
  * shared test vectors (tests/wire runs them against this file compiled for the host).
  * C99, no malloc, fixed buffers, no dependencies beyond <stdint.h>/<stddef.h>/<string.h>.
+ * The parts between BEGIN/END GENERATED markers (here and in bproto.c) are written by firmware/protocol/generate.py
+ * from firmware/protocol/messages.json (make protocol); edit the table, not them.
  *
  * Frame on the wire: COBS(body) 0x00,
  *   body = ver:u8 | type:u8 | seq:u16 | len:u16 | payload[len] | crc:u16   (little-endian)
@@ -20,16 +22,8 @@
 extern "C" {
 #endif
 
+/* BEGIN GENERATED constants by firmware/protocol/generate.py from messages.json: do not edit (make protocol) */
 #define BPROTO_VERSION 1
-#define BPROTO_MAX_PAYLOAD 255u
-#define BPROTO_HEADER_LEN 6u
-#define BPROTO_CRC_LEN 2u
-/* largest body: header + payload + crc */
-#define BPROTO_MAX_BODY (BPROTO_HEADER_LEN + BPROTO_MAX_PAYLOAD + BPROTO_CRC_LEN)
-/* largest COBS-encoded body without the delimiter: one overhead byte per started 254-byte block */
-#define BPROTO_MAX_ENCODED (BPROTO_MAX_BODY + (BPROTO_MAX_BODY + 253u) / 254u)
-/* worst-case encoded frame including the trailing 0x00 */
-#define BPROTO_MAX_FRAME (BPROTO_MAX_ENCODED + 1u)
 
 #define BPROTO_MSG_HELLO 0x01u
 #define BPROTO_MSG_ACK 0x02u
@@ -52,24 +46,48 @@ extern "C" {
 #define BPROTO_DEVICE_TRIGGER 1u
 #define BPROTO_DEVICE_PANEL 2u
 
-/* payload sizes of the fixed-layout messages (bytes) */
+/* payload sizes (bytes); a variable message: its fixed part (_MIN) and one array item (_ITEM) */
 #define BPROTO_LEN_HELLO 21u /* device->host; the host's request is empty */
 #define BPROTO_LEN_ACK 2u
 #define BPROTO_LEN_NACK 3u
 #define BPROTO_LEN_HEARTBEAT 5u
 #define BPROTO_LEN_PING 8u
 #define BPROTO_LEN_PONG 16u
+#define BPROTO_LEN_SET_BRACKETS_MIN 5u
+#define BPROTO_LEN_SET_BRACKETS_ITEM 4u
 #define BPROTO_LEN_START 4u
 #define BPROTO_LEN_STOP 0u
 #define BPROTO_LEN_TRIGGER 21u
 #define BPROTO_LEN_PANEL_STATE 38u
 #define BPROTO_LEN_BUTTON 4u
-/* SET_BRACKETS: 5 + 4 * n bytes */
+
+/* sizes of the fixed-size text and byte fields */
+#define BPROTO_UID_LEN 12u
+#define BPROTO_PANEL_MESSAGE_LEN 20u
+
+/* SET_BRACKETS value rule (see bproto_check_set_brackets) */
 #define BPROTO_MAX_BRACKETS 16u
 #define BPROTO_MIN_PERIOD_US 1000u
 #define BPROTO_MAX_PERIOD_US 1000000u
 #define BPROTO_MIN_EXPOSURE_US 10u
 #define BPROTO_EXPOSURE_MARGIN_US 200u
+#define BPROTO_PANEL_STATE_CAM_LEFT_MAX 4u
+#define BPROTO_PANEL_STATE_CAM_RIGHT_MAX 4u
+#define BPROTO_PANEL_STATE_TRIGGER_MAX 4u
+#define BPROTO_PANEL_STATE_IMU_MAX 4u
+#define BPROTO_PANEL_STATE_LIDAR_MAX 4u
+#define BPROTO_PANEL_STATE_GNSS_MAX 4u
+/* END GENERATED constants */
+
+#define BPROTO_MAX_PAYLOAD 255u
+#define BPROTO_HEADER_LEN 6u
+#define BPROTO_CRC_LEN 2u
+/* largest body: header + payload + crc */
+#define BPROTO_MAX_BODY (BPROTO_HEADER_LEN + BPROTO_MAX_PAYLOAD + BPROTO_CRC_LEN)
+/* largest COBS-encoded body without the delimiter: one overhead byte per started 254-byte block */
+#define BPROTO_MAX_ENCODED (BPROTO_MAX_BODY + (BPROTO_MAX_BODY + 253u) / 254u)
+/* worst-case encoded frame including the trailing 0x00 */
+#define BPROTO_MAX_FRAME (BPROTO_MAX_ENCODED + 1u)
 
 typedef struct {
     uint8_t ver, type;
@@ -118,8 +136,6 @@ uint64_t bproto_get_u64(const uint8_t *p);
 /* Expected payload length of a fixed-layout type for a device receiving it (HELLO: 0), -1 for SET_BRACKETS (use
  * bproto_set_brackets_len_ok), -2 for an unknown type. */
 int bproto_expected_len(uint8_t type);
-/* 1 if a SET_BRACKETS payload of len bytes is structurally valid (5 + 4 * n). */
-int bproto_set_brackets_len_ok(const uint8_t *payload, size_t len);
 /* 0 if SET_BRACKETS values are acceptable, else BPROTO_NACK_BAD_VALUE (see PROTOCOL.md). */
 uint8_t bproto_check_set_brackets(uint32_t period_us, const uint32_t *exposures_us, size_t n);
 
@@ -136,54 +152,56 @@ uint8_t bproto_check_set_brackets(uint32_t period_us, const uint32_t *exposures_
  *         the semantics (SET_BRACKETS bounds, PANEL_STATE states <= 4, ...) are not checked here: see
  *         bproto_check_set_brackets().
  */
-#define BPROTO_UID_LEN 12u
-#define BPROTO_PANEL_MESSAGE_LEN 20u
-/* most exposures a SET_BRACKETS payload can carry (the structural limit; the value rule allows 1..16) */
-#define BPROTO_SET_BRACKETS_MAX_N ((BPROTO_MAX_PAYLOAD - 5u) / 4u)
+/* BEGIN GENERATED messages by firmware/protocol/generate.py from messages.json: do not edit (make protocol) */
+/* most exposures_us a SET_BRACKETS payload can carry (the structural limit) */
+#define BPROTO_SET_BRACKETS_MAX_N ((BPROTO_MAX_PAYLOAD - BPROTO_LEN_SET_BRACKETS_MIN) / BPROTO_LEN_SET_BRACKETS_ITEM)
 
-typedef struct { /* 0x01 HELLO, device->host (the host's request is the empty payload) */
-    uint8_t device_kind; /* BPROTO_DEVICE_TRIGGER / BPROTO_DEVICE_PANEL */
-    uint8_t proto_minor, fw_major, fw_minor, fw_patch;
-    uint8_t uid[BPROTO_UID_LEN]; /* STM32 96-bit UID, or ESP32 MAC zero-padded */
-    uint32_t capabilities;
+typedef struct { /* 0x01 HELLO, device→host */
+    uint8_t device_kind;  /* 1 trigger, 2 panel */
+    uint8_t proto_minor;
+    uint8_t fw_major;
+    uint8_t fw_minor;
+    uint8_t fw_patch;
+    uint8_t uid[BPROTO_UID_LEN];  /* STM32 96-bit UID, or ESP32 MAC zero-padded */
+    uint32_t capabilities;  /* bitfield, device-specific */
 } bproto_hello_t;
 
-typedef struct { /* 0x02 ACK */
+typedef struct { /* 0x02 ACK, both */
     uint16_t acked_seq;
 } bproto_ack_t;
 
-typedef struct { /* 0x03 NACK */
+typedef struct { /* 0x03 NACK, both */
     uint16_t acked_seq;
-    uint8_t code; /* BPROTO_NACK_* */
+    uint8_t code;  /* NACK code */
 } bproto_nack_t;
 
-typedef struct { /* 0x04 HEARTBEAT */
-    uint32_t uptime_ms;
-    uint8_t state;
+typedef struct { /* 0x04 HEARTBEAT, both */
+    uint32_t uptime_ms;  /* wraps */
+    uint8_t state;  /* trigger: 0 idle, 1 running; panel: 0 normal, 1 host lost; host: 0 */
 } bproto_heartbeat_t;
 
-typedef struct { /* 0x05 PING */
+typedef struct { /* 0x05 PING, host→device */
     uint64_t host_time_ns;
 } bproto_ping_t;
 
-typedef struct { /* 0x06 PONG */
-    uint64_t host_time_ns;   /* echoed from the PING */
-    uint64_t device_time_us; /* 64-bit device microsecond clock */
+typedef struct { /* 0x06 PONG, device→host */
+    uint64_t host_time_ns;  /* echoed */
+    uint64_t device_time_us;  /* 64-bit device microsecond clock */
 } bproto_pong_t;
 
-typedef struct { /* 0x10 SET_BRACKETS: 5 + 4 * n bytes */
+typedef struct { /* 0x10 SET_BRACKETS, host→trigger */
     uint32_t period_us;
-    uint8_t n; /* number of exposures_us entries */
-    uint32_t exposures_us[BPROTO_SET_BRACKETS_MAX_N];
+    uint8_t n;
+    uint32_t exposures_us[BPROTO_SET_BRACKETS_MAX_N];  /* n = 1..16 */
 } bproto_set_brackets_t;
 
-typedef struct { /* 0x11 START */
+typedef struct { /* 0x11 START, host→trigger */
     uint32_t session_id;
 } bproto_start_t;
 
 /* 0x12 STOP has no fields (empty payload). */
 
-typedef struct { /* 0x20 TRIGGER */
+typedef struct { /* 0x20 TRIGGER, trigger→host */
     uint32_t session_id;
     uint32_t trigger_seq;
     uint8_t bracket_index;
@@ -191,19 +209,23 @@ typedef struct { /* 0x20 TRIGGER */
     uint64_t t_start_us;
 } bproto_trigger_t;
 
-typedef struct { /* 0x30 PANEL_STATE */
-    uint8_t cam_left, cam_right, trigger, imu, lidar, gnss; /* 0 OFF, 1 IDLE, 2 REC, 3 ERR, 4 CAL */
+typedef struct { /* 0x30 PANEL_STATE, host→panel */
+    uint8_t cam_left;  /* 0 OFF, 1 IDLE, 2 REC, 3 ERR, 4 CAL */
+    uint8_t cam_right;
+    uint8_t trigger;
+    uint8_t imu;
+    uint8_t lidar;
+    uint8_t gnss;
     uint32_t free_disk_mb;
-    uint16_t fps_left_centi, fps_right_centi; /* fps x 100 */
+    uint16_t fps_left_centi;  /* fps × 100 */
+    uint16_t fps_right_centi;
     uint32_t rec_seconds;
-    /* NUL-terminated printable ASCII, at most 20 characters; packed space padded, unpacked without the trailing
-     * spaces (as the Python codec) */
-    char message[BPROTO_PANEL_MESSAGE_LEN + 1u];
+    char message[BPROTO_PANEL_MESSAGE_LEN + 1u];  /* NUL-terminated printable ASCII: space padded when packed, trailing spaces removed when unpacked */
 } bproto_panel_state_t;
 
-typedef struct { /* 0x31 BUTTON */
-    uint8_t button; /* 1 SENSORS, 2 RECORD */
-    uint8_t action; /* 1 short, 2 long */
+typedef struct { /* 0x31 BUTTON, panel→host */
+    uint8_t button;  /* 1 SENSORS, 2 RECORD */
+    uint8_t action;  /* 1 short, 2 long */
     uint16_t event_seq;
 } bproto_button_t;
 
@@ -218,9 +240,6 @@ int bproto_pack_start(const bproto_start_t *m, uint8_t *out, size_t out_cap);
 int bproto_pack_trigger(const bproto_trigger_t *m, uint8_t *out, size_t out_cap);
 int bproto_pack_panel_state(const bproto_panel_state_t *m, uint8_t *out, size_t out_cap);
 int bproto_pack_button(const bproto_button_t *m, uint8_t *out, size_t out_cap);
-
-/* bproto_unpack_hello takes the 21-byte device HELLO only (the empty request is BAD_LENGTH here; see
- * bproto_unpack_msg); bproto_unpack_stop checks that the payload is empty. */
 uint8_t bproto_unpack_hello(const uint8_t *payload, size_t len, bproto_hello_t *m);
 uint8_t bproto_unpack_ack(const uint8_t *payload, size_t len, bproto_ack_t *m);
 uint8_t bproto_unpack_nack(const uint8_t *payload, size_t len, bproto_nack_t *m);
@@ -233,6 +252,10 @@ uint8_t bproto_unpack_stop(const uint8_t *payload, size_t len);
 uint8_t bproto_unpack_trigger(const uint8_t *payload, size_t len, bproto_trigger_t *m);
 uint8_t bproto_unpack_panel_state(const uint8_t *payload, size_t len, bproto_panel_state_t *m);
 uint8_t bproto_unpack_button(const uint8_t *payload, size_t len, bproto_button_t *m);
+/* 1 if a SET_BRACKETS payload of len bytes is structurally valid */
+int bproto_set_brackets_len_ok(const uint8_t *payload, size_t len);
+/* 0 if the PANEL_STATE values are within their ranges, else BPROTO_NACK_BAD_VALUE */
+uint8_t bproto_check_panel_state(const bproto_panel_state_t *m);
 
 /* Any message: type plus the struct of that type. */
 typedef struct {
@@ -252,6 +275,7 @@ typedef struct {
         bproto_button_t button;
     } u;
 } bproto_msg_t;
+/* END GENERATED messages */
 
 /* Payload of m (dispatch on m->type); -1 on an unknown type or as the per-type pack functions. */
 int bproto_pack_msg(const bproto_msg_t *m, uint8_t *out, size_t out_cap);

@@ -504,6 +504,16 @@ static void builtin_message_checks(void)
     if (bproto_pack_msg(&m, p, sizeof p) != 0) fail("builtin", "HELLO request is empty");
     if (bproto_unpack_hello(p, 0, &g.u.hello) != BPROTO_NACK_BAD_LENGTH) fail("builtin", "unpack_hello of a request");
     if (bproto_unpack_stop(p, 0) != 0 || bproto_unpack_stop(p, 1) != BPROTO_NACK_BAD_LENGTH) fail("builtin", "STOP");
+    /* PANEL_STATE value rule: every state <= BPROTO_PANEL_STATE_<FIELD>_MAX (4) */
+    memset(&m, 0, sizeof m);
+    m.u.panel_state.cam_left = 4u;
+    m.u.panel_state.gnss = 4u;
+    if (bproto_check_panel_state(&m.u.panel_state) != 0) fail("builtin", "PANEL_STATE states 0..4 are valid");
+    m.u.panel_state.gnss = 5u;
+    if (bproto_check_panel_state(&m.u.panel_state) != BPROTO_NACK_BAD_VALUE) fail("builtin", "PANEL_STATE gnss 5");
+    m.u.panel_state.gnss = 0u;
+    m.u.panel_state.cam_left = 5u;
+    if (bproto_check_panel_state(&m.u.panel_state) != BPROTO_NACK_BAD_VALUE) fail("builtin", "PANEL_STATE cam 5");
 }
 
 int main(int argc, char **argv)

@@ -35,8 +35,6 @@ typedef struct {
 void trig_timeext_init(trig_timeext_t *t, uint32_t raw);
 uint64_t trig_timeext_extend(trig_timeext_t *t, uint32_t raw);
 
-/* 0 if the table is valid, else BPROTO_NACK_BAD_VALUE. */
-uint8_t trig_validate_table(uint32_t period_us, uint8_t n, const uint32_t *exposure_us);
 /* Bracket index of pulse number k (k = trigger_seq) in a table of n entries. */
 uint8_t trig_sched_index(uint32_t k, uint8_t n);
 

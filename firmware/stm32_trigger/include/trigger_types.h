@@ -4,12 +4,10 @@
 
 #include <stdint.h>
 
-#define TRIG_MAX_BRACKETS 16u
-/* SET_BRACKETS bounds (wire protocol v1, firmware/protocol/PROTOCOL.md). */
-#define TRIG_PERIOD_MIN_US 1000u
-#define TRIG_PERIOD_MAX_US 1000000u
-#define TRIG_EXPOSURE_MIN_US 10u
-#define TRIG_GAP_MIN_US 200u /* exposure_us + 200 <= period_us */
+#include "bproto.h"
+
+/* Bracket table capacity: the SET_BRACKETS value rule of the wire codec (bproto_check_set_brackets). */
+#define TRIG_MAX_BRACKETS BPROTO_MAX_BRACKETS
 
 /* A bracket table: pulses repeat every period_us; pulse k has width exposure_us[k % n]. */
 typedef struct {

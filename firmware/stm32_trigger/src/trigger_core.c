@@ -25,24 +25,6 @@ uint64_t trig_timeext_extend(trig_timeext_t *t, uint32_t raw)
     return t->high | (uint64_t)raw;
 }
 
-uint8_t trig_validate_table(uint32_t period_us, uint8_t n, const uint32_t *exposure_us)
-{
-    if (n < 1u || n > TRIG_MAX_BRACKETS) {
-        return BPROTO_NACK_BAD_VALUE;
-    }
-    if (period_us < TRIG_PERIOD_MIN_US || period_us > TRIG_PERIOD_MAX_US) {
-        return BPROTO_NACK_BAD_VALUE;
-    }
-    for (uint8_t i = 0; i < n; i++) {
-        uint32_t e = exposure_us[i];
-        /* e + 200 <= period, written so that it cannot overflow */
-        if (e < TRIG_EXPOSURE_MIN_US || e > period_us - TRIG_GAP_MIN_US) {
-            return BPROTO_NACK_BAD_VALUE;
-        }
-    }
-    return 0u;
-}
-
 uint8_t trig_sched_index(uint32_t k, uint8_t n)
 {
     return (uint8_t)(n ? k % n : 0u);
@@ -162,7 +144,7 @@ static void handle_set_brackets(trig_core_t *c, const bproto_frame_t *f)
         send_nack(c, f->seq, BPROTO_NACK_BAD_STATE);
         return;
     }
-    if (trig_validate_table(m.period_us, m.n, m.exposures_us) != 0u) { /* also n outside 1..16 */
+    if (bproto_check_set_brackets(m.period_us, m.exposures_us, m.n) != 0u) { /* the codec owns the rule */
         send_nack(c, f->seq, BPROTO_NACK_BAD_VALUE);
         return;
     }

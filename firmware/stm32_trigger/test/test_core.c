@@ -124,20 +124,20 @@ static void test_timeext(void)
 static void test_validation(void)
 {
     uint32_t ok[6] = {1000, 2000, 4000, 8000, 16000, 32000};
-    CHECK(trig_validate_table(45454u, 6, ok) == 0u);
-    CHECK(trig_validate_table(999u, 1, (uint32_t[]){10}) == BPROTO_NACK_BAD_VALUE);
-    CHECK(trig_validate_table(1000u, 1, (uint32_t[]){10}) == 0u);
-    CHECK(trig_validate_table(1000u, 1, (uint32_t[]){800}) == 0u);
-    CHECK(trig_validate_table(1000u, 1, (uint32_t[]){801}) == BPROTO_NACK_BAD_VALUE);
-    CHECK(trig_validate_table(1000000u, 1, (uint32_t[]){999800}) == 0u);
-    CHECK(trig_validate_table(1000001u, 1, (uint32_t[]){10}) == BPROTO_NACK_BAD_VALUE);
-    CHECK(trig_validate_table(45454u, 1, (uint32_t[]){9}) == BPROTO_NACK_BAD_VALUE);
-    CHECK(trig_validate_table(45454u, 1, (uint32_t[]){0xFFFFFFFFu}) == BPROTO_NACK_BAD_VALUE);
-    CHECK(trig_validate_table(45454u, 0, ok) == BPROTO_NACK_BAD_VALUE);
+    CHECK(bproto_check_set_brackets(45454u, ok, 6) == 0u);
+    CHECK(bproto_check_set_brackets(999u, (uint32_t[]){10}, 1) == BPROTO_NACK_BAD_VALUE);
+    CHECK(bproto_check_set_brackets(1000u, (uint32_t[]){10}, 1) == 0u);
+    CHECK(bproto_check_set_brackets(1000u, (uint32_t[]){800}, 1) == 0u);
+    CHECK(bproto_check_set_brackets(1000u, (uint32_t[]){801}, 1) == BPROTO_NACK_BAD_VALUE);
+    CHECK(bproto_check_set_brackets(1000000u, (uint32_t[]){999800}, 1) == 0u);
+    CHECK(bproto_check_set_brackets(1000001u, (uint32_t[]){10}, 1) == BPROTO_NACK_BAD_VALUE);
+    CHECK(bproto_check_set_brackets(45454u, (uint32_t[]){9}, 1) == BPROTO_NACK_BAD_VALUE);
+    CHECK(bproto_check_set_brackets(45454u, (uint32_t[]){0xFFFFFFFFu}, 1) == BPROTO_NACK_BAD_VALUE);
+    CHECK(bproto_check_set_brackets(45454u, ok, 0) == BPROTO_NACK_BAD_VALUE);
     uint32_t many[17];
     for (int i = 0; i < 17; i++) many[i] = 100;
-    CHECK(trig_validate_table(45454u, 16, many) == 0u);
-    CHECK(trig_validate_table(45454u, 17, many) == BPROTO_NACK_BAD_VALUE);
+    CHECK(bproto_check_set_brackets(45454u, many, 16) == 0u);
+    CHECK(bproto_check_set_brackets(45454u, many, 17) == BPROTO_NACK_BAD_VALUE);
     for (uint32_t k = 0; k < 100; k++) CHECK(trig_sched_index(k, 6) == k % 6);
     CHECK(trig_sched_index(0xFFFFFFFFu, 6) == 0xFFFFFFFFu % 6);
 }

@@ -14,14 +14,15 @@ from pathlib import Path
 from typing import Any
 
 from bracketry.errors import BracketryError
+from bracketry.wire import bproto
 
 CAMERA_PROFILES = ("basler_ace2", "aravis_fake")
 SIDES = ("left", "right")
 TRIGGER_KINDS = ("serial", "simulator", "qemu")
 PIXEL_FORMATS = ("BayerRG12p", "BayerRG12", "Mono16", "BayerRG8", "Mono8")
 TRIGGER_ACTIVATIONS = ("FallingEdge", "RisingEdge", "LevelLow", "LevelHigh")
-#: minimum gap between the end of a pulse and the next period start, microseconds (wire protocol rule)
-PULSE_GAP_US = 200
+#: lowest frame rate the trigger accepts: one pulse per bproto.MAX_PERIOD_US (the wire codec's SET_BRACKETS rule)
+MIN_FPS = 1e6 / bproto.MAX_PERIOD_US
 
 
 class ConfigError(BracketryError):
@@ -174,20 +175,25 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
     rig = c.table(data["rig"], "rig", _RIG_KEYS)
 
     fps = float(rig["fps"])
-    if not 0.5 <= fps <= 200.0:
-        c.fail("rig.fps", f"must be within 0.5..200 frames per second, got {fps}")
+    if not MIN_FPS <= fps <= 200.0:
+        c.fail("rig.fps", f"must be within {MIN_FPS:g}..200 frames per second, got {fps}")
     period_us = round(1e6 / fps)
     brackets = rig["brackets_ms"]
-    if not 1 <= len(brackets) <= 16:
-        c.fail("rig.brackets_ms", f"must list 1..16 exposures, got {len(brackets)}")
+    if not 1 <= len(brackets) <= bproto.MAX_BRACKETS:
+        c.fail("rig.brackets_ms", f"must list 1..{bproto.MAX_BRACKETS} exposures, got {len(brackets)}")
     for i, ms in enumerate(brackets):
         if isinstance(ms, bool) or not isinstance(ms, int | float):
             c.fail(f"rig.brackets_ms[{i}]", f"must be a number of milliseconds, got {ms!r}")
-        if ms * 1000 < 10:
-            c.fail(f"rig.brackets_ms[{i}]", f"{ms} ms is below the 0.010 ms minimum exposure")
-        if ms * 1000 + PULSE_GAP_US > period_us:
+        if ms * 1000 < bproto.MIN_EXPOSURE_US:
             c.fail(f"rig.brackets_ms[{i}]",
-                   f"{ms} ms does not fit the {period_us} us period at {fps:g} fps (needs exposure + 0.2 ms <= period)")
+                   f"{ms} ms is below the {bproto.MIN_EXPOSURE_US / 1000:.3f} ms minimum exposure")
+        if ms * 1000 + bproto.EXPOSURE_MARGIN_US > period_us:
+            c.fail(f"rig.brackets_ms[{i}]",
+                   f"{ms} ms does not fit the {period_us} us period at {fps:g} fps "
+                   f"(needs exposure + {bproto.EXPOSURE_MARGIN_US / 1000:g} ms <= period)")
+    if bproto.check_set_brackets(period_us, [round(ms * 1000) for ms in brackets]):  # the codec owns the rule
+        c.fail("rig.brackets_ms", f"the trigger refuses {brackets} ms at a {period_us} us period "
+                                  "(SET_BRACKETS rule, firmware/protocol/PROTOCOL.md section 3)")
     for key in ("min_free_mb", "stop_free_mb", "split_size_mb"):
         if key in rig and rig[key] < 0:
             c.fail(f"rig.{key}", f"must be >= 0, got {rig[key]}")

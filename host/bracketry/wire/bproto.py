@@ -1,7 +1,9 @@
 """bproto v1: the bracketry serial wire codec (frames, CRC, COBS, message payloads, streaming decoder).
 
 The single specification is ``firmware/protocol/PROTOCOL.md``; ``firmware/protocol/protocol_vectors.json`` holds the
-shared test vectors that this module, the C codec and the MicroPython runtime all pass.
+shared test vectors that this module, the C codec and the MicroPython runtime all pass. The part between the
+``BEGIN/END GENERATED`` markers (message types, codes, value-rule constants, payload layouts) is written by
+``firmware/protocol/generate.py`` from ``firmware/protocol/messages.json`` (``make protocol``); the rest by hand.
 
 This ONE module runs unchanged under CPython (host) and MicroPython (ESP32 panel, imported as ``import bproto``):
 it uses only ``struct`` (``binascii.crc_hqx`` and the ``cobs`` package's C decoder are optional CPython speed-ups
@@ -15,6 +17,7 @@ CRC-16/CCITT-FALSE over ``ver..payload``.
 
 import struct
 
+# BEGIN GENERATED constants by firmware/protocol/generate.py from messages.json: do not edit (make protocol)
 VERSION = 1
 
 MSG_HELLO = 0x01
@@ -38,33 +41,37 @@ NACK_BAD_STATE = 4
 DEVICE_TRIGGER = 1
 DEVICE_PANEL = 2
 
-MAX_PAYLOAD = 255
-HEADER_LEN = 6
-CRC_LEN = 2
-#: largest body: header + payload + crc (bytes)
-MAX_BODY = HEADER_LEN + MAX_PAYLOAD + CRC_LEN
-#: largest COBS-encoded body, without the 0x00 delimiter (bytes): one overhead byte per started 254-byte block
-MAX_ENCODED = MAX_BODY + (MAX_BODY + 253) // 254
-#: largest frame on the wire including the trailing 0x00 (bytes)
-MAX_FRAME = MAX_ENCODED + 1
-
 MAX_BRACKETS = 16
 MIN_PERIOD_US = 1000
 MAX_PERIOD_US = 1000000
 MIN_EXPOSURE_US = 10
 EXPOSURE_MARGIN_US = 200
+UID_LEN = 12
 PANEL_MESSAGE_LEN = 20
 
 MSG_NAMES = {
-    MSG_HELLO: "HELLO", MSG_ACK: "ACK", MSG_NACK: "NACK", MSG_HEARTBEAT: "HEARTBEAT", MSG_PING: "PING",
-    MSG_PONG: "PONG", MSG_SET_BRACKETS: "SET_BRACKETS", MSG_START: "START", MSG_STOP: "STOP",
-    MSG_TRIGGER: "TRIGGER", MSG_PANEL_STATE: "PANEL_STATE", MSG_BUTTON: "BUTTON",
+    MSG_HELLO: "HELLO",
+    MSG_ACK: "ACK",
+    MSG_NACK: "NACK",
+    MSG_HEARTBEAT: "HEARTBEAT",
+    MSG_PING: "PING",
+    MSG_PONG: "PONG",
+    MSG_SET_BRACKETS: "SET_BRACKETS",
+    MSG_START: "START",
+    MSG_STOP: "STOP",
+    MSG_TRIGGER: "TRIGGER",
+    MSG_PANEL_STATE: "PANEL_STATE",
+    MSG_BUTTON: "BUTTON",
 }
-NACK_NAMES = {NACK_UNKNOWN_TYPE: "UNKNOWN_TYPE", NACK_BAD_LENGTH: "BAD_LENGTH", NACK_BAD_VALUE: "BAD_VALUE",
-              NACK_BAD_STATE: "BAD_STATE"}
+NACK_NAMES = {
+    NACK_UNKNOWN_TYPE: "UNKNOWN_TYPE",
+    NACK_BAD_LENGTH: "BAD_LENGTH",
+    NACK_BAD_VALUE: "BAD_VALUE",
+    NACK_BAD_STATE: "BAD_STATE",
+}
 
-# Fixed layouts: type -> (struct format, field names). "12s"/"20s" fields are bytes/str, all others ints.
-# HELLO (empty = request), SET_BRACKETS (variable length) and STOP (empty) are handled in pack/unpack.
+# Fixed layouts: type -> (struct format, field names); "Ns" fields are bytes (zero padded) or,
+# when named in _ASCII_FIELDS, printable ASCII text (space padded). An empty HELLO is the request.
 _LAYOUTS = {
     MSG_HELLO: ("<BBBBB12sI", ("device_kind", "proto_minor", "fw_major", "fw_minor", "fw_patch", "uid",
                                "capabilities")),
@@ -81,6 +88,28 @@ _LAYOUTS = {
                                          "message")),
     MSG_BUTTON: ("<BBH", ("button", "action", "event_seq")),
 }
+# Variable layouts: type -> (struct format of the fixed part, its field names, count field, array field,
+# struct format of one item); the count field is not a dict field (it is the array's length).
+_ARRAYS = {
+    MSG_SET_BRACKETS: ("<IB", ("period_us",), "n", "exposures_us", "<I"),
+}
+_ASCII_FIELDS = ("message",)
+# Per-field value ranges: type -> ((field name, largest value), ...)
+_VALUE_MAX = {
+    MSG_PANEL_STATE: (("cam_left", 4), ("cam_right", 4), ("trigger", 4), ("imu", 4), ("lidar", 4), ("gnss", 4)),
+}
+# END GENERATED constants
+
+MAX_PAYLOAD = 255
+HEADER_LEN = 6
+CRC_LEN = 2
+#: largest body: header + payload + crc (bytes)
+MAX_BODY = HEADER_LEN + MAX_PAYLOAD + CRC_LEN
+#: largest COBS-encoded body, without the 0x00 delimiter (bytes): one overhead byte per started 254-byte block
+MAX_ENCODED = MAX_BODY + (MAX_BODY + 253) // 254
+#: largest frame on the wire including the trailing 0x00 (bytes)
+MAX_FRAME = MAX_ENCODED + 1
+
 _WIDTH_BITS = {"B": 8, "H": 16, "I": 32, "Q": 64}
 
 
@@ -385,35 +414,71 @@ def _as_fixed_bytes(name, value, size, pad):
     return bytes(value) + pad * (size - len(value))
 
 
+def _pack_array(msg_type, fields):
+    head_fmt, head_names, _count_name, array_name, item_fmt = _ARRAYS[msg_type]
+    name = MSG_NAMES[msg_type]
+    keys = list(head_names)
+    keys.append(array_name)
+    for key in fields:
+        if key not in keys:
+            raise ValueError("unknown field " + str(key) + " for " + name)
+    for key in keys:
+        if key not in fields:
+            raise ValueError(name + " needs " + ", ".join(keys))
+    items = fields[array_name]
+    if not isinstance(items, (list, tuple)):
+        raise ValueError("field " + array_name + " must be a list of ints")
+    head_size = struct.calcsize(head_fmt)
+    item_size = struct.calcsize(item_fmt)
+    if len(items) > (MAX_PAYLOAD - head_size) // item_size:
+        raise ValueError("too many " + array_name + " for one payload")
+    values = []
+    for key, code in zip(head_names, _codes(head_fmt)):
+        _check_int(key, fields[key], _WIDTH_BITS[code])
+        values.append(fields[key])
+    values.append(len(items))
+    out = bytearray(struct.pack(head_fmt, *values))
+    bits = _WIDTH_BITS[item_fmt[1:]]
+    for v in items:
+        _check_int(array_name, v, bits)
+        out += struct.pack(item_fmt, v)
+    return bytes(out)
+
+
+def _unpack_array(msg_type, payload):
+    head_fmt, head_names, count_name, array_name, item_fmt = _ARRAYS[msg_type]
+    name = MSG_NAMES[msg_type]
+    head_size = struct.calcsize(head_fmt)
+    item_size = struct.calcsize(item_fmt)
+    n = len(payload)
+    if n < head_size:
+        raise ValueError(name + " payload shorter than " + str(head_size) + " bytes")
+    values = struct.unpack_from(head_fmt, payload, 0)
+    count = values[-1]
+    if n != head_size + item_size * count:
+        raise ValueError(name + " payload length does not match its " + count_name)
+    out = {}
+    for key, v in zip(head_names, values):
+        out[key] = v
+    out[array_name] = [struct.unpack_from(item_fmt, payload, head_size + item_size * i)[0] for i in range(count)]
+    return out
+
+
 def pack_payload(msg_type, fields):
     """Payload bytes of ``msg_type`` from a dict of its fields (names as in PROTOCOL.md).
 
     HELLO with an empty/None ``fields`` is the request (empty payload); STOP is empty; SET_BRACKETS takes
     ``period_us`` and ``exposures_us`` (list of ints, 0..62 entries; device-side value rules are separate, see
-    :func:`check_set_brackets`). ``uid`` is bytes (<= 12, zero padded), ``message`` str or bytes (<= 20 ASCII,
-    space padded). Missing fields, extra fields, wrong types or out-of-range values raise ValueError.
+    :func:`check_set_brackets` and :func:`check_values`). ``uid`` is bytes (<= 12, zero padded), ``message`` str or
+    bytes (<= 20 ASCII, space padded). Missing fields, extra fields, wrong types or out-of-range values raise
+    ValueError.
     """
     if fields is None:
         fields = {}
     if msg_type == MSG_HELLO and not fields:
         return b""
-    if msg_type == MSG_SET_BRACKETS:
-        for key in fields:
-            if key not in ("period_us", "exposures_us"):
-                raise ValueError("unknown field " + str(key) + " for SET_BRACKETS")
-        if "period_us" not in fields or "exposures_us" not in fields:
-            raise ValueError("SET_BRACKETS needs period_us and exposures_us")
-        exposures = fields["exposures_us"]
-        if not isinstance(exposures, (list, tuple)):
-            raise ValueError("field exposures_us must be a list of ints")
-        if len(exposures) > (MAX_PAYLOAD - 5) // 4:
-            raise ValueError("too many exposures_us for one payload")
-        _check_int("period_us", fields["period_us"], 32)
-        out = bytearray(struct.pack("<IB", fields["period_us"], len(exposures)))
-        for e in exposures:
-            _check_int("exposures_us", e, 32)
-            out += struct.pack("<I", e)
-        return bytes(out)
+    if msg_type in _ARRAYS:
+        return _pack_array(msg_type, fields)
     if msg_type not in _LAYOUTS:
         raise ValueError("unknown message type " + str(msg_type))
     fmt, names = _LAYOUTS[msg_type]
@@ -425,10 +490,8 @@ def pack_payload(msg_type, fields):
         if name not in fields:
             raise ValueError("missing field " + name + " for " + MSG_NAMES[msg_type])
         v = fields[name]
-        if code == "12s":
-            v = _as_fixed_bytes(name, v, 12, b"\x00")
-        elif code == "20s":
-            v = _as_fixed_bytes(name, v, PANEL_MESSAGE_LEN, b" ")
+        if code[-1] == "s":
+            v = _as_fixed_bytes(name, v, int(code[:-1]), b" " if name in _ASCII_FIELDS else b"\x00")
         else:
             _check_int(name, v, _WIDTH_BITS[code])
         values.append(v)
@@ -442,20 +505,15 @@ def unpack_payload(msg_type, payload):
     :class:`PayloadValueError` (a ValueError) on a value the type does not allow (a non-ASCII ``message``).
 
     HELLO with an empty payload (the request) gives ``{}``; ``uid`` is 12 bytes; ``message`` is a str with the
-    trailing spaces removed; SET_BRACKETS gives ``period_us`` and ``exposures_us`` (list).
+    trailing spaces removed; SET_BRACKETS gives ``period_us`` and ``exposures_us`` (list). Value ranges are checked
+    separately (:func:`check_values`, :func:`check_set_brackets`).
     """
     payload = bytes(payload)
     n = len(payload)
     if msg_type == MSG_HELLO and n == 0:
         return {}
-    if msg_type == MSG_SET_BRACKETS:
-        if n < 5:
-            raise ValueError("SET_BRACKETS payload shorter than 5 bytes")
-        period_us, count = struct.unpack_from("<IB", payload, 0)
-        if n != 5 + 4 * count:
-            raise ValueError("SET_BRACKETS payload length does not match its count")
-        exposures = [struct.unpack_from("<I", payload, 5 + 4 * i)[0] for i in range(count)]
-        return {"period_us": period_us, "exposures_us": exposures}
+    if msg_type in _ARRAYS:
+        return _unpack_array(msg_type, payload)
     if msg_type not in _LAYOUTS:
         raise ValueError("unknown message type")
     fmt, names = _LAYOUTS[msg_type]
@@ -467,11 +525,11 @@ def unpack_payload(msg_type, payload):
         return out
     values = struct.unpack(fmt, payload)
     for name, v in zip(names, values):
-        if name == "message":
+        if name in _ASCII_FIELDS:
             if not _is_printable_ascii(v):
-                raise PayloadValueError("field message must be printable ASCII")
+                raise PayloadValueError("field " + name + " must be printable ASCII")
             v = bytes(v).decode().rstrip(" ")
-        elif name == "uid":
+        elif isinstance(v, (bytes, bytearray)):
             v = bytes(v)
         out[name] = v
     return out
@@ -490,7 +548,7 @@ def decode_message(frame):
 def nack_code_for(msg_type, payload):
     """The NACK code a device answers for a structurally bad command (unknown type, wrong length, a value its type
     does not allow), or 0 if it is well formed."""
-    if msg_type not in _LAYOUTS and msg_type != MSG_SET_BRACKETS:
+    if msg_type not in _LAYOUTS and msg_type not in _ARRAYS:
         return NACK_UNKNOWN_TYPE
     try:
         unpack_payload(msg_type, payload)
@@ -517,6 +575,17 @@ def check_set_brackets(period_us, exposures_us):
     return 0
 
 
+def check_values(msg_type, fields):
+    """0 if the unpacked ``fields`` of ``msg_type`` are within their value ranges (PANEL_STATE states <= 4; for
+    SET_BRACKETS :func:`check_set_brackets`), else NACK_BAD_VALUE."""
+    if msg_type in _ARRAYS:
+        return check_set_brackets(fields["period_us"], fields["exposures_us"])
+    for name, top in _VALUE_MAX.get(msg_type, ()):
+        if fields[name] > top:
+            return NACK_BAD_VALUE
+    return 0
+
+
 def type_by_name(name):
     """Message type int from its name (``"PING"``, case-insensitive) or a number string (``"0x05"``, ``"5"``)."""
     up = name.upper()
@@ -534,8 +603,10 @@ def type_by_name(name):
 
 def field_names(msg_type):
     """Field names of ``msg_type`` in payload order (SET_BRACKETS: period_us, exposures_us)."""
-    if msg_type == MSG_SET_BRACKETS:
-        return ("period_us", "exposures_us")
+    if msg_type in _ARRAYS:
+        names = list(_ARRAYS[msg_type][1])
+        names.append(_ARRAYS[msg_type][3])
+        return tuple(names)
     if msg_type not in _LAYOUTS:
         raise ValueError("unknown message type")
     return _LAYOUTS[msg_type][1]
