@@ -34,22 +34,36 @@ def parse_resolution(text: str) -> tuple[int, int]:
               show_default=True, help="Synthetic world.")
 @click.option("--seed", type=int, default=0, show_default=True)
 @click.option("--no-world", is_flag=True, help="Serve a test pattern instead of the synthetic world.")
+@click.option("--monitor", "monitor_port", type=click.IntRange(1024, 65535), default=None,
+              help="Serve the browser monitor on 127.0.0.1:PORT (the URL with its token is printed).")
 def command(seconds: float, out_dir: Path, trigger: str, resolution: str, fps: float, preset: str, seed: int,
-            no_world: bool) -> int:
+            no_world: bool, monitor_port: int | None) -> int:
     """Run the simulated backpack: fake GigE cameras, trigger, panel firmware and the daemon under test."""
     res = parse_resolution(resolution)
     from bracketry.sim.rig import in_private_netns, reexec_in_netns
 
     if not in_private_netns():
-        return reexec_in_netns(sys.argv[1:] if sys.argv[1:2] == ["simulate"] else
-                               ["simulate", "--seconds", str(seconds), "--out", str(out_dir), "--trigger", trigger,
-                                "--resolution", resolution, "--fps", str(fps), "--preset", preset, "--seed",
-                                str(seed), *(["--no-world"] if no_world else [])])
-    return run(out_dir, seconds, trigger, res, fps, preset, seed, not no_world)
+        bridge = None
+        if monitor_port is not None:
+            from bracketry.sim.rig import monitor_bridge_outside
+
+            out_dir.mkdir(parents=True, exist_ok=True)
+            bridge = monitor_bridge_outside(out_dir, monitor_port)
+        try:
+            return reexec_in_netns(sys.argv[1:] if sys.argv[1:2] == ["simulate"] else
+                                   ["simulate", "--seconds", str(seconds), "--out", str(out_dir), "--trigger",
+                                    trigger, "--resolution", resolution, "--fps", str(fps), "--preset", preset,
+                                    "--seed", str(seed), *(["--no-world"] if no_world else []),
+                                    *(["--monitor", str(monitor_port)] if monitor_port is not None else [])])
+        finally:
+            if bridge is not None:
+                bridge.terminate()
+                bridge.wait(timeout=10)
+    return run(out_dir, seconds, trigger, res, fps, preset, seed, not no_world, monitor_port)
 
 
 def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: float, preset: str, seed: int,
-        world: bool) -> int:
+        world: bool, monitor_port: int | None = None) -> int:
     """The simulation inside the private network namespace."""
     from tqdm import tqdm
 
@@ -58,7 +72,8 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     from bracketry.sim.scenario import run_session
 
     opts = SimOptions(out_dir=out_dir, resolution=res, fps=fps, world_seconds=seconds + 5.0, trigger=trigger,
-                      preset=preset, seed=seed, world=world, echo=lambda s: click.echo(s, err=True))
+                      preset=preset, seed=seed, world=world, echo=lambda s: click.echo(s, err=True),
+                      monitor_port=monitor_port)
     rig = SimulatedRig(opts)
     try:
         bar = tqdm(total=1, desc="rendering camera frames", unit="frame", file=sys.stderr, leave=False)

@@ -66,6 +66,19 @@ class PanelConfig:
 
 
 @dataclass(frozen=True)
+class MonitorConfig:
+    """The browser monitor (table ``[monitor]``; no table: off). ``listen`` ``HOST:PORT`` (IPv4; anything but
+    loopback needs the token); ``preview_hz`` previews per second per camera and bracket; ``bayer`` frames are RGGB
+    mosaics (default: the cameras' pixel format says so); ``white_dn`` the sensors' white level (default 4095, 255
+    for 8-bit formats)."""
+
+    listen: str = "127.0.0.1:8470"
+    preview_hz: float = 1.0
+    bayer: bool = True
+    white_dn: int = 4095
+
+
+@dataclass(frozen=True)
 class RigConfig:
     """The whole rig. Times in the names' units; ``brackets_us`` is derived from ``brackets_ms``."""
 
@@ -81,6 +94,7 @@ class RigConfig:
     split_minutes: float = 10.0
     status_socket: Path = Path("/run/bracketry/status.sock")
     source: Path | None = None
+    monitor: MonitorConfig | None = None
 
     @property
     def period_us(self) -> int:
@@ -133,8 +147,34 @@ _PANEL_KEYS: dict[str, tuple[tuple[type, ...], bool]] = {
     "baudrate": ((int,), False),
     "refresh_hz": ((int, float), False),
 }
-_TOP_KEYS = {"rig", "trigger", "panel", "cameras"}
+_MONITOR_KEYS: dict[str, tuple[tuple[type, ...], bool]] = {
+    "listen": ((str,), False),
+    "preview_hz": ((int, float), False),
+    "bayer": ((bool,), False),
+    "white_dn": ((int,), False),
+}
+_TOP_KEYS = {"rig", "trigger", "panel", "cameras", "monitor"}
 _BAUDRATES = (9600, 19200, 38400, 57600, 115200, 230400, 460800, 921600, 1000000, 2000000)
+
+
+def check_brackets_ms(brackets: list[Any], fps: float) -> tuple[str, str] | None:
+    """The bracket table rule (the wire codec's, ``bproto``): None when ``brackets`` (ms) is a table the trigger
+    accepts at ``fps``; else ``(where, problem)`` for the first problem (``where``: "" or "[i]")."""
+    period_us = round(1e6 / fps)
+    if not 1 <= len(brackets) <= bproto.MAX_BRACKETS:
+        return "", f"must list 1..{bproto.MAX_BRACKETS} exposures, got {len(brackets)}"
+    for i, ms in enumerate(brackets):
+        if isinstance(ms, bool) or not isinstance(ms, int | float):
+            return f"[{i}]", f"must be a number of milliseconds, got {ms!r}"
+        if ms * 1000 < bproto.MIN_EXPOSURE_US:
+            return f"[{i}]", f"{ms} ms is below the {bproto.MIN_EXPOSURE_US / 1000:.3f} ms minimum exposure"
+        if ms * 1000 + bproto.EXPOSURE_MARGIN_US > period_us:
+            return (f"[{i}]", f"{ms} ms does not fit the {period_us} us period at {fps:g} fps "
+                              f"(needs exposure + {bproto.EXPOSURE_MARGIN_US / 1000:g} ms <= period)")
+    if bproto.check_set_brackets(period_us, [round(ms * 1000) for ms in brackets]):  # the codec owns the rule
+        return "", (f"the trigger refuses {brackets} ms at a {period_us} us period "
+                    "(SET_BRACKETS rule, firmware/protocol/PROTOCOL.md section 3)")
+    return None
 
 
 class _Checker:
@@ -177,23 +217,10 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
     fps = float(rig["fps"])
     if not MIN_FPS <= fps <= 200.0:
         c.fail("rig.fps", f"must be within {MIN_FPS:g}..200 frames per second, got {fps}")
-    period_us = round(1e6 / fps)
     brackets = rig["brackets_ms"]
-    if not 1 <= len(brackets) <= bproto.MAX_BRACKETS:
-        c.fail("rig.brackets_ms", f"must list 1..{bproto.MAX_BRACKETS} exposures, got {len(brackets)}")
-    for i, ms in enumerate(brackets):
-        if isinstance(ms, bool) or not isinstance(ms, int | float):
-            c.fail(f"rig.brackets_ms[{i}]", f"must be a number of milliseconds, got {ms!r}")
-        if ms * 1000 < bproto.MIN_EXPOSURE_US:
-            c.fail(f"rig.brackets_ms[{i}]",
-                   f"{ms} ms is below the {bproto.MIN_EXPOSURE_US / 1000:.3f} ms minimum exposure")
-        if ms * 1000 + bproto.EXPOSURE_MARGIN_US > period_us:
-            c.fail(f"rig.brackets_ms[{i}]",
-                   f"{ms} ms does not fit the {period_us} us period at {fps:g} fps "
-                   f"(needs exposure + {bproto.EXPOSURE_MARGIN_US / 1000:g} ms <= period)")
-    if bproto.check_set_brackets(period_us, [round(ms * 1000) for ms in brackets]):  # the codec owns the rule
-        c.fail("rig.brackets_ms", f"the trigger refuses {brackets} ms at a {period_us} us period "
-                                  "(SET_BRACKETS rule, firmware/protocol/PROTOCOL.md section 3)")
+    problem = check_brackets_ms(brackets, fps)
+    if problem:
+        c.fail(f"rig.brackets_ms{problem[0]}", problem[1])
     for key in ("min_free_mb", "stop_free_mb", "split_size_mb"):
         if key in rig and rig[key] < 0:
             c.fail(f"rig.{key}", f"must be >= 0, got {rig[key]}")
@@ -261,6 +288,25 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
     if trig.get("port") and panel.get("enabled", True) and trig.get("port") == panel.get("port"):
         c.fail("panel.port", f"same serial port as trigger.port ({trig['port']})")
 
+    monitor = None
+    if "monitor" in data:
+        mon = c.table(data["monitor"], "monitor", _MONITOR_KEYS)
+        from bracketry.monitor.address import parse_listen
+
+        try:
+            parse_listen(mon.get("listen", "127.0.0.1:8470"))
+        except ValueError as exc:
+            c.fail("monitor.listen", str(exc))
+        if "preview_hz" in mon and not 0.1 <= mon["preview_hz"] <= 5.0:
+            c.fail("monitor.preview_hz", f"must be within 0.1..5 per second, got {mon['preview_hz']}")
+        eight_bit = all(cam.pixel_format.endswith("8") for cam in cameras)
+        if "white_dn" in mon and not 1 <= mon["white_dn"] <= 65535:
+            c.fail("monitor.white_dn", f"must be within 1..65535, got {mon['white_dn']}")
+        monitor = MonitorConfig(listen=mon.get("listen", "127.0.0.1:8470"),
+                                preview_hz=float(mon.get("preview_hz", 1.0)),
+                                bayer=mon.get("bayer", all(cam.pixel_format.startswith("Bayer") for cam in cameras)),
+                                white_dn=mon.get("white_dn", 255 if eight_bit else 4095))
+
     return RigConfig(
         output_dir=Path(rig["output_dir"]).expanduser(),
         brackets_ms=tuple(float(x) for x in brackets),
@@ -274,6 +320,7 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
         split_minutes=float(rig.get("split_minutes", 10.0)),
         status_socket=Path(rig.get("status_socket", "/run/bracketry/status.sock")),
         source=Path(source) if source != "<config>" else None,
+        monitor=monitor,
     )
 
 

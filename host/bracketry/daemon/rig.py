@@ -13,6 +13,7 @@ ERR, recording continues with what still works, and a new segment with every sen
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
 import queue
 import random
@@ -29,6 +30,7 @@ from bracketry.daemon.disk import free_mb
 from bracketry.daemon.sdnotify import Notifier
 from bracketry.daemon.state import RigState, SensorState
 from bracketry.daemon.status import StatusServer
+from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
 
 log = logging.getLogger("bracketry.daemon")
@@ -116,6 +118,8 @@ class RigDaemon:
         self._pump_paused = threading.Event()
         self._last_soft_trigger = 0.0
         self._fired = 0
+        self.monitor_hub: Any = None  # the browser monitor (config [monitor]), see bracketry.daemon.monitor_link
+        self.monitor_server: Any = None
 
     # ------------------------------------------------------------------------------------------------ lifecycle
     def start(self) -> RigDaemon:
@@ -127,6 +131,10 @@ class RigDaemon:
             log.warning("status socket %s unavailable: %s", sock, exc)
         self._connect_panel()
         self.state.set_free_disk_mb(free_mb(self.config.output_dir))
+        if self.config.monitor is not None:
+            from bracketry.daemon.monitor_link import start_monitor
+
+            start_monitor(self)
         self._pump = threading.Thread(target=self._pump_events, name="event-pump", daemon=True)
         self._pump.start()
         self._supervisor = threading.Thread(target=self._supervise, name="supervisor", daemon=True)
@@ -157,6 +165,10 @@ class RigDaemon:
         if self.status_server is not None:
             self.status_server.close()
             self.status_server = None
+        if self.monitor_server is not None:
+            from bracketry.daemon.monitor_link import stop_monitor
+
+            stop_monitor(self)
         log.info("daemon stopped")
 
     def wait(self, timeout_s: float | None = None) -> bool:
@@ -315,6 +327,23 @@ class RigDaemon:
         self.state.set_state(CAM_SENSOR[side], new_state, error)
         self.state.set_fps(side, 0.0)
 
+    def set_brackets_us(self, brackets_us: list[int]) -> None:
+        """Change the bracket table (refused while recording: a segment keeps one table); the trigger, when up, is
+        reconfigured at once. Raises BracketryError naming the problem."""
+        from bracketry.daemon.config import check_brackets_ms
+
+        with self._lock:
+            if self.recording:
+                raise BracketryError("recording: stop it before changing the bracket table")
+            brackets_ms = [b / 1000.0 for b in brackets_us]
+            problem = check_brackets_ms(brackets_ms, self.config.fps)
+            if problem:
+                raise BracketryError(f"brackets_us{problem[0]}: {problem[1]}")
+            if self.trigger is not None:
+                self.trigger.configure(self.config.period_us, list(brackets_us))
+            self.config = dataclasses.replace(self.config, brackets_ms=tuple(brackets_ms))
+            log.info("bracket table changed: brackets_us=%s", self.config.brackets_us)
+
     # ------------------------------------------------------------------------------------------------ recording
     def start_recording(self) -> bool:
         """Start a recording (refused below ``min_free_mb`` or without sensors); True when a segment started."""
@@ -374,7 +403,8 @@ class RigDaemon:
         soft = self.options.software_trigger
         try:
             session = RecordingSession(dict(self.cameras), recorder, disk_path=self.config.output_dir,
-                                       initial_alignment="host_time" if soft else "count").start()
+                                       initial_alignment="host_time" if soft else "count",
+                                       tap=self.monitor_hub.offer if self.monitor_hub is not None else None).start()
         except SessionStartError as exc:
             # this camera cannot stream: ERR (reconnected by the supervisor); the empty segment is closed and the
             # recording goes on with the cameras that work
@@ -632,7 +662,8 @@ class RigDaemon:
         if cmd == "status":
             snap = self.state.snapshot().to_json()
             return {"ok": True, "state": snap, "segments": len(self.segments),
-                    "panel": self.panel.status() if self.panel is not None else None}
+                    "panel": self.panel.status() if self.panel is not None else None,
+                    "monitor": {"url": self.monitor_server.url} if self.monitor_server is not None else None}
         if cmd == "button":
             button = request.get("button")
             if button not in ("sensors", "record"):

@@ -1,0 +1,1 @@
+"""The field monitor: live previews, exposure statistics and the bracket advisor served to a browser."""

@@ -145,11 +145,7 @@ def suggest_brackets(radiance: np.ndarray, state: np.ndarray, n_brackets: int, *
         table = [e * max_us / table[-1] for e in table]
     if table[0] < min_us:
         table = [e * min_us / table[0] for e in table]
-    out: list[int] = []
-    for e in table:
-        v = int(round(min(max(e, min_us), max_us)))
-        out.append(v)
-    return tuple(out)
+    return tuple(round(min(max(e, min_us), max_us)) for e in table)
 
 
 def advise(exposures_us: Sequence[float], lums: Sequence[np.ndarray], *, min_us: float, max_us: float,

@@ -15,6 +15,7 @@ import queue
 import shutil
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -69,11 +70,13 @@ class RecordingSession:
         initial_alignment: how the first frame finds its pulse (see ``Pairer``); ``host_time`` for fake cameras.
         status_period_s: rig status period.
         disk_path: folder whose free space goes into the status.
+        tap: called on the pairing thread with every paired set after the recorder took it (must not block: the
+            monitor's ``PreviewHub.offer``).
     """
 
     def __init__(self, cameras: dict[str, Any], recorder: Recorder, *, window: int = 8,
                  status_period_s: float = 1.0, disk_path: str | Path | None = None, inbox_max_items: int = 256,
-                 initial_alignment: str = "count") -> None:
+                 initial_alignment: str = "count", tap: Callable[[PairedSet], None] | None = None) -> None:
         self.cameras = cameras
         self.recorder = recorder
         self.pairer = Pairer(tuple(cameras), self._on_set, window=window, initial_alignment=initial_alignment)
@@ -85,6 +88,9 @@ class RecordingSession:
         self._fps_marks: dict[str, tuple[float, int]] = {}
         self.frames_received: dict[str, int] = {}
         self._lock = threading.Lock()
+        self.tap = tap
+        #: the latest rig status (RigStatus fields), for readers outside the pairing thread
+        self.last_status: dict[str, Any] = {}
 
     def start(self) -> RecordingSession:
         """Start pairing and every camera's stream.
@@ -132,6 +138,11 @@ class RecordingSession:
 
     def _on_set(self, pset: PairedSet) -> None:
         self.recorder.put_set(pset)
+        if self.tap is not None:  # after the recorder: a monitor sees frames already received, never first
+            try:
+                self.tap(pset)
+            except Exception:
+                log.exception("session tap failed")
 
     def _run(self) -> None:
         next_status = time.monotonic() + self.status_period_s
@@ -173,6 +184,7 @@ class RecordingSession:
             out["free_disk_mb"] = shutil.disk_usage(self.disk_path).free // (1 << 20)
         except OSError:
             out["free_disk_mb"] = 0
+        self.last_status = out
         return out
 
     def stop(self, drain_s: float = 0.5, expect_frames: int | dict[str, int] | None = None) -> dict[str, Any]:

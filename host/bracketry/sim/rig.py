@@ -54,6 +54,7 @@ class SimOptions:
     stop_free_mb: int = 16
     output_dir: Path | None = None
     echo: Callable[[str], None] = print
+    monitor_port: int | None = None
 
 
 def _bracketry_cmd(*args: str) -> list[str]:
@@ -182,8 +183,10 @@ class SimulatedRig:
         brackets = ", ".join(f"{b:g}" for b in self.o.brackets_ms)
         cams = "".join(f'\n[[cameras]]\nside = "{side}"\nprofile = "aravis_fake"\naddress = "{addr}"\n'
                        f'pixel_format = "Mono16"\n' for side, addr in CAMERA_ADDRESSES.items())
+        monitor = (f'[monitor]\nlisten = "127.0.0.1:{self.o.monitor_port}"\nbayer = true\n\n'
+                   if self.o.monitor_port is not None else "")
         self.config_path.write_text(
-            f'[rig]\noutput_dir = "{self.rec_dir}"\nbrackets_ms = [{brackets}]\nfps = {self.o.fps:g}\n'
+            f'{monitor}[rig]\noutput_dir = "{self.rec_dir}"\nbrackets_ms = [{brackets}]\nfps = {self.o.fps:g}\n'
             f'min_free_mb = {self.o.min_free_mb}\nstop_free_mb = {self.o.stop_free_mb}\n'
             f'status_socket = "{self.socket_path}"\n\n'
             f'[trigger]\nkind = "{self.o.trigger}"\nport = "{self.trigger_url}"\nbaudrate = 921600\n\n'
@@ -207,7 +210,22 @@ class SimulatedRig:
         self.start_panel()
         self.write_config()
         self.start_daemon()
+        if self.o.monitor_port is not None:
+            self.start_monitor_bridge()
         return self
+
+    def start_monitor_bridge(self) -> None:
+        """Make the daemon's monitor (127.0.0.1:PORT in this namespace) reachable through ``monitor.sock`` in the
+        output folder (a UNIX socket is a file: :func:`monitor_bridge_outside` serves the same port outside)."""
+        sock = monitor_socket(self.out)
+        with contextlib.suppress(FileNotFoundError):
+            sock.unlink()
+        self.procs["monitor-bridge"] = subprocess.Popen(
+            ["socat", f"UNIX-LISTEN:{sock},fork,mode=600", f"TCP:127.0.0.1:{self.o.monitor_port}"],
+            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        _wait_for(sock.exists, 10.0, "the monitor bridge's socket")
+        url = (self.status().get("monitor") or {}).get("url")
+        self.o.echo(f"monitor: {url}" if url else f"monitor: not running (see {self.out}/daemon.log)")
 
     # ------------------------------------------------------------------------------------------------ driving
     def press(self, button: str, long_press: bool = False) -> None:
@@ -327,7 +345,7 @@ class SimulatedRig:
         if "daemon" in self.procs:
             with contextlib.suppress(BracketryError):
                 self.stop_daemon(signal.SIGTERM, 20.0)
-        for name in ("panel", "trigger", "socat"):
+        for name in ("monitor-bridge", "panel", "trigger", "socat"):
             proc = self.procs.pop(name, None)
             if proc is not None:
                 _end(proc, signal.SIGTERM)
@@ -361,6 +379,21 @@ def _wait_for(cond: Callable[[], bool], timeout_s: float, what: str, alive: subp
             raise BracketryError(f"{what}: the process exited with code {alive.returncode}")
         time.sleep(0.1)
     raise BracketryError(f"timeout ({timeout_s:g} s) waiting for {what}")
+
+
+def monitor_socket(out_dir: Path) -> Path:
+    """The UNIX socket that carries the simulated rig's monitor out of its network namespace."""
+    return Path(out_dir).resolve() / "monitor.sock"
+
+
+def monitor_bridge_outside(out_dir: Path, port: int) -> subprocess.Popen:
+    """socat serving 127.0.0.1:``port`` of this namespace from :func:`monitor_socket` (connections before the rig
+    is up are refused)."""
+    if shutil.which("socat") is None:
+        raise BracketryError("socat not found: apt-get install socat (or run ./setup.sh)")
+    return subprocess.Popen(["socat", f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr,fork",
+                             f"UNIX-CONNECT:{monitor_socket(out_dir)}"],
+                            stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
 def in_private_netns() -> bool:
