@@ -123,7 +123,11 @@ class RigDaemon:
 
     # ------------------------------------------------------------------------------------------------ lifecycle
     def start(self) -> RigDaemon:
-        """Start the status socket, the panel link and the supervisor; sensors stay OFF until SENSORS."""
+        """Start the monitor, the status socket, the panel link and the supervisor; sensors stay OFF until SENSORS."""
+        if self.config.monitor is not None:  # before the status socket: a daemon that answers serves its monitor
+            from bracketry.daemon.monitor_link import start_monitor
+
+            start_monitor(self)
         sock = self.options.status_socket or self.config.status_socket
         try:
             self.status_server = StatusServer(sock, self.handle_request)
@@ -131,10 +135,6 @@ class RigDaemon:
             log.warning("status socket %s unavailable: %s", sock, exc)
         self._connect_panel()
         self.state.set_free_disk_mb(free_mb(self.config.output_dir))
-        if self.config.monitor is not None:
-            from bracketry.daemon.monitor_link import start_monitor
-
-            start_monitor(self)
         self._pump = threading.Thread(target=self._pump_events, name="event-pump", daemon=True)
         self._pump.start()
         self._supervisor = threading.Thread(target=self._supervise, name="supervisor", daemon=True)

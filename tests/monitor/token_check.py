@@ -1,0 +1,63 @@
+"""Run inside a private network namespace (``10.77.0.1`` on its ``lo``): a daemon whose monitor listens on that
+non-loopback address, probed with no, a wrong and the right token. Prints one JSON object (the probes' results)."""
+
+from __future__ import annotations
+
+import json
+import sys
+import urllib.error
+import urllib.request
+from pathlib import Path
+from typing import Any
+
+from bracketry.daemon.config import parse_config
+from bracketry.daemon.rig import RigDaemon
+
+ADDRESS = "10.77.0.1"
+
+
+def probe(url: str, token: str | None = None, body: dict[str, Any] | None = None) -> list[Any]:
+    headers = {"Content-Type": "application/json", **({"X-Bracketry-Token": token} if token is not None else {})}
+    req = urllib.request.Request(url, data=json.dumps(body).encode() if body is not None else None, headers=headers)
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            raw = r.read()
+            return [r.status, json.loads(raw) if r.headers["Content-Type"].startswith("application/json") else None]
+    except urllib.error.HTTPError as exc:
+        return [exc.code, json.loads(exc.read())]
+
+
+def main(work: Path) -> None:
+    cfg = parse_config({
+        "rig": {"output_dir": str(work / "rec"), "brackets_ms": [1, 2, 4], "fps": 20,
+                "status_socket": str(work / "status.sock")},
+        "panel": {"enabled": False},
+        "monitor": {"listen": f"{ADDRESS}:8470"},
+        "cameras": [{"side": "left", "profile": "aravis_fake", "address": "127.0.0.2"},
+                    {"side": "right", "profile": "aravis_fake", "address": "127.0.0.3"}],
+    })
+    daemon = RigDaemon(cfg).start()
+    try:
+        token = daemon.monitor_server.token
+        base = f"http://{ADDRESS}:8470"
+        apply = {"action": "apply_brackets", "brackets_us": [500, 1000, 2000]}
+        out = {
+            "token": token, "message": daemon.state.snapshot().message,
+            "page_none": probe(f"{base}/"), "page_wrong": probe(f"{base}/", "x" + token),
+            "page_query": probe(f"{base}/?token={token}"),
+            "status_none": probe(f"{base}/api/status"), "status_wrong": probe(f"{base}/api/status", token[:-1]),
+            "status_right": probe(f"{base}/api/status", token),
+            "apply_none": probe(f"{base}/api/action", None, apply),
+            "apply_wrong": probe(f"{base}/api/action", token.upper(), apply),
+            "apply_too_long": probe(f"{base}/api/action", token, {"action": "apply_brackets",
+                                                                 "brackets_us": [1000, 49900]}),
+            "apply_right": probe(f"{base}/api/action", token, apply),
+            "brackets_after": list(daemon.config.brackets_us),
+        }
+    finally:
+        daemon.close()
+    print(json.dumps(out))
+
+
+if __name__ == "__main__":
+    main(Path(sys.argv[1]))
