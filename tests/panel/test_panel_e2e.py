@@ -89,7 +89,7 @@ def test_panel_e2e_screen_button_once_reboot(rig: dict[str, Any]) -> None:
     assert wait_for(lambda: client.panel_lost, 20)
     assert wait_for(lambda: client.counters["lost"] == lost_before + 1, 10) and client.status()["lost"]
     rig["procs"].append(start_simulator(relay.panel_path, screen))
-    assert wait_for(lambda: client.counters["reboots"] == 1 and not client.panel_lost, 30), client.status()
+    assert wait_for(lambda: client.reboots == 1 and not client.panel_lost, 30), client.status()
     # a press after the reboot is a new event even though its event_seq restarts at 0
     rig["procs"][1].stdin.write("sensors long\n")
     rig["procs"][1].stdin.flush()

@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 from wire_fake_device import FakeDevice
 
+from bracketry.trigger.client import TriggerClient
 from bracketry.wire import bproto
 from bracketry.wire.errors import DeviceLostError, LinkClosedError, NackError
 from bracketry.wire.link import SerialLink
@@ -119,6 +120,23 @@ def test_wire_reboot_detected(device: FakeDevice) -> None:
         assert link.clock.n_samples == 0  # the device clock restarted: the model was reset
 
 
+def test_wire_reboot_from_uptime_counted_once_by_the_link(device: FakeDevice) -> None:
+    device.heartbeat = False  # heartbeats sent by hand below
+    with SerialLink(device.path) as link:
+        link.hello(timeout_s=T)
+        client = TriggerClient(link)  # reads the link's count, never counts itself
+        before, beats = link.counters["reboots"], link.counters["heartbeats_in"]
+        # a 2**32 ms wrap (not a reboot), then uptime back from 60 s to 0.2 s: one reboot whose HELLO was lost
+        for uptime_ms in (0xFFFFFFF0, 5, 1000, 60_000, 200, 700):
+            device._send(bproto.MSG_HEARTBEAT, {"uptime_ms": uptime_ms, "state": 0})
+        assert wait_for(lambda: link.counters["heartbeats_in"] == beats + 6)
+        assert link.counters["reboots"] == before + 1
+        assert client.counters.reboots == before + 1
+        device.reboot()  # a boot HELLO: one more, counted once
+        assert wait_for(lambda: link.counters["reboots"] == before + 2)
+        assert client.counters.reboots == before + 2
+
+
 def test_wire_heartbeat_loss_detected_within_1_5s(link: SerialLink, device: FakeDevice) -> None:
     events: list[bool] = []
     link.add_lost_listener(events.append)
@@ -170,13 +188,15 @@ def test_wire_trigger_gaps_and_buttons(device: FakeDevice) -> None:
     got: list[tuple[int, dict[str, Any]]] = []
     with SerialLink(device.path, auto_ack_buttons=True) as link:
         link.add_listener(lambda t, s, f: got.append((t, f)))
+        client = TriggerClient(link)  # the one counter of missing trigger events
         link.hello(timeout_s=T)
         for k in (0, 1, 2, 5, 6):  # 3 and 4 lost
             device.emit_trigger(77, k)
         seq = device.emit_button(2, 1, event_seq=0)
         device.emit_button(2, 1, event_seq=0, seq=seq)  # re-sent before the ACK arrived
         assert wait_for(lambda: link.counters["button_events"] == 2 and link.counters["trigger_events"] == 5)
-        assert link.counters["trigger_gaps"] == 2
+        assert client.counters.missed_events == 2 and client.counters.gaps == [(3, 5)]
+        assert "trigger_gaps" not in link.counters  # counted once, by the trigger client
         assert link.counters["button_duplicates"] == 1
         assert wait_for(lambda: device.acked_buttons.count(seq) == 2)  # every copy ACKed
         buttons = [f for t, f in got if t == bproto.MSG_BUTTON]
@@ -197,6 +217,7 @@ def test_wire_fire_and_forget_send(link: SerialLink, device: FakeDevice) -> None
 
 
 def test_wire_device_frame_gaps_counted(link: SerialLink, device: FakeDevice) -> None:
+    client = TriggerClient(link)
     link.hello(timeout_s=T)
     before = link.counters["seq_gaps"]
     device.emit_trigger(1, 0)
@@ -205,7 +226,7 @@ def test_wire_device_frame_gaps_counted(link: SerialLink, device: FakeDevice) ->
     device.emit_trigger(1, 1)
     assert wait_for(lambda: link.counters["trigger_events"] == 2)
     assert link.counters["seq_gaps"] == before + 5
-    assert link.counters["trigger_gaps"] == 0
+    assert client.counters.missed_events == 0 and client.counters.events == 2  # frames lost, no trigger event
 
 
 def test_wire_link_survives_garbage(link: SerialLink, device: FakeDevice) -> None:

@@ -100,8 +100,8 @@ class PanelClient:
         self.on_button = on_button
         self.period_s = 1.0 / rate_hz
         self.events: list[ButtonEvent] = []
-        self.counters = {"states_sent": 0, "buttons": 0, "duplicates": 0, "acks_sent": 0, "reboots": 0,
-                         "hellos": 0, "state_errors": 0, "lost": 0}
+        self.counters = {"states_sent": 0, "buttons": 0, "duplicates": 0, "acks_sent": 0, "hellos": 0,
+                         "state_errors": 0, "lost": 0}
         self.panel_hello: dict[str, Any] | None = None
         self._seen: deque[int] = deque(maxlen=DUPLICATE_WINDOW)
         self._lock = threading.Lock()
@@ -150,8 +150,7 @@ class PanelClient:
         elif msg_type == bproto.MSG_HELLO and fields:
             with self._lock:
                 self.counters["hellos"] += 1
-                if self.panel_hello is not None:
-                    self.counters["reboots"] += 1
+                if self.panel_hello is not None:  # counted once, by the link (see reboots)
                     log.warning("panel rebooted (unsolicited HELLO)")
                 self.panel_hello = dict(fields)
                 self._seen.clear()
@@ -165,7 +164,14 @@ class PanelClient:
         """Panel health for `bracketry status`: lost, reboots, firmware version, counters."""
         hello = self.panel_hello
         fw = f"{hello['fw_major']}.{hello['fw_minor']}.{hello['fw_patch']}" if hello else None
-        return {"lost": self.panel_lost, "firmware": fw, **self.counters}
+        return {"lost": self.panel_lost, "firmware": fw, "reboots": self.reboots, **self.counters}
+
+    @property
+    def reboots(self) -> int:
+        """Panel reboots, read from the link's ``reboots`` counter (the link owns the count); 0 for a link without
+        counters."""
+        counters = getattr(self.link, "counters", None)
+        return int(counters["reboots"]) if isinstance(counters, dict) else 0
 
     # -- outgoing
     def send_state(self) -> None:

@@ -32,10 +32,13 @@ class TriggerCounters:
 
     Attributes:
         events: TRIGGER events received (of the current or any session).
-        missed_events: pulses whose event never arrived, from gaps in ``trigger_seq``.
+        missed_events: pulses whose event never arrived, from gaps in ``trigger_seq``: the one count of lost
+            trigger events on the host (the link does not count them; the pairer counts only the gaps among the
+            events of one recording it was given).
         gaps: (expected trigger_seq, received trigger_seq) of each gap (at most the last 1000).
         foreign_session_events: events of another session than the one this client started (ignored).
-        reboots: device reboots detected.
+        reboots: device reboots, read from the link's ``reboots`` counter (the link owns the count: a boot HELLO
+            from a device heard before, or a HEARTBEAT whose uptime went back); 0 for a link without counters.
         queue_overflows: events dropped because nobody consumed the event queue.
     """
 
@@ -43,8 +46,13 @@ class TriggerCounters:
     missed_events: int = 0
     gaps: list[tuple[int, int]] = field(default_factory=list)
     foreign_session_events: int = 0
-    reboots: int = 0
     queue_overflows: int = 0
+    link: Any = field(default=None, repr=False, compare=False)
+
+    @property
+    def reboots(self) -> int:
+        counters = getattr(self.link, "counters", None)
+        return int(counters["reboots"]) if isinstance(counters, dict) else 0
 
 
 class TriggerClient:
@@ -74,7 +82,7 @@ class TriggerClient:
         self.clock: ClockModel = clock if clock is not None else link.clock
         self.on_event = on_event
         self.on_reboot = on_reboot
-        self.counters = TriggerCounters()
+        self.counters = TriggerCounters(link=link)
         self.device: dict[str, Any] = {}
         self.session_id: int | None = None
         self.running = False
@@ -85,7 +93,7 @@ class TriggerClient:
         self._closed = threading.Event()
         self._sync_thread: threading.Thread | None = None
         link.add_listener(self._on_message)
-        link.add_reboot_listener(self._on_hello_reboot)
+        link.add_reboot_listener(self._on_reboot)
         if clock_sync_period_s > 0:
             self._sync_thread = threading.Thread(target=self._sync_loop, args=(clock_sync_period_s,),
                                                  name="trigger-clock-sync", daemon=True)
@@ -197,19 +205,14 @@ class TriggerClient:
     def _on_message(self, msg_type: int, seq: int, fields: dict[str, Any]) -> None:
         if msg_type == bproto.MSG_TRIGGER:
             self._on_trigger(fields)
-        elif msg_type == bproto.MSG_HEARTBEAT:
-            last = self.last_heartbeat
+        elif msg_type == bproto.MSG_HEARTBEAT:  # (a reboot it reveals reaches _on_reboot through the link first)
             self.last_heartbeat = {"uptime_ms": int(fields["uptime_ms"]), "state": int(fields["state"])}
-            if last is not None and int(fields["uptime_ms"]) + 50 < last["uptime_ms"]:
-                self._on_reboot()
 
-    def _on_hello_reboot(self, fields: dict[str, Any]) -> None:
-        self.device = dict(fields)
-        self._on_reboot()
-
-    def _on_reboot(self) -> None:
+    def _on_reboot(self, fields: dict[str, Any]) -> None:
+        """Link reboot listener (the link counts the reboot and restarts the clock model)."""
+        if fields:
+            self.device = dict(fields)
         with self._lock:
-            self.counters.reboots += 1
             self._last_seq = None
             self.running = False
             self.last_heartbeat = None

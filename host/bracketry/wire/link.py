@@ -29,13 +29,16 @@ log = logging.getLogger(__name__)
 
 Listener = Callable[[int, int, dict[str, Any]], None]
 
+#: a device HEARTBEAT whose uptime_ms is this much below the previous one announces a reboot (milliseconds)
+UPTIME_SLACK_MS = 50
+
 #: device -> host message types handed to listeners
 EVENT_TYPES = (bproto.MSG_TRIGGER, bproto.MSG_BUTTON, bproto.MSG_HELLO, bproto.MSG_HEARTBEAT)
 
 COUNTER_NAMES = ("frames_in", "frames_out", "crc_errors", "length_errors", "cobs_errors", "version_errors",
                  "overflows", "resyncs", "bytes_discarded", "requests", "retries", "timeouts", "nacks", "reboots",
                  "unsolicited_hellos", "heartbeats_in", "heartbeats_out", "peer_lost", "trigger_events",
-                 "trigger_gaps", "button_events", "button_duplicates", "bad_payloads", "unknown_types",
+                 "button_events", "button_duplicates", "bad_payloads", "unknown_types",
                  "unmatched_replies", "listener_errors", "reconnects", "io_errors", "seq_gaps", "send_acks",
                  "send_nacks")
 
@@ -115,7 +118,7 @@ class SerialLink:
         self._lost_listeners: list[Callable[[bool], None]] = []
         if on_reboot is not None:
             self._reboot_listeners.append(on_reboot)
-        self._last_trigger: tuple[int, int] | None = None  # (session_id, trigger_seq)
+        self._last_uptime_ms: int | None = None  # of the device's last HEARTBEAT (None until one after a boot)
         self._last_button_event: int | None = None
         self._heard_device = False
         self._last_device_seq: int | None = None
@@ -428,8 +431,14 @@ class SerialLink:
             self._on_hello(frame.seq, fields, heard_before)
         elif t == bproto.MSG_HEARTBEAT:
             self.device_state = fields["state"]
+            uptime_ms = int(fields["uptime_ms"])
             with self._lock:
                 self._counters["heartbeats_in"] += 1
+                last, self._last_uptime_ms = self._last_uptime_ms, uptime_ms
+            # uptime going back (not a 2**32 ms wrap) = the device rebooted and its boot HELLO was lost
+            if last is not None and uptime_ms + UPTIME_SLACK_MS < last and last - uptime_ms < 1 << 31:
+                log.info("%s: device uptime went back from %d to %d ms: rebooted", self.name, last, uptime_ms)
+                self._rebooted(dict(self.device_info or {}), uptime_ms)
             self._emit(t, frame.seq, fields)
         elif t == bproto.MSG_TRIGGER:
             self._on_trigger(frame.seq, fields)
@@ -507,25 +516,27 @@ class SerialLink:
             return
         with self._lock:
             self._counters["unsolicited_hellos"] += 1
-            if heard_before:  # heard before: this HELLO announces a reboot (else: it booted after we opened)
-                self._counters["reboots"] += 1
-            self._last_trigger = None
-        self.clock.reset()  # the device clock restarted
         log.info("%s: device (re)booted: %s", self.name, fields)
-        for cb in list(self._reboot_listeners):
-            self._call(cb, fields)
+        # heard before: this HELLO announces a reboot (else: the device booted after the link opened)
+        self._rebooted(fields, None, count=heard_before)
         self._emit(bproto.MSG_HELLO, seq, fields)
 
+    def _rebooted(self, fields: dict[str, Any], uptime_ms: int | None, count: bool = True) -> None:
+        """The device (re)booted: count it (``reboots`` here is the one reboot count of a link; the trigger and
+        panel clients read it), restart the clock model and call the reboot listeners with the device's HELLO
+        fields."""
+        with self._lock:
+            if count:
+                self._counters["reboots"] += 1
+            self._last_uptime_ms = uptime_ms
+        self.clock.reset()  # the device clock restarted
+        for cb in list(self._reboot_listeners):
+            self._call(cb, fields)
+
     def _on_trigger(self, seq: int, fields: dict[str, Any]) -> None:
-        key = (fields["session_id"], fields["trigger_seq"])
+        # Missing trigger_seq numbers are counted once, by the trigger client (it knows the session it started).
         with self._lock:
             self._counters["trigger_events"] += 1
-            last = self._last_trigger
-            if last is not None:  # (the first event after opening or a reboot may join a session late)
-                expected = last[1] + 1 if last[0] == key[0] else 0  # a new session starts at trigger_seq 0
-                if key[1] > expected:
-                    self._counters["trigger_gaps"] += key[1] - expected
-            self._last_trigger = key
         self._emit(bproto.MSG_TRIGGER, seq, fields)
 
     def _on_button(self, seq: int, fields: dict[str, Any]) -> None:
