@@ -38,7 +38,7 @@ def runs(world: Path, tmp_path_factory) -> Path:
     for name, targets in plans.items():
         with RunWriter(out, name, ds.sides) as w:
             for k, (seq, target_us) in enumerate(zip(seqs, targets)):
-                w.write_step(k, seq, {s: emu.emulate(seq.load(s), target_us) for s in ds.sides}, target_us)
+                w.write_step(k, seq, emu.emulate_sequence(seq, target_us, ds.sides), target_us)
     return out
 
 

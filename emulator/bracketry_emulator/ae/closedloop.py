@@ -55,7 +55,7 @@ from bracketry.errors import BracketryError
 
 from ..dataset import BracketSequence, Dataset, open_dataset
 from ..emulation import EmulatedImage, Emulator, EmulatorConfig, RunWriter
-from ..emulation.selection import SatCount, saturation_fraction, select_highernosat, select_upstream
+from ..emulation.selection import SatCount, saturation_fraction
 from .base import AEMethod, SharedGray
 from .registry import get_method
 
@@ -197,8 +197,8 @@ class _LinkingRunWriter(RunWriter):
     """
 
     def __init__(self, out_dir: Path, method: str, sides: tuple[str, ...], depth: int, overwrite: bool,
-                 sink: _ImageSink, stored_png: bool) -> None:
-        super().__init__(out_dir, method, sides, depth=depth, overwrite=overwrite, stored_png=stored_png)
+                 sink: _ImageSink, stored_png: bool, mode: str = "default") -> None:
+        super().__init__(out_dir, method, sides, depth=depth, overwrite=overwrite, stored_png=stored_png, mode=mode)
         self._sink = sink
 
     def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:
@@ -234,7 +234,7 @@ class _LinkingRunWriter(RunWriter):
 class _CachedEmulator(Emulator):
     """:class:`Emulator` whose bracket selection reuses each bracket's saturated fraction (computed once per decoded
     bracket instead of once per emulation: many methods and targets share one sequence). Same rules as
-    :meth:`Emulator.select`."""
+    :meth:`Emulator.select` and :meth:`Emulator.select_stereo`."""
 
     def __init__(self, config: EmulatorConfig) -> None:
         super().__init__(config)
@@ -243,20 +243,13 @@ class _CachedEmulator(Emulator):
     def clear(self) -> None:
         self._sat.clear()
 
-    def _fraction(self, image: np.ndarray, count: SatCount) -> float:
+    def _saturation(self, image: np.ndarray, count: SatCount) -> float:
         key = (id(image), count)
         val = self._sat.get(key)
         if val is None:
             val = saturation_fraction(image, self.response.saturated_code, count)
             self._sat[key] = val
         return val
-
-    def select(self, images: dict[int, np.ndarray], target_us: float) -> int:
-        exps = sorted(images)
-        if self.config.selection == "upstream":
-            return select_upstream(exps, target_us, {e: self._fraction(images[e], "both") for e in exps})
-        over = {e: self._fraction(images[e], self.config.sat_count) for e in exps}
-        return select_highernosat(exps, target_us, over, self.config.alpha)
 
 
 class _Emulators:
@@ -266,18 +259,30 @@ class _Emulators:
         self.emulator = _CachedEmulator(config)
         self._cache: dict[tuple[int, str, float], EmulatedImage] = {}
         self._gray: dict[tuple[int, str, float], SharedGray] = {}
+        self._source: dict[tuple[int, float], int] = {}
 
     def clear(self) -> None:
         """Forget the chunk (call before the shared buffer is refilled: cache keys use array identity)."""
         self._cache.clear()
+        self._source.clear()
         self._gray.clear()
         self.emulator.clear()
 
-    def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float) -> EmulatedImage:
+    def source(self, seq_index: int, images: dict[str, dict[int, np.ndarray]], target_us: float,
+               decide: tuple[str, ...] | None) -> int:
+        """The step's ONE source bracket for every camera (:meth:`Emulator.select_stereo`), cached per target."""
+        key = (seq_index, float(target_us))
+        hit = self._source.get(key)
+        if hit is None:
+            hit = self._source[key] = self.emulator.select_stereo(images, target_us, decide)
+        return hit
+
+    def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float,
+                source_us: int | None = None) -> EmulatedImage:
         key = (seq_index, side, float(target_us))
         hit = self._cache.get(key)
         if hit is None:
-            hit = self.emulator.emulate(images, target_us)
+            hit = self.emulator.emulate(images, target_us, source_us)
             self._cache[key] = hit
         return hit
 
@@ -339,14 +344,14 @@ class _Worker:
         self.writers: dict[str, RunWriter] = {}
         self.sink = _ImageSink(write_threads if cfg.write_images else 0)
         for spec in specs:
-            method = get_method(spec, seed=cfg.seed, drl_weights=cfg.drl_weights)
+            method = get_method(spec, seed=cfg.seed, drl_weights=cfg.drl_weights, parity=cfg.emulator.parity)
             init = getattr(method, "init_exposure_us", None) or cfg.init_exposure_us
             method.reset(float(init))
             self.methods[spec] = method
             self.targets[spec] = float(init)
             self.runs[spec] = MethodRun(spec)
             self.writers[spec] = _LinkingRunWriter(out_dir, _folder(spec), write_sides, cfg.emulator.depth,
-                                                   cfg.overwrite, self.sink, cfg.stored_png)
+                                                   cfg.overwrite, self.sink, cfg.stored_png, cfg.emulator.parity)
 
     def _view(self, slot: int, side_i: int, exp_i: int) -> np.ndarray:
         return _buffer_view(self.buffer, self.shape, len(self.emu_sides), self.n_exp, slot, side_i, exp_i)
@@ -409,8 +414,12 @@ class _Worker:
         cfg = self.cfg
         target = self.targets[spec]
         needed = _needed_brackets(seq.exposures_us, target, cfg.emulator.selection)
-        images = {side: self.emu.emulate(seq_i, side, {e: brackets[side][e] for e in needed}, target)
-                  for side in self.emu_sides}
+        subsets = {side: {e: brackets[side][e] for e in needed} for side in self.emu_sides}
+        # one source bracket for every camera of the step; --parity upstream: the AE camera decides alone, as the
+        # authors' left emulator (their right emulator decides on its own, which the joint decision corrects)
+        decide = (cfg.ae_side,) if cfg.emulator.parity == "upstream" else None
+        source = self.emu.source(seq_i, subsets, target, decide)
+        images = {side: self.emu.emulate(seq_i, side, subsets[side], target, source) for side in self.emu_sides}
         if cfg.write_images:
             self.writers[spec].write_step(seq_i, seq, {s: images[s] for s in self.write_sides}, target)
         ae_img = images[cfg.ae_side]
@@ -546,7 +555,7 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
 
             check_weights_path(cfg.drl_weights)
         else:
-            get_method(spec, seed=cfg.seed, drl_weights=cfg.drl_weights)
+            get_method(spec, seed=cfg.seed, drl_weights=cfg.drl_weights, parity=cfg.emulator.parity)
     dataset = open_dataset(dataset_path)
     write_sides = dataset.sides if cfg.camera == "both" else (cfg.camera,)
     for s in (*write_sides, cfg.ae_side):
@@ -739,7 +748,8 @@ def _write_outputs(summary: RunSummary, cfg: LoopConfig, dataset: Dataset) -> No
             for s in run.steps:
                 f.write(f"{s.step},{s.timestamp_ns},{s.exposure_us / 1000:.6f},{s.next_exposure_us / 1000:.6f},"
                         f"{s.source_exposure_us / 1000:.6f},{s.ae_s * 1000:.3f}\n")
-        (folder / "summary.json").write_text(json.dumps(run.summary(), indent=2) + "\n")
+        (folder / "summary.json").write_text(json.dumps({**run.summary(), "mode": cfg.emulator.parity}, indent=2)
+                                             + "\n")
     with open(out / "exposures.csv", "w") as f:
         specs = list(summary.runs)
         f.write("step,timestamp_ns," + ",".join(f"{s}_ms" for s in specs) + "\n")
@@ -750,7 +760,7 @@ def _write_outputs(summary: RunSummary, cfg: LoopConfig, dataset: Dataset) -> No
     emu = asdict(cfg.emulator)
     emu = {k: (str(v) if isinstance(v, Path) else v) for k, v in emu.items()}  # noise: {read_dn, dn_per_e}
     doc = {"dataset": str(dataset.path), "sequences": summary.n_sequences, "sides": list(summary.sides),
-           "ae_side": cfg.ae_side, "init_exposure_ms": cfg.init_exposure_us / 1000.0,
+           "ae_side": cfg.ae_side, "mode": cfg.emulator.parity, "init_exposure_ms": cfg.init_exposure_us / 1000.0,
            "bounds_ms": [cfg.min_exposure_us / 1000.0, cfg.max_exposure_us / 1000.0], "seed": cfg.seed,
            "emulator": emu, "wall_s": round(summary.wall_s, 3), "dataset_problems": summary.problems,
            "methods": {s: r.summary() for s, r in summary.runs.items()}}

@@ -27,8 +27,25 @@ ENTRY_POINT_GROUP = "bracketry.ae_methods"
 _CONSTANT = re.compile(r"^constant-(\d+(?:\.\d*)?|\.\d+)$")
 
 
+#: The methods that have an authors' variant (``parity="upstream"``, :mod:`.upstream`); the others run the same
+#: implementation in both modes (classical and Fix are the authors' rule already; Wang and DRL are not in their code).
+UPSTREAM_VARIANTS: tuple[str, ...] = ("shim", "kim", "zhang")
+PARITIES: tuple[str, ...] = ("default", "upstream")
+
+
 def _builtin(name: str, options: dict[str, Any]) -> AEMethod | None:
     seed = int(options.get("seed", 0))
+    parity = options.get("parity", "default") or "default"
+    if parity not in PARITIES:
+        raise BracketryError(f"unknown AE mode {parity!r} (use default or upstream)")
+    if parity == "upstream" and name in UPSTREAM_VARIANTS:
+        from . import upstream
+
+        if name == "shim":
+            return upstream.UpstreamShimAE()
+        if name == "kim":
+            return upstream.UpstreamKimAE(seed=seed)
+        return upstream.UpstreamZhangAE()
     if name in ("ae30", "ae50", "ae70"):
         return ClassicalAE(float(name[2:]), name=name)
     if name == "fix":
@@ -104,7 +121,9 @@ def load_plugin(spec: str, options: dict[str, Any] | None = None) -> AEMethod:
 
 def get_method(spec: str, **options: Any) -> AEMethod:
     """The AE method of one id (see the module docstring); ``options``: ``seed`` (Kim's GP, default 0),
-    ``drl_weights`` (path of the DRL actor), ``plugin_kwargs`` (keyword arguments for a plugin class).
+    ``drl_weights`` (path of the DRL actor), ``plugin_kwargs`` (keyword arguments for a plugin class), ``parity``
+    ("default": each method as its paper describes it, corrections documented per method; "upstream": the authors'
+    code step for step for shim, kim and zhang, see :mod:`.upstream`; plugins ignore it).
 
     Raises BracketryError (one line) for an unknown id or a plugin that cannot be loaded.
     """

@@ -174,11 +174,38 @@ class Emulator:
     def _rng(self, target_us: float, source_us: int) -> np.random.Generator:
         return np.random.default_rng([self.config.seed, round(target_us * 1000), int(source_us)])
 
-    def emulate(self, images: dict[int, np.ndarray], target_us: float) -> EmulatedImage:
+    def select_stereo(self, images: dict[str, dict[int, np.ndarray]], target_us: float,
+                      decide: tuple[str, ...] | None = None) -> int:
+        """ONE source bracket (exposure_us) for every camera of a stereo step, so that the step's left and right
+        images come from the same capture (same bracket, same timestamp; also the fusion reference).
+
+        ``images``: {side: {exposure_us: uint16 HxW}} (the same bracket set per side). The decision uses, per
+        bracket, the LARGEST saturated fraction over the cameras in ``decide`` (default: every side), so a bracket
+        is only used when it is acceptable for both cameras. ``decide=("left",)`` reproduces a single camera's own
+        decision (the authors' left emulator, ``--parity upstream``).
+        """
+        sides = tuple(decide) if decide else tuple(images)
+        per_side = {side: images[side] for side in sides}
+        exps = sorted(next(iter(per_side.values())))
+        if any(sorted(imgs) != exps for imgs in per_side.values()):
+            raise BracketryError("the cameras of a stereo step have different bracket sets")
+        if len(exps) == 1:
+            return exps[0]
+        count: SatCount = "both" if self.config.selection == "upstream" else self.config.sat_count
+        fractions = {e: max(self._saturation(imgs[e], count) for imgs in per_side.values()) for e in exps}
+        if self.config.selection == "upstream":
+            return select_upstream(exps, target_us, fractions)
+        return select_highernosat(exps, target_us, fractions, self.config.alpha)
+
+    def emulate(self, images: dict[int, np.ndarray], target_us: float, source_us: int | None = None
+                ) -> EmulatedImage:
         """Emulate the image at ``target_us`` from ``{exposure_us: uint16 HxW Bayer codes}`` (one sequence).
 
+        ``source_us``: the source bracket (fusion: the reference bracket) decided by the caller, e.g. once for both
+        cameras by :meth:`select_stereo`; None = this camera's own selection.
         Do not modify the bracket arrays in place between calls (fusion caches its irradiance map per array set).
-        Raises BracketryError for no brackets, a non-positive target or mismatched image shapes.
+        Raises BracketryError for no brackets, a non-positive target, mismatched image shapes or a ``source_us``
+        that is not among the brackets.
         """
         if not images:
             raise BracketryError("no bracket images to emulate from")
@@ -186,9 +213,14 @@ class Emulator:
             raise BracketryError(f"target exposure must be a positive number of us, got {target_us}")
         if len({img.shape for img in images.values()}) != 1:
             raise BracketryError("bracket images have different shapes")
+        if source_us is not None and source_us not in images:
+            raise BracketryError(f"source bracket {source_us} us is not among the brackets {sorted(images)}")
         if self.config.selection == "fusion" and len(images) >= 2:
-            return self._emulate_fusion(images, target_us)
-        source = self.select(images, target_us) if len(images) > 1 else next(iter(images))
+            return self._emulate_fusion(images, target_us, source_us)
+        if source_us is not None:
+            source = int(source_us)
+        else:
+            source = self.select(images, target_us) if len(images) > 1 else next(iter(images))
         factor = target_us / source
         total = factor * self.gain
         src = images[source]
@@ -203,12 +235,15 @@ class Emulator:
 
     def emulate_sequence(self, seq: BracketSequence, target_us: float, sides: tuple[str, ...] | None = None
                          ) -> dict[str, EmulatedImage]:
-        """Load one sequence's brackets and emulate every side at ``target_us``: {side: EmulatedImage}.
+        """Load one sequence's brackets and emulate every side at ``target_us``: {side: EmulatedImage}, all sides
+        from ONE source bracket (:meth:`select_stereo`).
 
         Ready for :meth:`RunWriter.write_step`. Loads the PNGs each call; keep ``seq.load(side)`` yourself and call
         :meth:`emulate` to emulate several targets from the same brackets.
         """
-        return {side: self.emulate(seq.load(side), target_us) for side in (sides or seq.sides)}
+        loaded = {side: seq.load(side) for side in (sides or seq.sides)}
+        source = self.select_stereo(loaded, target_us)
+        return {side: self.emulate(imgs, target_us, source) for side, imgs in loaded.items()}
 
     def _missing_variance(self, source_linear: np.ndarray, factor: float) -> np.ndarray:
         """Variance (DN^2) the target frame has but the scaled source lacks (>= 0), per pixel."""
@@ -218,8 +253,9 @@ class Emulator:
         have = (g * factor) ** 2 * nm.variance(source_linear)
         return np.maximum(target_var - have, 0.0)
 
-    def _emulate_fusion(self, images: dict[int, np.ndarray], target_us: float) -> EmulatedImage:
-        ref = self.select(images, target_us)
+    def _emulate_fusion(self, images: dict[int, np.ndarray], target_us: float, ref_us: int | None = None
+                        ) -> EmulatedImage:
+        ref = int(ref_us) if ref_us is not None else self.select(images, target_us)
         used = fusion_brackets(list(images), target_us, self.config.fusion_brackets)
         key = tuple(images[e] for e in sorted({*used, ref}))
         result = None

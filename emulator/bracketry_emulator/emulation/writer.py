@@ -3,7 +3,11 @@
 ``out_dir/<method>/images_left|images_right/<timestamp_ns>.png`` (12-bit codes in a 16-bit PNG, or 8-bit codes
 code >> 4 at depth 8; the name is the timestamp of the source bracket frame), ``times_images_left|right.txt``
 (``<name> <timestamp_ns> <target_ms>`` per step) and ``steps.csv`` (step, timestamp_ns, target_exposure_ms,
-source_exposure_ms, factor, selection; one row per step, for the first side).
+source_exposure_ms, factor, selection, mode; one row per step; ``mode`` = the AE methods' mode, default or upstream).
+
+One stereo step = one capture: every side's image of a step must come from the same source bracket (the emulator's
+:meth:`~.emulator.Emulator.select_stereo`), and all sides carry the same name and timestamp, those of the first
+side's source frame (the authors' SLAM entry program pairs left and right by identical file names).
 
 PNG encoding: OpenCV's default compression, or with ``stored_png=True`` a stored (uncompressed deflate) PNG written
 by :func:`write_png_stored`: the same decoded pixels, ~4x faster to write, ~20% larger files (the noisy 12-bit raw
@@ -27,7 +31,8 @@ from bracketry.errors import BracketryError
 from ..dataset.model import BracketSequence
 from .emulator import EmulatedImage
 
-STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_ms", "factor", "selection")
+STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_ms", "factor", "selection",
+                "mode")
 _PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
 
@@ -63,7 +68,7 @@ class RunWriter:
     """
 
     def __init__(self, out_dir: str | Path, method: str, sides: tuple[str, ...] | list[str] = ("left", "right"),
-                 depth: int = 12, overwrite: bool = False, stored_png: bool = False) -> None:
+                 depth: int = 12, overwrite: bool = False, stored_png: bool = False, mode: str = "default") -> None:
         if depth not in (8, 12):
             raise BracketryError(f"depth must be 12 or 8, got {depth}")
         if not method or "/" in method or method in (".", ".."):
@@ -72,6 +77,7 @@ class RunWriter:
         self.sides = tuple(sides)
         self.depth = depth
         self.stored_png = stored_png
+        self.mode = mode
         if self.root.exists() and any(self.root.iterdir()) and not overwrite:
             raise BracketryError(f"output folder already holds a run: {self.root} (choose another --out)")
         self.root.mkdir(parents=True, exist_ok=True)
@@ -107,22 +113,23 @@ class RunWriter:
 
     def write_step(self, step: int, seq: BracketSequence, side_images: dict[str, EmulatedImage],
                    target_us: float) -> None:
-        """Write one step: an image per side, a times line per side and one steps.csv row."""
-        first: tuple[int, EmulatedImage] | None = None
+        """Write one step: an image per side, a times line per side and one steps.csv row.
+
+        Raises BracketryError when a side is missing or the sides' images come from different source brackets."""
         for side in self.sides:
             if side not in side_images:
                 raise BracketryError(f"step {step}: no emulated image for side {side}")
-            em = side_images[side]
-            ts = seq.timestamps_ns[side][em.source_exposure_us]
-            path = self.image_path(side, ts)
-            self.write_image(path, em, (seq.index, side, float(target_us)))
+        em = side_images[self.sides[0]]
+        sources = {side_images[side].source_exposure_us for side in self.sides}
+        if len(sources) != 1:
+            raise BracketryError(f"step {step}: the cameras' images come from different source brackets "
+                                 f"{sorted(sources)} us (one source bracket per stereo step)")
+        ts = seq.timestamps_ns[self.sides[0]][em.source_exposure_us]
+        for side in self.sides:
+            self.write_image(self.image_path(side, ts), side_images[side], (seq.index, side, float(target_us)))
             self._times[side].write(f"{ts} {ts} {target_us / 1000.0:.6f}\n")
-            if first is None:
-                first = (ts, em)
-        assert first is not None
-        ts, em = first
         self._steps.writerow([step, ts, f"{target_us / 1000.0:.6f}", f"{em.source_exposure_us / 1000.0:.6f}",
-                              f"{em.factor:.6f}", em.selection])
+                              f"{em.factor:.6f}", em.selection, self.mode])
         self.n_steps += 1
         for f in (*self._times.values(), self._steps_file):
             f.flush()
