@@ -33,11 +33,14 @@ step "Python virtual environment (.venv)"
 PY=${PYTHON:-python3}
 "$PY" -c 'import sys; assert sys.version_info >= (3, 11), "Python >= 3.11 needed"'
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
-.venv/bin/python -m pip install -q --upgrade pip 'setuptools>=68' wheel
+.venv/bin/python -m pip install -q --upgrade pip 'setuptools>=74.1' wheel
 
 step "Python packages (editable install with all extras)"
 stamp=.venv/.bracketry-installed
-if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+# (re)install when pyproject.toml or the C extension's source changed, or the built extension is missing
+lut12_src=emulator/bracketry_emulator/emulation/_lut12.c
+if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$lut12_src" -nt "$stamp" ] \
+   || ! ls emulator/bracketry_emulator/emulation/_lut12*.so >/dev/null 2>&1; then
   .venv/bin/python -m pip install -q -e '.[all]'
   touch "$stamp"
 else

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import csv
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -64,7 +67,16 @@ def test_emu_apply_lut_matches_fancy_indexing() -> None:
     lut = rng.integers(0, 4096, size=4096, dtype=np.uint16)
     np.testing.assert_array_equal(apply_lut(lut, img), lut[img])
     np.testing.assert_array_equal(apply_lut(lut, img[:5, :7], threads=False), lut[img[:5, :7]])
-    assert kernel.c_kernel() is not None  # a C compiler is part of the set-up
+    # the gather extension is built with the package (setup.sh's install), not compiled at run time
+    gather = kernel.c_kernel()
+    assert gather is not None and gather.__module__ == "bracketry_emulator.emulation._lut12"
+    out = np.zeros_like(img)
+    gather(lut, img, out)
+    np.testing.assert_array_equal(out, lut[img])
+    with pytest.raises(ValueError, match="4096"):
+        gather(lut[:100], img, out)
+    with pytest.raises(ValueError, match="same size"):
+        gather(lut, img, out[:10])
     saved = kernel._CKERNEL
     try:
         kernel._CKERNEL = None  # the numpy fallback gives the same result
@@ -72,6 +84,20 @@ def test_emu_apply_lut_matches_fancy_indexing() -> None:
         np.testing.assert_array_equal(apply_lut(lut, img[::3, ::2]), lut[img[::3, ::2]])
     finally:
         kernel._CKERNEL = saved
+
+
+def test_emu_gather_needs_no_compiler_and_writes_no_cache(tmp_path: Path) -> None:
+    """A fresh process with no compiler on PATH and an empty cache folder uses the built gather, writing nothing."""
+    cache = tmp_path / "cache"
+    cache.mkdir()
+    code = ("import numpy as np; from bracketry_emulator.emulation import kernel, apply_lut; "
+            "lut = np.arange(4096, dtype=np.uint16)[::-1].copy(); img = np.arange(4096, dtype=np.uint16); "
+            "assert kernel.c_kernel() is not None; assert (apply_lut(lut, img) == lut[img]).all()")
+    env = {"PATH": str(tmp_path), "HOME": str(tmp_path), "XDG_CACHE_HOME": str(cache), "CC": "/nonexistent/cc",
+           "PYTHONPATH": os.pathsep.join(sys.path)}
+    done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert list(cache.iterdir()) == []
 
 
 def test_emu_highernosat_rule() -> None:

@@ -4,90 +4,44 @@ Because the emulation formula is a per-pixel function of an integer code, one ta
 gives bit-identical output to evaluating the formula per pixel, > 100x faster than the authors' two
 ``scipy.interpolate.interp1d`` calls per pixel.
 
-The gather runs in a 10-line C loop compiled on first use with the system C compiler into the user cache
-(``$XDG_CACHE_HOME/bracketry``, loaded with ctypes, which releases the GIL) - numpy's ``take`` first widens the
-uint16 codes to 64-bit indices, which costs 2-3x. Without a compiler, or with ``BRACKETRY_NO_CKERNEL=1``, the numpy
-path is used; both give identical results.
+The gather is a small C extension, ``_lut12`` (``_lut12.c`` next to this file), built with the package (setuptools
+compiles it at install time; nothing is compiled or written at run time). It releases the GIL and reads the uint16
+codes as they are, where numpy's ``take`` first widens them to 64-bit indices, which costs 2-3x. Where the extension
+was not built (a machine without a C compiler at install time), or with ``BRACKETRY_NO_CKERNEL=1``, numpy's ``take``
+is used; both give identical results.
 """
 
 from __future__ import annotations
 
-import ctypes
-import hashlib
+import importlib
 import os
-import shutil
-import subprocess
-import tempfile
 from collections import OrderedDict
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
-from pathlib import Path
 
 import numpy as np
 
 from ..crf.response import N_CODES, Response, Rounding
 
-_C_SOURCE = r"""
-#include <stdint.h>
-#include <stddef.h>
-void bracketry_lut12(const uint16_t *lut, const uint16_t *src, uint16_t *dst, size_t n) {
-    size_t i = 0;
-    for (; i + 4 <= n; i += 4) {
-        uint16_t a = src[i], b = src[i + 1], c = src[i + 2], d = src[i + 3];
-        dst[i] = lut[a & 4095u]; dst[i + 1] = lut[b & 4095u]; dst[i + 2] = lut[c & 4095u]; dst[i + 3] = lut[d & 4095u];
-    }
-    for (; i < n; i++) dst[i] = lut[src[i] & 4095u];
-}
-"""
-_CKERNEL: ctypes._CFuncPtr | None = None  # type: ignore[name-defined]
+Gather = Callable[[object, object, object], None]
+_CKERNEL: Gather | None = None
 _CKERNEL_TRIED = False
 
 
-def _cache_dir() -> Path:
-    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "bracketry"
-
-
-def c_kernel() -> ctypes._CFuncPtr | None:  # type: ignore[name-defined]
-    """The compiled C gather (compiled once per source version and cached), or None when unavailable."""
+def c_kernel() -> Gather | None:
+    """The compiled gather ``gather(lut, src, dst)`` of the ``_lut12`` extension, or None when the extension was not
+    built (or ``BRACKETRY_NO_CKERNEL=1``)."""
     global _CKERNEL, _CKERNEL_TRIED
     if _CKERNEL_TRIED:
         return _CKERNEL
     _CKERNEL_TRIED = True
     if os.environ.get("BRACKETRY_NO_CKERNEL") == "1":
         return None
-    cc = shutil.which(os.environ.get("CC", "cc")) or shutil.which("gcc")
-    digest = hashlib.sha256(_C_SOURCE.encode()).hexdigest()[:16]
-    for folder in (_cache_dir(), Path(tempfile.gettempdir()) / f"bracketry-{os.getuid()}"):
-        lib_path = folder / f"lut12-{digest}.so"
-        try:
-            if not lib_path.is_file():
-                if cc is None:
-                    return None
-                _compile(cc, lib_path)
-            fn = ctypes.CDLL(str(lib_path)).bracketry_lut12
-            break
-        except (OSError, subprocess.SubprocessError, AttributeError):
-            continue
-    else:
-        return None
-    fn.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t]
-    fn.restype = None
-    _CKERNEL = fn
-    return fn
-
-
-def _compile(cc: str, lib_path: Path) -> None:
-    """Compile the C gather into ``lib_path`` (atomically: build in a temp dir, then rename)."""
-    lib_path.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory() as tmp:
-        src = Path(tmp) / "lut12.c"
-        src.write_text(_C_SOURCE)
-        tmp_lib = Path(tmp) / "lut12.so"
-        subprocess.run([cc, "-O3", "-shared", "-fPIC", "-o", str(tmp_lib), str(src)], check=True,
-                       capture_output=True, timeout=60)
-        part = lib_path.with_suffix(f".{os.getpid()}.part")
-        shutil.copy(tmp_lib, part)
-        os.replace(part, lib_path)
+    try:
+        _CKERNEL = importlib.import_module(f"{__package__}._lut12").gather
+    except ImportError:
+        _CKERNEL = None
+    return _CKERNEL
 
 
 #: Pixels per chunk: small enough for the cache, large enough to amortise the call.
@@ -105,7 +59,7 @@ def _pool() -> ThreadPoolExecutor:
 def _take_chunks(lut: np.ndarray, src: np.ndarray, dst: np.ndarray) -> None:
     fn = c_kernel() if (lut.dtype == np.uint16 and src.dtype == np.uint16 and lut.flags.c_contiguous) else None
     if fn is not None:
-        fn(lut.ctypes.data, src.ctypes.data, dst.ctypes.data, src.size)
+        fn(lut, src, dst)
         return
     for s in range(0, src.size, CHUNK_PIXELS):
         np.take(lut, src[s:s + CHUNK_PIXELS], out=dst[s:s + CHUNK_PIXELS], mode="clip")
