@@ -55,7 +55,7 @@ def test_hw_power_budget_matches_paper() -> None:
     assert power.runtime_h(2.5, 56, 79, efficiency=0.9) == pytest.approx(0.9 * 140 / 79)
 
 
-def test_hw_bom_lists_every_issue_part() -> None:
+def test_hw_bom_lists_every_rig_part() -> None:
     parts = {p.id: p for p in bom.load_bom()}
     numbers = " ".join(p.part_number for p in parts.values())
     for needle in ("a2A1920-51gcPRO", "VLP-16", "MTi-30", "Reach", "Jetson AGX Xavier", "TEG-S762", "XG-C100C",

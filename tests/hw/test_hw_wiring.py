@@ -32,8 +32,11 @@ def test_hw_wiring_required_signals_present() -> None:
     for c in trig:
         assert c["level"] and "FallingEdge" in c["polarity"] and c["protection"]
         assert "pull-up to 3.3 V" in c["pull"]  # the lines float from reset until the firmware drives them
+    assert wiring.check_connections(w) == []
     w["connections"] = [{k: v for k, v in c.items() if k != "pull"} for c in w["connections"]]
-    assert any("needs its pull resistor" in p for p in wiring.check_connections(w))
+    problems = wiring.check_connections(w)  # exactly one problem per trigger line, and nothing else
+    assert sorted(problems) == sorted(f"connection {c['id']}: a trigger line needs its pull resistor (pull:), else it "
+                                      "floats from reset until the firmware drives it" for c in trig)
     bom = (paths.hw_dir() / "bom.csv").read_text()
     assert "trigger_pullup,harness,10 kOhm" in bom
 
@@ -67,6 +70,18 @@ def test_hw_diagram_is_generated_and_current(tmp_path: Path) -> None:
     assert dot.startswith("graph bracketry") and "stm32 -- cam_left" in dot
 
 
-@pytest.mark.parametrize("kind", ["ethernet", "power", "usb", "signal"])
-def test_hw_diagram_has_edges_of_each_kind(kind: str) -> None:
-    assert any(k == kind for _a, _b, k, _n in diagram.edges(wiring.load_wiring()))
+@pytest.mark.parametrize(("kind", "must_have"), [
+    ("ethernet", {("cam_left", "switch"), ("cam_right", "switch"), ("switch", "computer")}),
+    ("power", {("battery", "fuse"), ("dcdc_12v", "cam_left"), ("dcdc_12v", "cam_right")}),
+    ("usb", {("usb_uart", "computer"), ("esp32", "computer")}),
+    ("signal", {("stm32", "cam_left"), ("stm32", "cam_right")}),
+])
+def test_hw_diagram_has_edges_of_each_kind(kind: str, must_have: set[tuple[str, str]]) -> None:
+    w = wiring.load_wiring()
+    got = {(a, b): n for a, b, k, n in diagram.edges(w) if k == kind}
+    assert must_have <= set(got)
+    # the wire counts add up to the rails (power) plus the connections of that kind between two different nodes
+    expected = sum(len(r["to"]) for r in w["rails"]) if kind == "power" else 0
+    expected += sum(1 for c in w["connections"] if c.get("kind", "signal") == kind
+                    and str(c["from"]).split(".")[0] != str(c["to"]).split(".")[0])
+    assert sum(got.values()) == expected

@@ -1,5 +1,5 @@
-"""The behavioural simulator with the real host client over a pty: the issue's scenario, drift and jitter through
-the clock model, dropped events, reboots, and the `bracketry trigger simulate` command."""
+"""The behavioural simulator with the real host client over a pty: the acceptance scenario (trigger_scenario.py),
+drift and jitter through the clock model, dropped events, reboots, and the `bracketry trigger simulate` command."""
 
 from __future__ import annotations
 

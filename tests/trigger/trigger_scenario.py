@@ -1,4 +1,4 @@
-"""The acceptance scenario of the trigger (issue 4), run against the real firmware in QEMU and the simulator.
+"""The acceptance scenario of the trigger, run against the real firmware in QEMU and the simulator.
 
 HELLO -> SET_BRACKETS(45454 us, 1000..32000 us) -> START -> at least two full bracket cycles of TRIGGER events with
 consecutive trigger_seq, bracket_index cycling 0..5 and the right exposure_us -> STOP (no more events) -> garbage and

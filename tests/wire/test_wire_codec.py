@@ -179,5 +179,14 @@ def test_wire_type_by_name() -> None:
 @given(st.binary(max_size=2000))
 def test_wire_decoder_never_raises(data: bytes) -> None:
     dec = bproto.Decoder()
-    dec.feed(data)
-    assert dec.stats["frames_ok"] + dec.errors >= 0
+    frames = dec.feed(data)
+    s = dec.stats
+    assert s["frames_ok"] == len(frames)
+    # every delivered or rejected frame but an overflow ends at a 0x00; an overflow takes > MAX_ENCODED bytes
+    assert s["frames_ok"] + dec.errors - s["overflows"] <= data.count(0)
+    assert s["overflows"] <= len(data) // (bproto.MAX_ENCODED + 1)
+    assert s["bytes_discarded"] <= len(data) - data.count(0)
+    # the same bytes one at a time: the same frames and counters
+    one = bproto.Decoder()
+    assert [f for i in range(len(data)) for f in one.feed(data[i:i + 1])] == frames
+    assert one.stats == s

@@ -134,7 +134,7 @@ def run_static(stack: StaticStack, crf: str = "srgb", response: Response | None 
 
 
 def goals(rows: list[dict], summary: dict, modes: Sequence[str], lo: int, hi: int) -> dict:
-    """The issue's goals: HigherNoSat median <= 9 DN and max <= 73 DN (corrected); fusion >= 20% lower median in
+    """The accuracy goals: HigherNoSat median <= 9 DN and max <= 73 DN (corrected); fusion >= 20% lower median in
     the bracket range and not worse at any target, against the noise-free truth (when the stack has it), corrected
     and raw. (The corrected metric floors at 0 once an emulation is less noisy than a real frame, so the noise-free
     truth is the discriminating one.) "Not worse" allows a 0.1 % relative tie (rounding of a few pixels far below

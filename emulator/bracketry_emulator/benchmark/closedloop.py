@@ -1,4 +1,4 @@
-"""Produce the emulated runs of AE methods on one trajectory (the closed loops of the AE-methods issue).
+"""Produce the emulated runs of AE methods on one trajectory (one closed loop per method).
 
 Both entry points call :func:`bracketry_emulator.ae.run_methods` and write into a temporary sibling folder that is
 renamed when complete, so an interrupted benchmark never leaves a half-written run that looks finished:

@@ -10,7 +10,7 @@ Alternate (``iterations`` times) on the pixels that are not saturated (code >= `
 Codes never observed are interpolated; G is made non-decreasing and scaled to [0, 4095] (scale is free: emulation
 uses ratios only). Images of a Bayer mosaic are used as is (one response for all channels, as the camera applies).
 
-Vignetting (the issue's optional part) is not calibrated: emulation re-exposes each pixel from the same pixel of a
+Vignetting is not calibrated: emulation re-exposes each pixel from the same pixel of a
 bracket, so a per-pixel attenuation V_x cancels (f(t' V_x E_x) from f(t V_x E_x) needs only f and t'/t), and a
 static stack of a textured scene cannot separate V_x from E_x anyway (TUM calibrates it from a moving camera over a
 planar target). The synthetic camera still applies vignetting, so the emulator is tested with it present.

@@ -28,7 +28,7 @@
 #define USART_BAUD 921600u
 #define RX_RING_LEN 512u /* powers of two */
 #define TX_RING_LEN 2048u
-/* QEMU's SysTick runs as if the core clock were 168 MHz whatever RCC says (notes-feasibility.md section 3). */
+/* QEMU's SysTick runs as if the core clock were 168 MHz whatever RCC says (RCC is not modelled; README.md). */
 #define EMULATED_CORE_HZ 168000000u
 
 static hal_clocks_t clocks;

@@ -2,8 +2,8 @@
 
 Two profiles:
     ``basler_ace2``  Basler ace 2 GigE (a2A1920-51gcPRO): hardware trigger on a GPIO line, exposure = pulse width
-                     (``ExposureMode TriggerWidth``), 12-bit Bayer, chunks. Feature table:
-                     ``shared/reference/notes-hardware-anchors.md`` section 3.2.
+                     (``ExposureMode TriggerWidth``), 12-bit Bayer, chunks. Feature table: :func:`basler_ace2_writes`
+                     (GenICam SFNC names as the ace 2 exposes them).
     ``aravis_fake``  the Aravis fake GigE camera: ``ExposureTimeAbs``/``GainRaw``, TriggerSource ``Software``,
                      Mono16 carries the 12-bit codes (the fake has no BayerRG12 pixels), no chunks, no ExposureMode.
 
