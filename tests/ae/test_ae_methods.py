@@ -77,7 +77,7 @@ def test_classical_step_rule_values() -> None:
 
 
 def test_fix_is_classical_for_four_steps_then_constant(scene: np.ndarray) -> None:
-    fix, ae50 = FixAE(), ClassicalAE(50)
+    fix, ae50 = FixAE(), ClassicalAE(50)  # the authors' Fix (id fix with --parity upstream)
     a = closed_loop(fix, scene, DARK_US, 8)
     b = closed_loop(ae50, scene, DARK_US, 8)
     assert a[:5] == b[:5]
@@ -190,3 +190,19 @@ def test_methods_reject_bad_input() -> None:
     for name in ("ae50", "shim"):
         with pytest.raises(ValueError):
             get_method(name).next_exposure_us(np.zeros((4, 4), np.uint16), -1.0, {})
+
+
+@pytest.mark.parametrize("init_us", [DARK_US, 8000.0, BRIGHT_US])
+def test_default_fix_converges_to_50_percent_once_then_holds(scene: np.ndarray, init_us: float) -> None:
+    """The paper's Fix: from a dark, a mid or a mostly saturated start it reaches 50 % +- 5 % and then never moves;
+    the authors' Fix (--parity upstream) freezes after 4 classical steps wherever it is."""
+    from bracketry_emulator.ae.base import bayer_gray
+
+    fix = get_method("fix")
+    traj = closed_loop(fix, scene, init_us, 14)
+    settled = next(k for k in range(1, len(traj)) if traj[k] == traj[k - 1])
+    assert settled <= 6, np.array(traj) / 1000
+    assert len(set(traj[settled:])) == 1
+    assert abs(bayer_gray(render(scene, traj[-1])).mean() / 2048 - 1) <= 0.05
+    upstream = closed_loop(get_method("fix", parity="upstream"), scene, init_us, 8)
+    assert len(set(upstream[4:])) == 1

@@ -122,7 +122,9 @@ def test_methods_all_leaves_drl_out_without_weights_and_names_the_option() -> No
     from bracketry_emulator.benchmark.orchestrate import parse_methods
 
     assert "drl" not in parse_methods("all", has_drl_weights=False)
-    assert parse_methods("all", has_drl_weights=True)[-2:] == ["drl", "zhang"]
+    # 'all' = the paper's eight (drl with its weights); zhang by name
+    assert parse_methods("all", has_drl_weights=True) == ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl"]
+    assert parse_methods("all,zhang", has_drl_weights=True)[-1] == "zhang"
     assert parse_methods("ae50,fix,ae50") == ["ae50", "fix"]
     with pytest.raises(BracketryError, match="--drl-weights"):
         parse_methods("ae50,drl", has_drl_weights=False)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-PAPER_METHODS = ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "zhang"]
+PAPER_METHODS = ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim"]  # + drl with its weights
 METRICS = ["RTE (%)", "RRE (deg/m)", "coverage median (%)", "matches median", "time before failure median (s)"]
 
 

@@ -13,9 +13,19 @@ Update rule (the authors' ``classical-P``, reproduced exactly, parity tested on 
              |t - 0.002 e| otherwise                  # +0.002 ms per DN below the target
 
 Parameters: ``percent`` (P), ``gain_ms_per_dn`` = 0.002, ``deadband_dn`` = 15. No clamp of its own (the runner's
-bounds apply), as upstream. Fix: the classical-50 step for the first ``settle_steps`` = 4 calls (the authors' counter
-0..3), then the exposure is returned unchanged for the rest of the run (reproduced; the paper's "selected once at the
-beginning of each sequence" means the same thing since one run is one sequence).
+bounds apply), as upstream. The classical rule is the same in both modes (the paper's "limited update rate" is this
+additive step); its one quirk, ``abs()`` turning a step below zero into a positive exposure, only fires below
+``gain * error`` ms (e.g. under 4 ms on a fully white image) and is kept in both modes (the runner's bounds apply).
+
+Fix:
+- ``parity="upstream"`` (the authors' code): the classical-50 step for the first 4 calls (their counter 0..3),
+  then the exposure is returned unchanged for the rest of the run, wherever the 4 steps ended (36 % brightness on
+  the sample).
+- default (the paper: "selected once, at the beginning of each sequence, by using a brightness target of 50 %"):
+  Fix CONVERGES to the 50 % target once, then holds. The settling steps scale the exposure by the brightness
+  ratio in linear light (t * f^-1(T) / f^-1(mean), the ratio limited to [1/4, 4] per step; f^-1 = the emulator's
+  response, so on a static scene one or two steps suffice) until the mean is within ``tolerance`` = 5 % of the
+  target or ``max_settle_steps`` = 12 steps have passed; from then on the exposure never changes.
 """
 
 from __future__ import annotations
@@ -60,7 +70,8 @@ class ClassicalAE:
 
 
 class FixAE:
-    """Fix: classical-50 for the first ``settle_steps`` calls, then a constant exposure (id fix)."""
+    """Fix: the classical-50 step for the first ``settle_steps`` calls, then a constant exposure (id fix with
+    ``--parity upstream``; the authors' rule)."""
 
     def __init__(self, settle_steps: int = 4, percent: float = 50.0, name: str = "fix") -> None:
         self.settle_steps = settle_steps
@@ -78,6 +89,42 @@ class FixAE:
         if calls < self.settle_steps:
             return self._classical.next_exposure_us(image, exposure_us, meta)
         return float(exposure_us)
+
+
+class ConvergingFixAE:
+    """Fix as the paper describes it: converge once to the 50 % brightness target, then hold (id fix; see the
+    module docstring for the settling rule)."""
+
+    def __init__(self, percent: float = 50.0, tolerance: float = 0.05, max_settle_steps: int = 12,
+                 max_ratio: float = 4.0, name: str = "fix") -> None:
+        self.target_dn = float(int(percent / 100.0 * FULL_SCALE_12BIT))
+        self.tolerance = tolerance
+        self.max_settle_steps = max_settle_steps
+        self.max_ratio = max_ratio
+        self.name = name
+        self.reset(0.0)
+
+    def reset(self, init_exposure_us: float) -> None:
+        self._calls = 0
+        self.held = False
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+        check_input(image, exposure_us)
+        if self.held:
+            return float(exposure_us)
+        self._calls += 1
+        mean_dn = float(np.mean(gray_for(image, meta)))
+        if abs(mean_dn - self.target_dn) <= self.tolerance * self.target_dn or self._calls > self.max_settle_steps:
+            self.held = True
+            return float(exposure_us)
+        from .crfutil import response_of
+
+        icrf = np.asarray(response_of(meta).icrf, dtype=np.float64)
+        codes = np.arange(len(icrf), dtype=np.float64)
+        lin_target = float(np.interp(self.target_dn, codes, icrf))
+        lin_mean = max(float(np.interp(mean_dn, codes, icrf)), 1e-9)
+        ratio = float(np.clip(lin_target / lin_mean, 1.0 / self.max_ratio, self.max_ratio))
+        return float(exposure_us) * ratio
 
 
 class ConstantExposure:

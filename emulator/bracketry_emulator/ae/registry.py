@@ -17,11 +17,11 @@ from typing import Any
 from bracketry.errors import BracketryError
 
 from .base import AEMethod
-from .classical import ClassicalAE, ConstantExposure, FixAE
+from .classical import ClassicalAE, ConstantExposure, ConvergingFixAE, FixAE
 
 #: The eight methods of the paper, in its table order.
 PAPER_METHODS: tuple[str, ...] = ("fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl")
-#: Every built-in id (``all`` on the command line).
+#: Every built-in id (``all`` on the command line is :data:`PAPER_METHODS`; ``zhang`` by name).
 BUILTIN_METHODS: tuple[str, ...] = (*PAPER_METHODS, "zhang")
 ENTRY_POINT_GROUP = "bracketry.ae_methods"
 _CONSTANT = re.compile(r"^constant-(\d+(?:\.\d*)?|\.\d+)$")
@@ -29,7 +29,7 @@ _CONSTANT = re.compile(r"^constant-(\d+(?:\.\d*)?|\.\d+)$")
 
 #: The methods that have an authors' variant (``parity="upstream"``, :mod:`.upstream`); the others run the same
 #: implementation in both modes (classical and Fix are the authors' rule already; Wang and DRL are not in their code).
-UPSTREAM_VARIANTS: tuple[str, ...] = ("shim", "kim", "zhang")
+UPSTREAM_VARIANTS: tuple[str, ...] = ("fix", "shim", "kim", "zhang")
 PARITIES: tuple[str, ...] = ("default", "upstream")
 
 
@@ -41,6 +41,8 @@ def _builtin(name: str, options: dict[str, Any]) -> AEMethod | None:
     if parity == "upstream" and name in UPSTREAM_VARIANTS:
         from . import upstream
 
+        if name == "fix":
+            return FixAE()
         if name == "shim":
             return upstream.UpstreamShimAE()
         if name == "kim":
@@ -49,7 +51,7 @@ def _builtin(name: str, options: dict[str, Any]) -> AEMethod | None:
     if name in ("ae30", "ae50", "ae70"):
         return ClassicalAE(float(name[2:]), name=name)
     if name == "fix":
-        return FixAE()
+        return FixAE() if parity == "upstream" else ConvergingFixAE()
     if name == "shim":
         from .shim import ShimAE
 
@@ -147,7 +149,7 @@ def get_method(spec: str, **options: Any) -> AEMethod:
 
 def expand_methods(specs: str | list[str], has_drl_weights: bool = True,
                    warn: Callable[[str], None] | None = None) -> list[str]:
-    """Split a comma list, expand ``all`` (the built-ins; drl only when weights are given), drop duplicates."""
+    """Split a comma list, expand ``all`` (the paper's eight; drl only when weights are given), drop duplicates."""
     items = specs.split(",") if isinstance(specs, str) else list(specs)
     out: list[str] = []
     for raw in items:
@@ -155,7 +157,7 @@ def expand_methods(specs: str | list[str], has_drl_weights: bool = True,
         if not s:
             continue
         if s.lower() == "all":
-            for b in BUILTIN_METHODS:
+            for b in PAPER_METHODS:
                 if b == "drl" and not has_drl_weights:
                     if warn:
                         warn("note: 'all' skips drl (no --drl-weights given)")

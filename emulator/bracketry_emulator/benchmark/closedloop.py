@@ -19,7 +19,7 @@ from bracketry.errors import BracketryError
 
 #: closed-loop settings a benchmark may change (JSON-able; see :func:`loop_config`), with their defaults
 LOOP_DEFAULTS: dict[str, Any] = {"selection": "highernosat", "crf": "srgb", "init_exposure_ms": 4.0, "seed": 0,
-                                 "ae_camera": "left"}
+                                 "ae_camera": "left", "parity": "default"}
 _OPTIONS_FILE = "closedloop_options.json"
 
 
@@ -40,7 +40,12 @@ def loop_config(options: dict[str, Any] | None, drl_weights: str | None) -> Any:
     crf = str(o["crf"])
     if crf.lower() != "srgb" and not Path(crf).is_file():
         raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf}")
-    cfg = LoopConfig(emulator=EmulatorConfig(selection=o["selection"], crf=crf), ae_side=o["ae_camera"],
+    parity = str(o["parity"])
+    if parity not in ("default", "upstream"):
+        raise BracketryError(f"--parity must be default or upstream, got {parity}")
+    selection = "upstream" if parity == "upstream" and o["selection"] == "highernosat" else o["selection"]
+    cfg = LoopConfig(emulator=EmulatorConfig(selection=selection, crf=crf, parity=parity),  # type: ignore[arg-type]
+                     ae_side=o["ae_camera"],
                      init_exposure_us=float(o["init_exposure_ms"]) * 1000.0, seed=int(o["seed"]),
                      drl_weights=drl_weights)
     cfg.validate()
@@ -63,10 +68,10 @@ def _check_options(runs_dir: Path, options: dict[str, Any]) -> None:
 
 
 def all_methods() -> tuple[str, ...]:
-    """The ids that ``--methods all`` expands to (the AE registry's built-ins)."""
-    from bracketry_emulator.ae.registry import BUILTIN_METHODS
+    """The ids that ``--methods all`` expands to (the paper's eight; ``zhang`` by name)."""
+    from bracketry_emulator.ae.registry import PAPER_METHODS
 
-    return tuple(BUILTIN_METHODS)
+    return tuple(PAPER_METHODS)
 
 
 def _closed_loops(dataset_path: Path, methods: list[str], tmp_root: Path, drl_weights: str | None, workers: int,

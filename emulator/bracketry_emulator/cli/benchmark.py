@@ -55,11 +55,14 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--seed", type=int, default=0, show_default=True, help="Closed loops: seed of stochastic methods.")
 @click.option("--ae-camera", type=click.Choice(["left", "right"]), default="left", show_default=True,
               help="Closed loops: the camera whose image the methods see.")
+@click.option("--parity", type=click.Choice(["default", "upstream"]), default="default", show_default=True,
+              help="Closed loops: the methods as their papers describe them (default) or as the authors' code runs "
+                   "them (upstream: with their emulation arithmetic; needs --crf pcalib_inside1.txt).")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar for the closed loops.")
 def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: str, scheduler: str | None,
             workers: int, windows_text: str, alpha: float, max_frames: int | None, export_orbslam: bool,
             slam_dir: str | None, drl_weights: str | None, selection: str, crf: str, init_exposure_ms: float,
-            seed: int, ae_camera: str, quiet: bool) -> int:
+            seed: int, ae_camera: str, parity: str, quiet: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
@@ -90,6 +93,6 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
                            export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
                            progress=not quiet, on_done=done,
                            loop={"selection": selection, "crf": crf, "init_exposure_ms": init_exposure_ms,
-                                 "seed": seed, "ae_camera": ae_camera})
+                                 "seed": seed, "ae_camera": ae_camera, "parity": parity})
     click.echo(f"report: {result.report_files.get('report.html')}")
     return 0

@@ -44,7 +44,8 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 @click.argument("dataset", type=click.Path(path_type=Path))
 @click.option("--method", "-m", "methods", default="ae50", show_default=True,
               help="Comma list of AE methods: fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, constant-<ms> "
-                   "(e.g. constant-8), a plugin pkg.module:Class or an entry point; 'all' = every built-in.")
+                   "(e.g. constant-8), a plugin pkg.module:Class or an entry point; 'all' = the paper's eight "
+                   "(drl only with --drl-weights; zhang by name).")
 @click.option("--out", "-o", "out_dir", required=True, type=click.Path(path_type=Path),
               help="Output folder: one sub-folder per method, summary.json, exposures.csv, exposure_times.png.")
 @click.option("--selection", type=click.Choice(["highernosat", "upstream", "fusion"]), default="highernosat",
@@ -53,7 +54,9 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
               help="Camera response: 'srgb' or a pcalib.txt file [default: srgb; with --parity upstream the dataset's "
                    "calibration/pcalib*.txt].")
 @click.option("--parity", type=click.Choice(["default", "upstream"]), default="default", show_default=True,
-              help="'upstream' reproduces the authors' emulation (their pcalib lifting, truncation, closer_least_sat).")
+              help="'upstream' reproduces the authors' emulation (their pcalib lifting, truncation, closer_least_sat) "
+                   "and runs shim, kim and zhang as their code does; 'default' runs each method as its paper "
+                   "describes it.")
 @click.option("--camera", type=click.Choice(["left", "right", "both"]), default="both", show_default=True,
               help="Cameras to emulate and write.")
 @click.option("--ae-camera", type=click.Choice(["left", "right"]), default="left", show_default=True,
