@@ -93,7 +93,11 @@ async def drive_page(url: str, chromium: Chromium, shot: Path) -> dict[str, Any]
                                     " caption: document.querySelector('#cam-right .bracket .cap').textContent,"
                                     " apply: document.getElementById('apply').disabled})")
         png = await page.screenshot(shot)
-        return {"first": first, "second": second, "texts": texts, "png": png}
+        # the page's own button: applying the suggested table while recording is refused by the rig
+        await page.evaluate("document.getElementById('apply').click()")
+        refused = await page.wait_for("(() => { const t = document.getElementById('action-result').textContent; "
+                                      "return t.includes('apply_brackets:') && t; })()", 20)
+        return {"first": first, "second": second, "texts": texts, "png": png, "refused": refused}
 
 
 def test_monitor_page_in_headless_chromium(tmp_path: Path) -> None:
@@ -125,6 +129,7 @@ def test_monitor_page_in_headless_chromium(tmp_path: Path) -> None:
         assert all(re.match(r"REC · [\d.]+ fps · frames \d+ · drops \d+ · ", t) for t in cams), cams
         assert "ms · sat" in got["texts"]["caption"] and "covers" in got["texts"]["advice"], got["texts"]
         assert got["texts"]["apply"] is False  # the page has the token
+        assert "stop it before changing the bracket table" in got["refused"], got["refused"]
         img = cv2.imdecode(np.frombuffer(got["png"], np.uint8), cv2.IMREAD_COLOR)[..., ::-1]
         assert img.shape[0] >= 600 and img.shape[1] >= 1000
         assert np.all(img == np.array(UNDER_RGB, np.uint8), axis=-1).sum() > 500  # under-exposed marks rendered

@@ -81,9 +81,10 @@ class DaemonBackend:
             d.sensors_down()
             return {}
         if action == "record_start":
-            if not d.start_recording():
+            started = d.start_recording()
+            if not d.recording:  # refused (disk low); a recording waiting for its sensors is on
                 raise ActionError(f"recording refused: {d.state.snapshot().message}")
-            return {"name": d.rec_name}
+            return {"name": d.rec_name, "segment_started": bool(started)}
         if action == "record_stop":
             d.stop_recording()
             return {}
