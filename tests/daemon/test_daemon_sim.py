@@ -1,5 +1,5 @@
 """The simulated backpack end to end and under faults: fake GigE cameras, trigger simulator, panel firmware simulator
-and the daemon, driven by panel button presses (``bracketry.sim.faults`` scenarios, each one run in its own private
+and the daemon, driven by panel button presses (``bracketry.testing.faults`` scenarios, each one run in its own private
 network namespace; the test process stays outside and asserts on the scenario's JSON result, the daemon's JSON logs,
 the panel screen and the recorded files).
 
@@ -24,7 +24,7 @@ from bracketry.cli import main as cli_main
 from bracketry.recording.reader import RecordingReader
 from bracketry.recording.session import PRIMING_EXPOSURE_US
 from bracketry.recording.verify import VerifyReport, recording_files, verify_recording
-from bracketry.sim.faults import scenario_argv
+from bracketry.testing.faults import scenario_argv
 from bracketry_testkit import missing_component
 
 pytestmark = [pytest.mark.aravis, pytest.mark.socat, pytest.mark.slow]

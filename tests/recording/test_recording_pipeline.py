@@ -1,7 +1,7 @@
 """End to end: two fake GigE cameras (in-process Aravis GvFakeCamera on 127.0.0.2/.3 inside a private network
 namespace), software-triggered at each TRIGGER event, paired, recorded, verified and exported.
 
-Each run is ``python -m bracketry.recording.simrun`` in ``unshare --net`` (the test process stays in the host
+Each run is ``python -m bracketry.testing.simrun`` in ``unshare --net`` (the test process stays in the host
 namespace); its JSON summary is the ground truth (what was fired, dropped, served, counted by the streams).
 """
 
@@ -22,8 +22,8 @@ from bracketry.cameras.netns import netns_argv, netns_available
 from bracketry.cli import main as cli_main
 from bracketry.recording import topics as T
 from bracketry.recording.session import PRIMING_EXPOSURE_US
-from bracketry.recording.simrun import sim_pixels
 from bracketry.recording.verify import verify_recording
+from bracketry.testing.simrun import sim_pixels
 from bracketry_testkit import missing_component, stop_process
 
 pytestmark = [pytest.mark.aravis,
@@ -38,7 +38,7 @@ def need_netns() -> None:
 
 
 def simrun_argv(out: Path, summary: Path, *args: str) -> list[str]:
-    return [sys.executable, "-m", "bracketry.recording.simrun", "--out", str(out), "--summary", str(summary),
+    return [sys.executable, "-m", "bracketry.testing.simrun", "--out", str(out), "--summary", str(summary),
             "--fps", str(float(FPS)), *args]
 
 

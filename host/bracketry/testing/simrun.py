@@ -1,6 +1,6 @@
 """Record from two in-process fake cameras software-triggered at a bracket cycle (tests, benchmarks, demos).
 
-Run as ``python -m bracketry.recording.simrun --out DIR ...`` (inside ``bracketry.cameras.netns.netns_argv`` when
+Run as ``python -m bracketry.testing.simrun --out DIR ...`` (inside ``bracketry.cameras.netns.netns_argv`` when
 the cameras need 127.0.0.2/.3). It starts one ``FakeCameraServer`` per side serving ``sim_pixels`` (pixels are a
 known function of side and exposure, so tests can check every exported image exactly), opens them by IP with the
 ``aravis_fake`` profile, generates TRIGGER events at ``fps`` cycling the brackets, fires the cameras at each event,

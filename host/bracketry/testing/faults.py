@@ -1,6 +1,6 @@
 """Scripted sessions of the simulated rig with fault injection, for tests and demos; each writes a JSON result.
 
-Run as ``python -m bracketry.sim.faults --scenario NAME --out DIR --result FILE`` inside a private network namespace
+Run as ``python -m bracketry.testing.faults --scenario NAME --out DIR --result FILE`` inside a private network namespace
 (:func:`scenario_argv` builds the whole command line: ``unshare -n`` and, for ``disk``, a private mount namespace with
 a small tmpfs as the recording disk). The test process stays outside and asserts on the JSON result and the files.
 
@@ -49,7 +49,7 @@ def scenario_argv(scenario: str, out: Path, result: Path, *args: str, tmpfs_mb: 
     namespace where ``out/disk`` is a tmpfs of that many MiB)."""
     from bracketry.cameras.netns import netns_argv
 
-    inner = [sys.executable, "-m", "bracketry.sim.faults", "--scenario", scenario, "--out", str(out),
+    inner = [sys.executable, "-m", "bracketry.testing.faults", "--scenario", scenario, "--out", str(out),
              "--result", str(result), *args]
     argv = netns_argv(inner, tuple(CAMERA_ADDRESSES.values()))
     if tmpfs_mb is None:
