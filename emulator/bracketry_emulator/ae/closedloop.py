@@ -731,9 +731,9 @@ class _NoBar:
 def _progress_bar(enabled: bool, total: int) -> Any:
     if not enabled:
         return _NoBar()
-    from tqdm import tqdm
+    from bracketry.progress import Progress
 
-    return tqdm(total=total, unit="step", desc="emulate", dynamic_ncols=True, leave=False)
+    return Progress("emulate", total=total, unit="step")
 
 
 def _write_outputs(summary: RunSummary, cfg: LoopConfig, dataset: Dataset) -> None:

@@ -84,8 +84,9 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
     def done(r: dict) -> None:
         state = "cached" if r.get("cached") else "done"
         outcome = "success" if r["success"] else f"failed at {r['time_before_failure_s']:.1f} s"
+        rte = f"RTE refused: {r['rte_refused']}" if r.get("rte_refused") else f"RTE {r['rte_pct']:.2f} %"
         click.echo(f"{state:6s} {r['trajectory']} / {r['method']}: {outcome}, "
-                   f"RTE {r['rte_pct']:.2f} %, coverage {100 * r['coverage_mean']:.1f} %, "
+                   f"{rte}, coverage {100 * r['coverage_mean']:.1f} %, "
                    f"matches {r['matches_mean']:.0f}")
 
     result = run_benchmark(list(datasets), methods, out_dir, reference=reference, scheduler=scheduler,

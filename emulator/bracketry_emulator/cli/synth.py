@@ -47,15 +47,12 @@ def _out_dir(out: Path, force: bool) -> Path:
 
 
 def _progress(desc: str, quiet: bool):
-    from tqdm import tqdm
+    from bracketry.progress import Progress
 
-    bar = tqdm(total=0, desc=desc, unit="img", disable=quiet, leave=False)
+    bar = Progress(desc, unit="img", enabled=not quiet)
 
     def update(done: int, total: int) -> None:
-        if bar.total != total:
-            bar.total = total
-            bar.refresh()
-        bar.update(done - bar.n)
+        bar.set(done, total)
 
     return bar, update
 

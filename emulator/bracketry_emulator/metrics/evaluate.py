@@ -24,6 +24,20 @@ def read_segments(trajectory_dir: str | Path) -> list[tuple[np.ndarray, np.ndarr
     return [read_tum(p) for p in sorted(files, key=key)]
 
 
+#: next to a ground truth file: time stamps (ns, one per line) of frames whose pose is not known
+UNKNOWN_POSES_FILE = "groundtruth_unknown.txt"
+
+
+def frames_without_pose(groundtruth: str | Path, frame_times_ns: list[int]) -> int:
+    """How many of ``frame_times_ns`` (or of all listed frames when the list is empty) are listed in the
+    :data:`UNKNOWN_POSES_FILE` next to ``groundtruth`` (0 when there is none)."""
+    path = Path(groundtruth).parent / UNKNOWN_POSES_FILE
+    if not path.is_file():
+        return 0
+    listed = {int(line) for line in path.read_text().split() if line.strip().isdigit()}
+    return len(listed & set(frame_times_ns)) if frame_times_ns else len(listed)
+
+
 def evaluate_run(vo_dir: str | Path, groundtruth: str | Path | None,
                  windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M) -> dict:
     """Metrics of a VO output folder (``frames.csv`` + ``CameraTrajectory<n>.txt``) against a TUM reference.
@@ -31,7 +45,8 @@ def evaluate_run(vo_dir: str | Path, groundtruth: str | Path | None,
     Returns a JSON-ready dict: n_frames, success, time_before_failure_s, duration_s, tracked_fraction,
     n_segments, coverage_mean (fraction, all frames), matches_mean (matches to map, all frames),
     keypoints_mean, rte_pct, rre_deg_per_m (NaN without reference), windows: list of
-    {window_m, n_pairs, rte_pct, rre_deg_per_m}, and per-frame lists coverage, matches.
+    {window_m, n_pairs, rte_pct, rre_deg_per_m}, and per-frame lists coverage, matches. When frames of the run
+    are listed in :data:`UNKNOWN_POSES_FILE` next to the reference, RTE/RRE stay NaN and ``rte_refused`` says why.
     """
     frames = read_frames_csv(Path(vo_dir) / "frames.csv")
     rob = robustness(frames)
@@ -52,7 +67,10 @@ def evaluate_run(vo_dir: str | Path, groundtruth: str | Path | None,
         "rre_deg_per_m": float("nan"),
         "windows": [],
     }
-    if groundtruth is not None and Path(groundtruth).is_file():
+    unknown = frames_without_pose(groundtruth, [f["t_ns"] for f in frames]) if groundtruth is not None else 0
+    if unknown:  # their nearest neighbours' poses would be taken for theirs: no RTE rather than a wrong one
+        out["rte_refused"] = f"{unknown} frames have no known ground-truth pose ({UNKNOWN_POSES_FILE})"
+    elif groundtruth is not None and Path(groundtruth).is_file():
         gt_t, gt_p = read_tum(groundtruth)
         errs = relative_errors(gt_t, gt_p, read_segments(vo_dir), windows_m)
         out["rte_pct"], out["rre_deg_per_m"] = trajectory_rte_rre(errs)

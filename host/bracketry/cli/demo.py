@@ -25,8 +25,13 @@ def command(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str 
     verdict = "verified clean" if summary["recording_verified"] else "HAS PROBLEMS"
     click.echo(f"bracketry demo: {summary['frames']['left']} + {summary['frames']['right']} frames recorded, "
                f"drops {summary['drops']}, recording {verdict}")
+    unknown = summary.get("frames_without_pose", 0)
     for metric, best in summary["best"].items():
+        if unknown and metric.startswith(("RTE", "RRE")):
+            continue
         click.echo(f"  best {metric:<32} {best['method']:<8} {best['value']}")
+    if unknown:
+        click.echo(f"  RTE/RRE not shown: {unknown} recorded frames have no known ground-truth pose")
     report = summary["report"].get("report.html") or summary["report"].get("report.md")
     click.echo(f"report: {report}")
     click.echo(f"took {summary['timing_s']['total']} s (recording {summary['timing_s']['record']} s)")

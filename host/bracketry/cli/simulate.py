@@ -36,8 +36,12 @@ def parse_resolution(text: str) -> tuple[int, int]:
 @click.option("--no-world", is_flag=True, help="Serve a test pattern instead of the synthetic world.")
 @click.option("--monitor", "monitor_port", type=click.IntRange(1024, 65535), default=None,
               help="Serve the browser monitor on 127.0.0.1:PORT (the URL with its token is printed).")
+@click.option("--world-seconds", type=click.FloatRange(1.0, 36000.0), default=None,
+              help="Seconds of distinct world frames (later frames repeat them) [default: --seconds + 5].")
+@click.option("--keep-frames", is_flag=True,
+              help="Keep the rendered frames in OUT/dev/frames (default: in memory, removed at the end).")
 def command(seconds: float, out_dir: Path, trigger: str, resolution: str, fps: float, preset: str, seed: int,
-            no_world: bool, monitor_port: int | None) -> int:
+            no_world: bool, monitor_port: int | None, world_seconds: float | None, keep_frames: bool) -> int:
     """Run the simulated backpack: fake GigE cameras, trigger, panel firmware and the daemon under test."""
     res = parse_resolution(resolution)
     from bracketry.sim.rig import in_private_netns, reexec_in_netns
@@ -54,49 +58,62 @@ def command(seconds: float, out_dir: Path, trigger: str, resolution: str, fps: f
                                    ["simulate", "--seconds", str(seconds), "--out", str(out_dir), "--trigger",
                                     trigger, "--resolution", resolution, "--fps", str(fps), "--preset", preset,
                                     "--seed", str(seed), *(["--no-world"] if no_world else []),
-                                    *(["--monitor", str(monitor_port)] if monitor_port is not None else [])])
+                                    *(["--monitor", str(monitor_port)] if monitor_port is not None else []),
+                                    *(["--world-seconds", str(world_seconds)] if world_seconds else []),
+                                    *(["--keep-frames"] if keep_frames else [])])
         finally:
             if bridge is not None:
                 bridge.terminate()
                 bridge.wait(timeout=10)
-    return run(out_dir, seconds, trigger, res, fps, preset, seed, not no_world, monitor_port)
+    return run(out_dir, seconds, trigger, res, fps, preset, seed, not no_world, monitor_port, world_seconds,
+               keep_frames)
 
 
 def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: float, preset: str, seed: int,
-        world: bool, monitor_port: int | None = None) -> int:
+        world: bool, monitor_port: int | None = None, world_seconds: float | None = None,
+        keep_frames: bool = False) -> int:
     """The simulation inside the private network namespace."""
-    from tqdm import tqdm
+    import time
 
     from bracketry.recording.verify import format_report, verify_recording
     from bracketry.sim.rig import SimOptions, SimulatedRig, summary_json
     from bracketry.sim.scenario import run_session
 
-    opts = SimOptions(out_dir=out_dir, resolution=res, fps=fps, world_seconds=seconds + 5.0, trigger=trigger,
-                      preset=preset, seed=seed, world=world, echo=lambda s: click.echo(s, err=True),
-                      monitor_port=monitor_port)
+    started_ns = time.time_ns()
+    opts = SimOptions(out_dir=out_dir, resolution=res, fps=fps, world_seconds=world_seconds or seconds + 5.0,
+                      trigger=trigger, preset=preset, seed=seed, world=world, keep_frames=keep_frames,
+                      echo=lambda s: click.echo(s, err=True), monitor_port=monitor_port)
     rig = SimulatedRig(opts)
+    render_done_ns = None
     try:
-        bar = tqdm(total=1, desc="rendering camera frames", unit="frame", file=sys.stderr, leave=False)
-
-        def progress(done: int, total: int) -> None:
-            bar.total = total
-            bar.n = done
-            bar.refresh()
-
-        rig.prepare_frames(progress)
-        bar.close()
+        rig.prepare_frames()  # rendered ahead in a separate process while the rig starts and records
         rig.start()
         session = run_session(rig, seconds)
+        render_done_ns = rig.schedule.render_done_ns()
     finally:
         rig.close()
     reports = [verify_recording(seg) for seg in rig.recordings()]
     for r in reports:
         click.echo(format_report(r))
     gt = rig.write_groundtruth()
-    summary = summary_json(rig, reports, {"session": session, "groundtruth": str(gt) if gt else None,
-                                          "frame_mismatches": rig.schedule.mismatches if rig.schedule else None})
+    first_ns = min((t for t, _k in rig.recorded_frame_ids("left")), default=None)
+    summary = summary_json(rig, reports, {"session": session, "groundtruth": gt,
+                                          "frame_mismatches": rig.schedule.mismatches if rig.schedule else None,
+                                          "frames_without_identity": dict(rig.schedule.unidentified),
+                                          "frames_waited_for_renderer": dict(rig.schedule.waited),
+                                          "started_ns": started_ns, "first_frame_ns": first_ns,
+                                          "render_done_ns": render_done_ns})
     frames = {s: sum(r.sides[s].frames for r in reports if s in r.sides) for s in ("left", "right")}
     drops = {s: sum(r.sides[s].drops for r in reports if s in r.sides) for s in ("left", "right")}
     click.echo(f"simulated rig: recorded {session['recorded_s']} s, frames {frames}, drops {drops}, "
                f"{'verified clean' if summary['ok'] else 'PROBLEMS FOUND'}; summary {out_dir / 'simulation.json'}")
+    if first_ns is not None:
+        click.echo(f"first frame recorded {(first_ns - started_ns) / 1e9:.1f} s after the start; rendering "
+                   + ("still running then" if render_done_ns is None or render_done_ns > first_ns else
+                      "had finished") + (" and stopped with the rig" if render_done_ns is None else ""))
+    if gt is not None:
+        unknown = f"; {gt['unknown']} frames WITHOUT a known pose (listed in groundtruth_unknown.txt)" \
+            if gt["unknown"] else ""
+        click.echo(f"ground truth: {gt['poses']} poses for {gt['frames']} recorded left frames, each from the "
+                   f"rendered frame index its image carries{unknown}")
     return 0 if summary["ok"] else 1

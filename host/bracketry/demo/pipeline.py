@@ -28,6 +28,7 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 from bracketry.errors import BracketryError
+from bracketry.progress import Progress
 
 
 @dataclass(frozen=True)
@@ -110,16 +111,15 @@ def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]
         export_borealhdr(seg, ds, workers=p.workers, progress=False)
     rig_dir = p.out_dir / "rig"
     shutil.copytree(rig_dir / "calibration", ds / "calibration")
-    if (rig_dir / "groundtruth.txt").is_file():
-        shutil.copy2(rig_dir / "groundtruth.txt", ds / "groundtruth.txt")
+    for name in ("groundtruth.txt", "groundtruth_unknown.txt"):  # the second lists frames without a known pose
+        if (rig_dir / name).is_file():
+            shutil.copy2(rig_dir / name, ds / name)
     return ds
 
 
 def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     """Step 3: all AE methods in closed loop (one shared-decode pass, with a progress bar), VO, metrics, statistics
     and the report."""
-    from tqdm import tqdm
-
     from bracketry_emulator.benchmark.orchestrate import parse_methods, run_benchmark
 
     methods = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
@@ -133,9 +133,9 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     def done(r: dict) -> None:
         nonlocal bar
         if bar is None:  # after the closed loops' own bar
-            bar = tqdm(total=len(methods), desc="VO + metrics", unit="method", file=sys.stderr)
+            bar = Progress("VO + metrics", total=len(methods), unit="method")
+        bar.set_postfix(r["method"])
         bar.update(1)
-        bar.set_postfix_str(r["method"])
 
     try:
         return run_benchmark([dataset], methods, out, reference="ae50", workers=p.workers,
@@ -181,12 +181,18 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     drops = {s: sum(v["sides"].get(s, {}).get("drops", 0) for v in verify) for s in ("left", "right")}
     echo(f"      recorded {sim['session']['recorded_s']} s: frames {frames}, drops {drops}, "
          f"{'verified clean' if sim['ok'] else 'verify found problems'}")
+    gt = sim.get("groundtruth")
+    unknown = int(gt.get("unknown", 0)) if isinstance(gt, dict) else 0
+    if unknown:
+        echo(f"      {unknown} recorded frames carry no rendered-frame identity (no known pose): RTE/RRE will not "
+             "be computed")
     t_rec = time.monotonic() - t0
     dataset = export_dataset(p, sim, echo)
     result = benchmark(p, dataset, echo)
     best = best_per_metric(result.report_files["summary.csv"]) if "summary.csv" in result.report_files else {}
     summary = {"out_dir": str(p.out_dir), "seconds": p.seconds, "resolution": list(p.resolution),
                "frames": frames, "drops": drops, "recording_verified": bool(sim["ok"]),
+               "frames_without_pose": unknown,
                "recordings": sim["recordings"], "dataset": str(dataset),
                "methods": sorted({r["method"] for r in result.results}),
                "best": {k: {"method": v[0], "value": v[1]} for k, v in best.items()},

@@ -70,9 +70,9 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
     lock = threading.Lock()
     bar: Any = None
     if progress:
-        from tqdm import tqdm
+        from bracketry.progress import Progress
 
-        bar = tqdm(total=total, unit="img", desc="export", leave=False)
+        bar = Progress("export", total=total, unit="img")
     made: set[Path] = set()
 
     def job(path: Path, image: np.ndarray, side: str) -> None:

@@ -1,15 +1,29 @@
-"""Pixels for the simulated cameras: frame k of the bracket cycle, pre-rendered from the synthetic world.
+"""Pixels for the simulated cameras: frame k of the bracket cycle, rendered ahead by a separate process, each frame
+carrying its own index.
 
-The fake camera calls its image source once per triggered frame with the exposure it was set to; the k-th call of a
-side serves frame k (the k-th trigger pulse: world time ``k / fps``, exposure ``brackets[k % n]``). Rendering happens
-before the rig starts, so the camera thread only copies memory. When the served exposure does not match the
-schedule (a dropped trigger), the source resynchronises on the next frame with that exposure.
+Frame k of a side is the synthetic world at the world time of its bracket cycle (:func:`cycle_time_s`) exposed
+``brackets[k % n]``. A renderer process
+(:func:`render_frames`, started by :meth:`FrameSchedule.start`) writes the frames in order into one shared memory
+file per side and counts them in a small shared counter, so the rig starts recording while later frames are still
+being rendered. The fake camera's image source serves the next frame of the cycle whose exposure matches the one the
+camera was triggered with (a dropped trigger resynchronises on the next matching frame), waiting for the renderer
+when it is behind.
+
+Identity, not timing: every served frame carries the index k of the rendered frame it shows, written into its first
+:data:`FRAME_ID_PIXELS` pixels (row 0) by :func:`embed_frame_id`; :func:`read_frame_id` reads it back from a
+recorded image. The ground truth of a recorded frame is the pose at world time ``cycle_time_s(k)`` of that k, so
+merged or dropped triggers, late buffers and a loaded machine cannot give a frame another frame's pose. A frame
+served without a rendered image (the renderer far behind, an exposure outside the bracket cycle such as the priming
+trigger) has no identity: its pose is unknown and reported, never guessed.
 """
 
 from __future__ import annotations
 
+import multiprocessing
 import threading
+import time
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -17,62 +31,173 @@ import numpy as np
 
 ProgressFn = Callable[[int, int], None]
 
+#: pixels of row 0 holding a frame's identity (three data codes and a check code, 12-bit values)
+FRAME_ID_PIXELS = 4
+_TAGS = (0xA00, 0x500, 0xC00, 0x300)
+#: largest index a frame can carry (24 bits)
+MAX_FRAME_ID = (1 << 24) - 1
+#: how long the image source waits for the renderer before serving a frame without identity, seconds
+WAIT_FOR_RENDER_S = 2.0
 
+
+def embed_frame_id(image: np.ndarray, k: int) -> None:
+    """Write index ``k`` (0..2**24-1) into ``image[0, :4]`` (uint16 (H, W), 12-bit codes) in place."""
+    if not 0 <= k <= MAX_FRAME_ID:
+        raise ValueError(f"frame index {k} outside 0..{MAX_FRAME_ID}")
+    b = ((k >> 16) & 0xFF, (k >> 8) & 0xFF, k & 0xFF)
+    check = b[0] ^ b[1] ^ b[2] ^ 0x5A
+    image[0, :FRAME_ID_PIXELS] = (_TAGS[0] | b[0], _TAGS[1] | b[1], _TAGS[2] | b[2], _TAGS[3] | check)
+
+
+def clear_frame_id(image: np.ndarray) -> None:
+    """Remove any identity from ``image`` (a frame whose pose is not known)."""
+    image[0, :FRAME_ID_PIXELS] = 0
+
+
+def read_frame_id(image: np.ndarray) -> int | None:
+    """The index a frame carries (see :func:`embed_frame_id`), or None when it carries none.
+
+    ``image``: uint16 (H, W) as served (12-bit codes); also accepts codes scaled to 16 bits (``<< 4``)."""
+    if image.ndim != 2 or image.shape[1] < FRAME_ID_PIXELS:
+        return None
+    px = [int(v) for v in image[0, :FRAME_ID_PIXELS]]
+    if max(px) > 0xFFF and all(v & 0xF == 0 for v in px):
+        px = [v >> 4 for v in px]
+    if any(v & 0xF00 != t for v, t in zip(px, _TAGS)):
+        return None
+    b = [v & 0xFF for v in px]
+    if b[0] ^ b[1] ^ b[2] ^ 0x5A != b[3]:
+        return None
+    return (b[0] << 16) | (b[1] << 8) | b[2]
+
+
+@dataclass
+class WorldSpec:
+    """What the renderer process builds its world from (a ``bracketry_emulator.synth.World``); None: test pattern."""
+
+    preset: str = "forest-winter"
+    seed: int = 0
+
+
+@dataclass
 class FrameSchedule:
-    """Pre-rendered frames of both sides: ``frames[side]`` is uint16 (n_frames, height, width), 12-bit Bayer codes.
+    """The frames of both sides in shared memory files under ``folder``, rendered ahead by a separate process.
 
-    ``world`` is a :class:`bracketry_emulator.synth.World` (None: a moving test pattern, for rigs without the
-    emulator extra); ``brackets_us`` the exposure cycle; ``fps`` the trigger rate.
+    ``world``: the spec of the synthetic world (None: a moving test pattern, for rigs without the emulator extra);
+    ``brackets_us``: the exposure cycle; ``fps``: the trigger rate; ``n_frames`` per side (frames beyond repeat,
+    each still carrying its own index k mod n_frames). ``frames[side]`` is a uint16 (n_frames, height, width)
+    memory map of 12-bit Bayer codes, valid up to :meth:`rendered`.
     """
 
-    def __init__(self, world: Any, brackets_us: Sequence[int], fps: float, n_frames: int,
-                 sides: Sequence[str] = ("left", "right"), resolution: tuple[int, int] = (640, 400),
-                 progress: ProgressFn | None = None) -> None:
-        self.world = world
-        self.brackets_us = [int(b) for b in brackets_us]
-        self.fps = float(fps)
-        self.n_frames = int(n_frames)
-        self.width, self.height = resolution
-        self.frames: dict[str, np.ndarray] = {}
-        self.served: dict[str, int] = {s: 0 for s in sides}
-        #: per side, every frame served: (exposure_us, frame index k or None when not a bracket exposure)
-        self.log: dict[str, list[tuple[int, int | None]]] = {s: [] for s in sides}
-        self.mismatches = 0
-        self._lock = threading.Lock()
-        total = self.n_frames * len(sides)
-        for i, side in enumerate(sides):
-            arr = np.empty((self.n_frames, self.height, self.width), np.uint16)
-            for k in range(self.n_frames):
-                arr[k] = self.render(side, k)
-                if progress is not None:
-                    progress(i * self.n_frames + k + 1, total)
-            self.frames[side] = arr
+    folder: Path
+    world: WorldSpec | None
+    brackets_us: Sequence[int]
+    fps: float
+    n_frames: int
+    resolution: tuple[int, int] = (640, 400)
+    sides: Sequence[str] = ("left", "right")
+    wait_for_render_s: float = WAIT_FOR_RENDER_S
+    frames: dict[str, np.ndarray] = field(default_factory=dict, init=False)
+    #: per side, how many frames were served by index (k) and without identity
+    served: dict[str, int] = field(default_factory=dict, init=False)
+    unidentified: dict[str, int] = field(default_factory=dict, init=False)
+    #: per side, frames the camera had to wait for (the renderer was behind the triggers)
+    waited: dict[str, int] = field(default_factory=dict, init=False)
+    mismatches: int = field(default=0, init=False)
 
+    def __post_init__(self) -> None:
+        self.folder = Path(self.folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.brackets_us = [int(b) for b in self.brackets_us]
+        self.width, self.height = self.resolution
+        shape = (int(self.n_frames), self.height, self.width)
+        for side in self.sides:
+            self.frames[side] = np.lib.format.open_memmap(self.frame_path(side), mode="w+", dtype=np.uint16,
+                                                          shape=shape)
+            self.served[side] = 0
+            self.unidentified[side] = 0
+            self.waited[side] = 0
+        #: [frames rendered (both sides), renderer state: 0 running, 1 done, 2 failed, time.time_ns() when done]
+        self._counter = np.lib.format.open_memmap(self.folder / "rendered.npy", mode="w+", dtype=np.int64,
+                                                  shape=(3,))
+        self._lock = threading.Lock()
+        self._proc: Any = None
+
+    def frame_path(self, side: str) -> Path:
+        return self.folder / f"frames_{side}.npy"
+
+    # ----------------------------------------------------------------------------------------------- timing
     def t_s(self, k: int) -> float:
-        """World time of frame k, seconds."""
-        return k / self.fps
+        """World time of frame k, seconds: the first trigger of its bracket cycle (see :func:`cycle_time_s`)."""
+        return cycle_time_s(k, len(self.brackets_us), self.fps)
 
     def exposure_us(self, k: int) -> int:
         """Exposure of frame k, microseconds."""
-        return self.brackets_us[k % len(self.brackets_us)]
+        return int(self.brackets_us[k % len(self.brackets_us)])
 
-    def render(self, side: str, k: int) -> np.ndarray:
-        """Frame k of ``side``: uint16 (height, width)."""
-        t_s, exp_us = self.t_s(k), float(self.exposure_us(k))
-        if self.world is not None:
-            return self.world.render(side, t_s, exp_us, rng=self.world.frame_rng(side, t_s, exp_us))
-        yy, xx = np.mgrid[0:self.height, 0:self.width]
-        shift = 8 * k + (12 if side == "right" else 0)
-        pattern = ((xx + shift) // 16 + yy // 16) % 2 * 0.8 + 0.1
-        return np.clip(pattern * exp_us / 8.0, 0, 4094).astype(np.uint16)
+    # ----------------------------------------------------------------------------------------------- rendering
+    def start(self) -> FrameSchedule:
+        """Start the renderer process (returns at once; see :meth:`rendered` and :meth:`wait`)."""
+        ctx = multiprocessing.get_context("spawn")  # the rig process runs GLib threads: never fork it
+        self._proc = ctx.Process(target=render_frames, name="bracketry-render", daemon=True,
+                                 args=(str(self.folder), self.world, list(self.brackets_us), self.fps,
+                                       int(self.n_frames), self.resolution, list(self.sides)))
+        self._proc.start()
+        return self
+
+    def rendered(self) -> int:
+        """Frames rendered so far (per side)."""
+        return int(self._counter[0])
+
+    def render_done_ns(self) -> int | None:
+        """Host time (``time.time_ns()``) when the last frame was rendered, None while rendering."""
+        return int(self._counter[2]) if int(self._counter[1]) == 1 else None
+
+    def failed(self) -> bool:
+        return int(self._counter[1]) == 2 or (self._proc is not None and self._proc.exitcode not in (None, 0))
+
+    def wait(self, progress: ProgressFn | None = None, timeout_s: float | None = None) -> None:
+        """Block until every frame is rendered (``progress(done, total)`` on the way)."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while self.rendered() < self.n_frames:
+            if self.failed():
+                raise RuntimeError(f"the frame renderer failed (see {self.folder / 'render.log'})")
+            if deadline is not None and time.monotonic() > deadline:
+                raise TimeoutError(f"frames not rendered within {timeout_s:g} s")
+            if progress is not None:
+                progress(self.rendered(), self.n_frames)
+            time.sleep(0.05)
+        if progress is not None:
+            progress(self.n_frames, self.n_frames)
+
+    def stop(self) -> None:
+        """End the renderer process (if still running)."""
+        proc, self._proc = self._proc, None
+        if proc is not None and proc.is_alive():
+            proc.terminate()
+            proc.join(10)
+
+    # ----------------------------------------------------------------------------------------------- serving
+    def _frame(self, side: str, k: int) -> np.ndarray | None:
+        """Rendered frame k of ``side`` (waits for the renderer up to ``wait_for_render_s``), or None."""
+        k %= self.n_frames
+        deadline = time.monotonic() + self.wait_for_render_s
+        if self.rendered() <= k:
+            with self._lock:
+                self.waited[side] += 1
+        while self.rendered() <= k:
+            if self.failed() or time.monotonic() > deadline:
+                return None
+            time.sleep(0.002)
+        return self.frames[side][k]
 
     def source(self, side: str) -> Callable[[int, int, int], np.ndarray]:
         """The fake camera image source of ``side``: (exposure_us, width, height) -> uint16 (height, width)."""
+        n = len(self.brackets_us)
 
         def fill(exposure_us: int, width: int, height: int) -> np.ndarray:
             with self._lock:
                 k = self.served[side]
-                n = len(self.brackets_us)
                 matched = None
                 for step in range(n):
                     if abs(self.exposure_us(k + step) - exposure_us) <= 1:
@@ -80,51 +205,84 @@ class FrameSchedule:
                             self.mismatches += 1
                         matched = k + step
                         break
-                if matched is not None:  # not a bracket (e.g. the priming trigger): frame k, no advance
-                    k = matched
-                    self.served[side] = k + 1
-                self.log[side].append((int(exposure_us), matched))
-            frame = self.frames[side][k % self.n_frames]
-            if (height, width) != frame.shape:
-                out = np.zeros((height, width), np.uint16)
+                if matched is not None:
+                    self.served[side] = matched + 1
+            frame = self._frame(side, matched if matched is not None else k)
+            out = np.zeros((height, width), np.uint16)
+            if frame is not None:
                 h, w = min(height, frame.shape[0]), min(width, frame.shape[1])
                 out[:h, :w] = frame[:h, :w]
-                return out
-            return frame
+            if frame is None or matched is None:  # not a bracket frame (e.g. the priming trigger) or not rendered
+                clear_frame_id(out)
+                with self._lock:
+                    self.unidentified[side] += 1
+            return out
 
         return fill
 
-    def frame_indices(self, recorded_exposures_us: Sequence[float], side: str = "left") -> list[int | None]:
-        """World frame index of each recorded frame (in recording order), from the exposures the fake camera
-        reported for them: the served log is walked forward to the next entry with that exposure, so frames lost
-        between camera and disk, priming frames and merged triggers do not shift the later ones."""
-        log = self.log[side]
-        out: list[int | None] = []
-        j = 0
-        for e in recorded_exposures_us:
-            k = None
-            for jj in range(j, min(j + 4 * len(self.brackets_us), len(log))):
-                if log[jj][1] is not None and abs(log[jj][0] - float(e)) <= 1.0:
-                    k, j = log[jj][1], jj + 1
-                    break
-            out.append(k)
-        return out
 
-    def write_groundtruth(self, path: Path, frames: Sequence[tuple[int, float]]) -> int:
-        """Write the left camera's TUM ground truth of recorded frames ``(stamp_ns, reported exposure_us)`` in
-        recording order: each stamp gets the pose of the world frame that camera really served for it.
+def cycle_time_s(k: int, n_brackets: int, fps: float) -> float:
+    """World time of frame k: every frame of a bracket cycle shows the world at the cycle's first trigger,
+    ``(k // n) * n / fps`` (one scene render per cycle, exposed n ways: what keeps the renderer ahead of the
+    triggers on two cores; a bracket is one instant, as the emulator treats it)."""
+    return (k // n_brackets) * n_brackets / fps
 
-        Returns the number of poses written (0 without a world)."""
-        if self.world is None:
-            return 0
-        from bracketry_emulator.synth.writer import tum_line
 
-        ks = self.frame_indices([e for _t, e in frames])
-        lines = ["# bracketry simulated rig ground truth (TUM): t_s tx ty tz qx qy qz qw, left camera, host time"]
-        n = 0
-        for (t_ns, _e), k in zip(frames, ks):
-            if k is not None:
-                lines.append(tum_line(int(t_ns), self.world.pose(self.t_s(k))))
-                n += 1
-        path.write_text("\n".join(lines) + "\n")
-        return n
+def _pattern(side: str, k: int, exposure_us: float, width: int, height: int) -> np.ndarray:
+    yy, xx = np.mgrid[0:height, 0:width]
+    shift = 8 * k + (12 if side == "right" else 0)
+    pattern = ((xx + shift) // 16 + yy // 16) % 2 * 0.8 + 0.1
+    return np.clip(pattern * exposure_us / 8.0, 0, 4094).astype(np.uint16)
+
+
+def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[int], fps: float, n_frames: int,
+                  resolution: tuple[int, int], sides: list[str]) -> None:
+    """The renderer process: frame k of every side, k = 0, 1, ..., into the shared files, counting as it goes."""
+    base = Path(folder)
+    counter = np.load(base / "rendered.npy", mmap_mode="r+")
+    frames = {s: np.load(base / f"frames_{s}.npy", mmap_mode="r+") for s in sides}
+    try:
+        world = None
+        if world_spec is not None:
+            from bracketry_emulator.synth import World
+
+            world = World(world_spec.preset, seed=world_spec.seed, resolution=resolution)
+        w, h = resolution
+        for k in range(n_frames):
+            t_s, exp_us = cycle_time_s(k, len(brackets_us), fps), float(brackets_us[k % len(brackets_us)])
+            for side in sides:
+                if world is not None:
+                    img = world.render(side, t_s, exp_us, rng=world.frame_rng(side, t_s, exp_us))
+                else:
+                    img = _pattern(side, k, exp_us, w, h)
+                embed_frame_id(img, k)
+                frames[side][k] = img
+            counter[0] = k + 1
+        counter[2] = time.time_ns()
+        counter[1] = 1
+    except BaseException as exc:
+        counter[1] = 2
+        (base / "render.log").write_text(f"{type(exc).__name__}: {exc}\n")
+        raise
+
+
+def frame_ids(images: Sequence[np.ndarray]) -> list[int | None]:
+    """The index each recorded image carries (None: unknown)."""
+    return [read_frame_id(im) for im in images]
+
+
+def groundtruth_lines(world: Any, t_s: Callable[[int], float], frames: Sequence[tuple[int, int | None]]
+                      ) -> tuple[list[str], int]:
+    """TUM lines of recorded frames ``(stamp_ns, carried index k or None)``: each known frame gets the pose of the
+    world at ``t_s(k)``. Returns (lines, number of frames without a known pose)."""
+    from bracketry_emulator.synth.writer import tum_line
+
+    lines = ["# bracketry simulated rig ground truth (TUM): t_s tx ty tz qx qy qz qw, left camera, host time; "
+             "each pose from the rendered frame index the recorded image carries"]
+    unknown = 0
+    for t_ns, k in frames:
+        if k is None:
+            unknown += 1
+            continue
+        lines.append(tum_line(int(t_ns), world.pose(t_s(k))))
+    return lines, unknown

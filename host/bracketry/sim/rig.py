@@ -15,18 +15,21 @@ or server speaking the real protocols.
 from __future__ import annotations
 
 import contextlib
+import importlib.util
 import json
-import math
 import os
 import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 from bracketry.daemon.status import query
 from bracketry.errors import BracketryError
@@ -55,6 +58,9 @@ class SimOptions:
     output_dir: Path | None = None
     echo: Callable[[str], None] = print
     monitor_port: int | None = None
+    #: keep the rendered frames in ``out_dir/dev/frames`` after the run (default: a temporary folder in memory,
+    #: /dev/shm when there is one, removed at the end)
+    keep_frames: bool = False
 
 
 def _bracketry_cmd(*args: str) -> list[str]:
@@ -81,31 +87,37 @@ class SimulatedRig:
         self.panel_host = self.dev_dir / "panel"
         self.cameras: dict[str, Any] = {}
         self.schedule: Any = None
+        self.world: Any = None
         self.procs: dict[str, subprocess.Popen] = {}
         self.qemu: Any = None
         self._last_screen: list[str] | None = None
 
     # ------------------------------------------------------------------------------------------------ set-up
-    def prepare_frames(self, progress: Callable[[int, int], None] | None = None) -> None:
-        """Pre-render the frames the cameras will serve (the synthetic world, or a test pattern)."""
-        from bracketry.sim.frames import FrameSchedule
+    def prepare_frames(self, progress: Callable[[int, int], None] | None = None, wait: bool = False) -> None:
+        """Start rendering the frames the cameras will serve (the synthetic world, or a test pattern) in a separate
+        process; the rig can start at once (the cameras wait for frames not yet rendered). ``wait``: block until
+        every frame is rendered (``progress(done, total)`` on the way)."""
+        from bracketry.sim.frames import FrameSchedule, WorldSpec
 
-        world = None
+        spec = None
         if self.o.world:
-            try:
-                from bracketry_emulator.synth import World
-            except ImportError:
+            if importlib.util.find_spec("bracketry_emulator") is None:
                 raise BracketryError("the synthetic world needs the emulator extra: pip install -e '.[emulator]' "
-                                     "(or run with --no-world for a test pattern)") from None
-            world = World(self.o.preset, seed=self.o.seed, resolution=self.o.resolution)
-            from bracketry_emulator.synth.writer import write_common
-
-            write_common(world, self.out, {"dataset": "simulated-rig"})
+                                     "(or run with --no-world for a test pattern)")
+            spec = WorldSpec(self.o.preset, self.o.seed)  # built by the renderer; ours waits (write_world_files)
         n = len(self.o.brackets_ms)
         n_frames = max(n, round(self.o.world_seconds * self.o.fps / n) * n)
         brackets_us = [round(b * 1000) for b in self.o.brackets_ms]
-        self.schedule = FrameSchedule(world, brackets_us, self.o.fps, n_frames, resolution=self.o.resolution,
-                                      progress=progress)
+        if self.o.keep_frames:
+            folder = self.dev_dir / "frames"
+        else:
+            shm = Path("/dev/shm")
+            folder = Path(tempfile.mkdtemp(prefix="bracketry-frames-",
+                                           dir=shm if shm.is_dir() and os.access(shm, os.W_OK) else None))
+        self.schedule = FrameSchedule(folder, spec, brackets_us, self.o.fps, n_frames,
+                                      resolution=self.o.resolution).start()
+        if wait:
+            self.schedule.wait(progress)
 
     def start_cameras(self) -> None:
         from bracketry.cameras.fake import FakeCameraServer
@@ -321,24 +333,57 @@ class SimulatedRig:
         """Segment folders (``<rec>/segNN``) holding MCAP files recorded by this rig, oldest first."""
         return sorted({p.parent for p in self.rec_dir.glob("*/seg*/*.mcap")} - self._earlier)
 
-    def write_groundtruth(self) -> Path | None:
-        """Ground truth of the recorded left frames (host time stamps), next to the recordings."""
-        if self.schedule is None or self.schedule.world is None:
-            return None
-        from mcap_ros2.reader import read_ros2_messages
+    def recorded_frame_ids(self, side: str = "left") -> list[tuple[int, int | None]]:
+        """Every recorded frame of ``side`` (this rig's recordings, in order): (stamp_ns of the image, the rendered
+        frame index its pixels carry, or None when it carries none)."""
+        from bracketry.recording import topics as T
+        from bracketry.recording.decode import decode_image_msg
+        from bracketry.recording.reader import RecordingReader
+        from bracketry.sim.frames import read_frame_id
 
-        frames: list[tuple[int, float]] = []
+        out: list[tuple[int, int | None]] = []
         for seg in self.recordings():
             for f in sorted(seg.glob("*.mcap")):
-                for m in read_ros2_messages(str(f), topics=["/stereo/left/frame_meta"]):
-                    stamp = m.ros_msg.header.stamp
-                    reported = float(m.ros_msg.exposure_us_reported)  # NaN when the camera did not say
-                    exposure = reported if math.isfinite(reported) else float(m.ros_msg.exposure_us)
-                    frames.append((stamp.sec * 1_000_000_000 + stamp.nanosec, exposure))
-        frames.sort()
+                for msg in RecordingReader(f).messages({T.image_topic(side)}):
+                    img = decode_image_msg(msg.data)
+                    k = read_frame_id(img.image) if img.image.dtype == np.uint16 else None
+                    out.append((int(img.stamp_ns), k))
+        out.sort(key=lambda t: t[0])
+        return out
+
+    def write_world_files(self) -> None:
+        """The world's calibration and camera model next to the recordings (``write_common``); builds the rig
+        process's own world (poses) on first use, after recording, so it never delays the first frame."""
+        if self.schedule is None or self.schedule.world is None:
+            return
+        if self.world is None:
+            from bracketry_emulator.synth import World
+            from bracketry_emulator.synth.writer import write_common
+
+            self.world = World(self.o.preset, seed=self.o.seed, resolution=self.o.resolution)
+            write_common(self.world, self.out, {"dataset": "simulated-rig"})
+
+    def write_groundtruth(self) -> dict[str, Any] | None:
+        """Ground truth of the recorded left frames (image time stamps), next to the recordings: each frame's pose
+        is the world's at the rendered frame its pixels carry (never matched by order or timing). Frames that carry
+        no index are left out and counted; ``groundtruth_unknown.txt`` lists their stamps.
+
+        Returns {"path", "frames", "poses", "unknown"} (None without a world)."""
+        self.write_world_files()
+        if self.world is None:
+            return None
+        from bracketry.sim.frames import groundtruth_lines
+
+        frames = self.recorded_frame_ids("left")
+        lines, unknown = groundtruth_lines(self.world, self.schedule.t_s, frames)
         path = self.out / "groundtruth.txt"
-        self.schedule.write_groundtruth(path, frames)
-        return path
+        path.write_text("\n".join(lines) + "\n")
+        missing = self.out / "groundtruth_unknown.txt"
+        if unknown:
+            missing.write_text("".join(f"{t}\n" for t, k in frames if k is None))
+        elif missing.exists():
+            missing.unlink()
+        return {"path": str(path), "frames": len(frames), "poses": len(frames) - unknown, "unknown": unknown}
 
     def close(self) -> None:
         """End every process this rig started (by PID) and the fake cameras."""
@@ -354,6 +399,10 @@ class SimulatedRig:
             self.qemu = None
         for side in list(self.cameras):
             self.stop_camera(side)
+        if self.schedule is not None:
+            self.schedule.stop()
+            if not self.o.keep_frames:
+                shutil.rmtree(self.schedule.folder, ignore_errors=True)
 
 
 def _end(proc: subprocess.Popen, sig: int) -> None:

@@ -15,6 +15,7 @@ ALL = ("cam_left", "cam_right", "trigger")
 def run_session(rig: SimulatedRig, seconds: float, timeout_s: float = 60.0) -> dict[str, Any]:
     """Drive the started rig through one recording with panel buttons; returns timings and the final state."""
     t0 = time.monotonic()
+    rig.wait_screen("TRIG:", timeout_s)  # the daemon drew its first screen: the panel talks to the host
     rig.press("sensors")
     rig.wait_states({k: "IDLE" for k in ALL}, timeout_s)
     rig.wait_screen("L:IDL R:IDL TRIG:IDL", timeout_s)  # the panel shows it too (and the screen is printed)

@@ -368,7 +368,7 @@ def main(argv: list[str] | None = None) -> int:
                               "daemon_log": str(out / "daemon.log"), "screen_file": str(rig.screen_file)}
     t0 = time.monotonic()
     try:
-        rig.prepare_frames()
+        rig.prepare_frames(wait=True)  # every frame ready before the devices start (fault timing as designed)
         if args.scenario == "e2e":
             session.listen_sd_notify()
         rig.start()

@@ -1,0 +1,76 @@
+"""Frame identity of the simulated cameras: the index embedded in a frame's pixels, the render-ahead schedule and the
+image source that serves it (no rig, no network)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bracketry.sim.frames import (
+    FRAME_ID_PIXELS,
+    MAX_FRAME_ID,
+    FrameSchedule,
+    clear_frame_id,
+    cycle_time_s,
+    embed_frame_id,
+    read_frame_id,
+)
+
+BRACKETS_US = [1000, 2000, 4000, 8000, 16000, 32000]
+
+
+@pytest.mark.parametrize("k", [0, 1, 255, 256, 65535, 65536, 123456, MAX_FRAME_ID])
+def test_frame_id_round_trip(k: int) -> None:
+    img = np.full((8, 16), 4094, np.uint16)
+    embed_frame_id(img, k)
+    assert read_frame_id(img) == k
+    assert read_frame_id(img << 4) == k  # codes scaled to 16 bits
+    assert img.max() <= 4095 and (img[1:] == 4094).all() and (img[0, FRAME_ID_PIXELS:] == 4094).all()
+
+
+def test_frames_without_identity_read_none() -> None:
+    rng = np.random.default_rng(0)
+    hits = sum(read_frame_id(rng.integers(0, 4096, (4, 8), dtype=np.uint16)) is not None for _ in range(2000))
+    assert hits == 0
+    img = np.zeros((4, 8), np.uint16)
+    embed_frame_id(img, 77)
+    img[0, 3] ^= 1  # a corrupted check code
+    assert read_frame_id(img) is None
+    embed_frame_id(img, 77)
+    clear_frame_id(img)
+    assert read_frame_id(img) is None
+    with pytest.raises(ValueError):
+        embed_frame_id(img, MAX_FRAME_ID + 1)
+
+
+def test_cycle_time() -> None:
+    assert [cycle_time_s(k, 6, 20.0) for k in (0, 5, 6, 11, 12)] == [0.0, 0.0, 0.3, 0.3, 0.6]
+
+
+def test_source_serves_identified_frames_by_exposure(tmp_path: Path) -> None:
+    """The source serves the next frame of the cycle with the triggered exposure; each carries its own index, equal
+    to what the renderer wrote; a skipped trigger resynchronises; an exposure outside the cycle has no identity."""
+    sched = FrameSchedule(tmp_path, None, BRACKETS_US, 20.0, 24, resolution=(32, 16)).start()
+    try:
+        src = sched.source("left")
+        first = src(1000, 32, 16)  # waits for the renderer
+        assert read_frame_id(first) == 0
+        assert read_frame_id(src(2000, 32, 16)) == 1
+        assert read_frame_id(src(8000, 32, 16)) == 3  # the 4000 us trigger was lost: resynchronised
+        priming = src(77, 32, 16)
+        assert read_frame_id(priming) is None and sched.unidentified["left"] == 1
+        assert read_frame_id(src(16000, 32, 16)) == 4
+        cropped = src(32000, 16, 8)
+        assert read_frame_id(cropped) == 5
+        sched.wait(timeout_s=60)
+        assert sched.render_done_ns() is not None
+        frames = np.load(tmp_path / "frames_left.npy")
+        assert np.array_equal(first, frames[0]) and np.array_equal(cropped, frames[5][:8, :16])
+        assert [read_frame_id(f) for f in frames] == list(range(24))
+        right = np.load(tmp_path / "frames_right.npy")
+        assert [read_frame_id(f) for f in right] == list(range(24)) and not np.array_equal(right[0], frames[0])
+        assert sched.mismatches == 1
+    finally:
+        sched.stop()

@@ -1,0 +1,99 @@
+"""The simulated rig records while other processes load both cores, and while its frames are still being rendered:
+every recorded frame shows the rendered frame whose index it carries, and the ground truth gives it that frame's
+pose (not one found by counting frames or triggers). ``bracketry simulate`` runs as a user runs it (its own private
+network namespace); the test reads the recordings, the kept frame files and ``groundtruth.txt``."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bracketry.cameras.netns import netns_available
+from bracketry.recording import topics as T
+from bracketry.recording.decode import decode_image_msg
+from bracketry.recording.reader import RecordingReader
+from bracketry.sim.frames import cycle_time_s, read_frame_id
+from bracketry_testkit import missing_component
+
+pytestmark = [pytest.mark.aravis, pytest.mark.socat, pytest.mark.slow]
+HOG = "import time\nend = time.monotonic() + {s}\nwhile time.monotonic() < end:\n    pass\n"
+
+
+@contextmanager
+def cpu_hogs(n: int = 2, seconds: float = 150.0) -> Iterator[None]:
+    """``n`` busy processes (one per core) that stop by themselves after ``seconds`` (ended at exit anyway)."""
+    procs = [subprocess.Popen([sys.executable, "-c", HOG.format(s=seconds)]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait(10)
+
+
+def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_shows(tmp_path: Path) -> None:
+    reason = netns_available()
+    if reason:
+        missing_component(f"private network namespace unavailable: {reason}")
+    out = tmp_path / "rig"
+    w, h, fps = 320, 200, 10.0
+    # 600 s of world: far more than the few seconds recorded, so rendering is still running while the rig records
+    cmd = [sys.executable, "-m", "bracketry", "simulate", "--seconds", "5", "--out", str(out), "--resolution",
+           f"{w}x{h}", "--fps", f"{fps:g}", "--world-seconds", "600", "--keep-frames"]
+    with cpu_hogs():
+        res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    summary_path = out / "simulation.json"
+    assert summary_path.is_file(), res.stdout[-2000:] + res.stderr[-2000:]
+    summary = json.loads(summary_path.read_text())
+    # recording started before rendering finished: the first recorded frame predates the end of rendering
+    assert summary["first_frame_ns"] is not None
+    assert summary["render_done_ns"] is None or summary["first_frame_ns"] < summary["render_done_ns"]
+    assert (summary["first_frame_ns"] - summary["started_ns"]) / 1e9 < 60.0
+
+    rendered = {s: np.load(out / "dev" / "frames" / f"frames_{s}.npy", mmap_mode="r") for s in ("left", "right")}
+    n_frames = rendered["left"].shape[0]
+    recorded: dict[str, list[tuple[int, int | None]]] = {"left": [], "right": []}
+    for seg in summary["recordings"]:
+        for f in sorted(Path(seg).glob("*.mcap")):
+            for msg in RecordingReader(f).messages({T.image_topic(s) for s in recorded}):
+                side = "left" if msg.topic == T.image_topic("left") else "right"
+                img = decode_image_msg(msg.data)
+                k = read_frame_id(img.image)
+                if k is not None:  # the recorded pixels are exactly those of the rendered frame it names
+                    assert np.array_equal(img.image, rendered[side][k % n_frames]), (side, k)
+                recorded[side].append((img.stamp_ns, k))
+    for side in recorded:
+        assert len(recorded[side]) >= 20, (side, len(recorded[side]))
+        known = [k for _t, k in recorded[side] if k is not None]
+        assert len(known) >= len(recorded[side]) // 2, f"{side}: {len(known)} of {len(recorded[side])} identified"
+        assert len(set(known)) == len(known), f"{side}: a rendered frame recorded twice"
+
+    # the ground truth: one pose per identified left frame, the world's pose at that frame's time; the rest listed
+    from bracketry_emulator.synth import World
+
+    world = World("forest-winter", seed=0, resolution=(w, h))
+    gt = {}
+    for line in (out / "groundtruth.txt").read_text().splitlines():
+        if line.startswith("#"):
+            continue
+        v = line.split()
+        gt[round(float(v[0]) * 1e9)] = np.array([float(x) for x in v[1:]])
+    unknown_file = out / "groundtruth_unknown.txt"
+    unknown = {int(x) for x in unknown_file.read_text().split()} if unknown_file.exists() else set()
+    assert summary["groundtruth"]["unknown"] == len(unknown)
+    assert len(gt) + len(unknown) == len(recorded["left"]) == summary["groundtruth"]["frames"]
+    for t_ns, k in recorded["left"]:
+        if k is None:
+            assert t_ns in unknown
+            continue
+        near = min(gt, key=lambda t: abs(t - t_ns))
+        assert abs(near - t_ns) < 2000, "a ground-truth stamp is the recorded frame's own"
+        T_wc = world.pose(cycle_time_s(k, 6, fps))
+        assert np.allclose(gt[near][:3], T_wc[:3, 3], atol=1e-5), (k, gt[near][:3], T_wc[:3, 3])
