@@ -39,6 +39,7 @@ MARKER_NEEDS: dict[str, tuple[str, ...]] = {
     "micropython": ("Node.js", "MicroPython WebAssembly"),
     "realdata": ("BorealHDR sample data",),
     "socat": ("socat",),
+    "chromium": ("Chromium",),
 }
 
 

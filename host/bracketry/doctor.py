@@ -126,5 +126,7 @@ def run_all() -> list[Check]:
         check_binary("Node.js", "node", ["--version"], "apt-get install nodejs npm (or run ./setup.sh)",
                      r"v?(\d+\.\d+\.\d+)"),
         check_micropython(),
+        check_binary("Chromium", "chromium", ["--version"], "apt-get install chromium (or run ./setup.sh)",
+                     r"Chromium (\S+)"),
         check_sample_data(),
     ]

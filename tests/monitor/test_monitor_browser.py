@@ -28,7 +28,7 @@ from bracketry.monitor.core import UNDER_RGB
 from bracketry_testkit import missing_component
 from monitor.chromium import Chromium, Page, chromium_path
 
-pytestmark = [pytest.mark.aravis, pytest.mark.socat, pytest.mark.slow]
+pytestmark = [pytest.mark.aravis, pytest.mark.socat, pytest.mark.chromium, pytest.mark.slow]
 REPO = Path(__file__).resolve().parents[2]
 N_BRACKETS = 6
 

@@ -45,3 +45,9 @@ def test_token_is_required_beyond_loopback(tmp_path: Path) -> None:
     assert r["apply_too_long"][0] == 400 and "does not fit" in r["apply_too_long"][1]["error"], r
     assert r["apply_right"] == [200, {"ok": True, "brackets_us": [500, 1000, 2000]}]
     assert r["brackets_after"] == [500, 1000, 2000]
+    assert r["sensors_on"] == [200, {"ok": True, "sensors_ok": False}]
+    assert r["sensors_on_status"]["trigger"] == "ERR" and r["sensors_on_status"]["cam_left"] == "ERR"
+    assert r["record_start"][0] == 200 and r["record_start"][1]["segment_started"] is False, r["record_start"]
+    assert r["apply_recording"][0] == 409 and r["sensors_off_recording"][0] == 409
+    assert r["record_stop"][0] == 200 and r["sensors_off"][0] == 200
+    assert r["unknown"][0] == 400

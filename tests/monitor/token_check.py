@@ -54,6 +54,15 @@ def main(work: Path) -> None:
             "apply_right": probe(f"{base}/api/action", token, apply),
             "brackets_after": list(daemon.config.brackets_us),
         }
+        # the other actions on a rig whose devices are absent: sensors go ERR, a recording waits for them
+        out["sensors_on"] = probe(f"{base}/api/action", token, {"action": "sensors_on"})
+        out["sensors_on_status"] = probe(f"{base}/api/status", token)[1]["sensors"]
+        out["record_start"] = probe(f"{base}/api/action", token, {"action": "record_start"})
+        out["apply_recording"] = probe(f"{base}/api/action", token, apply)
+        out["sensors_off_recording"] = probe(f"{base}/api/action", token, {"action": "sensors_off"})
+        out["record_stop"] = probe(f"{base}/api/action", token, {"action": "record_stop"})
+        out["sensors_off"] = probe(f"{base}/api/action", token, {"action": "sensors_off"})
+        out["unknown"] = probe(f"{base}/api/action", token, {"action": "reboot"})
     finally:
         daemon.close()
     print(json.dumps(out))
