@@ -40,6 +40,7 @@ MARKER_NEEDS: dict[str, tuple[str, ...]] = {
     "realdata": ("BorealHDR sample data",),
     "socat": ("socat",),
     "chromium": ("Chromium",),
+    "orbslam3": ("ORB-SLAM3 (pyorbslam3)",),
 }
 
 

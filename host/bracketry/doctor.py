@@ -104,6 +104,27 @@ def check_micropython() -> Check:
     return Check("MicroPython WebAssembly", True, ver, "")
 
 
+def check_orbslam3() -> Check:
+    """ORB-SLAM3 through ``pyorbslam3``: its native module must load (it links the OpenGL/X11 runtime libraries).
+
+    Loaded in a child interpreter, so a missing shared library cannot take this process down with it.
+    """
+    import sys
+
+    fix = ("pip install 'pyorbslam3>=0.1.1,<0.2' and apt-get install libgl1 libegl1 libopengl0 libsm6 libice6 "
+           "libx11-6 libxext6 (or run ./setup.sh)")
+    code = ("import importlib.metadata as m, pyorbslam3._core as c; "
+            "assert hasattr(c, 'Slam'); print(m.version('pyorbslam3'))")
+    try:
+        out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60, check=False)
+    except (OSError, subprocess.TimeoutExpired):
+        return Check("ORB-SLAM3 (pyorbslam3)", False, "", fix)
+    if out.returncode != 0:
+        last = (out.stderr.strip().splitlines() or ["?"])[-1]
+        return Check("ORB-SLAM3 (pyorbslam3)", False, "", f"{last[:120]}; {fix}")
+    return Check("ORB-SLAM3 (pyorbslam3)", True, out.stdout.strip(), "")
+
+
 def check_sample_data() -> Check:
     root = paths.sample_data_dir()
     if root is None:
@@ -128,5 +149,6 @@ def run_all() -> list[Check]:
         check_micropython(),
         check_binary("Chromium", "chromium", ["--version"], "apt-get install chromium (or run ./setup.sh)",
                      r"Chromium (\S+)"),
+        check_orbslam3(),
         check_sample_data(),
     ]

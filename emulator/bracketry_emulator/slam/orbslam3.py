@@ -1,0 +1,129 @@
+"""ORB-SLAM3 (stereo, through ``pyorbslam3``) over an emulated run, one run per child process.
+
+:func:`run_orbslam3` starts ``python -m bracketry_emulator.slam.orbslam3_child`` and waits: ORB-SLAM3 segfaults on
+some settings and calls ``exit()`` on a bad vocabulary header, so it never runs inside the benchmark's own process.
+The child's stdout and stderr file descriptors (where the C++ library prints) go straight into
+``<out>/orbslam3.log``. A failed run raises :class:`SlamRunError` naming the exit status and the log's last line.
+
+Output (``out_dir``), the same as the built-in VO's (:mod:`bracketry_emulator.vo.runner`) so the metrics read both:
+``frames.csv``, ``CameraTrajectory<n>.txt`` (one per tracked segment), plus ``settings.yaml`` (what ORB-SLAM3 read),
+``orbslam3.log`` and ``slam.json`` (backend, vocabulary, pace, loop closing, seconds per frame).
+
+Per-frame states come from the tracking state ORB-SLAM3 returns for every frame, never from its trajectory files
+(``SaveTrajectoryTUM`` concatenates all maps, each in its own frame, and repeats the last pose for lost frames):
+
+* ``OK`` -> OK, the first OK frame after any other state -> INIT (a new segment);
+* ``RECENTLY_LOST`` -> LOST (its pose is an identity placeholder), ``LOST`` likewise;
+* ``NO_IMAGES_YET`` / ``NOT_INITIALIZED`` (a new map starts: ORB-SLAM3 restarts at identity) -> LOST.
+
+So segments split at every loss or new map. ``n_map_matches`` = map points tracked in the frame; ``n_keypoints`` and
+``coverage`` come from our ORB extractor at the paper's settings (same as the built-in VO), ``n_stereo`` and
+``n_ref_matches`` are unknown (NaN).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bracketry.errors import BracketryError
+
+STATE_MAP = {"OK": "OK", "OK_KLT": "OK", "RECENTLY_LOST": "LOST", "LOST": "LOST", "NO_IMAGES_YET": "LOST",
+             "NOT_INITIALIZED": "LOST", "SYSTEM_NOT_READY": "LOST"}
+
+
+class SlamRunError(BracketryError):
+    """One SLAM run failed (crash, exit, bad settings or vocabulary); the message is one line."""
+
+
+@dataclass(frozen=True)
+class OrbSlam3Options:
+    """How ORB-SLAM3 runs.
+
+    vocabulary: DBoW2 text file. pace_s: wall-clock seconds between fed frames (0 = as fast as possible, None = the
+    recording's own timestamps, i.e. real time). loop_closing: the loop-closing thread (also relocalisation).
+    timeout_s: the child is killed after this long.
+    """
+
+    vocabulary: str
+    pace_s: float | None = None
+    loop_closing: bool = True
+    th_depth: float = 35.0
+    timeout_s: float = 3600.0
+
+
+def map_states(raw_states: list[str]) -> tuple[list[str], list[int]]:
+    """ORB-SLAM3 tracking-state names per frame -> (our states OK/INIT/LOST, segment ids; -1 when lost).
+
+    A segment starts at every OK frame that follows a non-OK frame (or the first frame).
+    """
+    states, segments = [], []
+    seg, prev_ok = -1, False
+    for raw in raw_states:
+        ok = STATE_MAP.get(raw, "LOST") == "OK"
+        if ok and not prev_ok:
+            seg += 1
+            states.append("INIT")
+        else:
+            states.append("OK" if ok else "LOST")
+        segments.append(seg if ok else -1)
+        prev_ok = ok
+    return states, segments
+
+
+def _signal_name(rc: int) -> str:
+    try:
+        return signal.Signals(-rc).name
+    except ValueError:
+        return f"signal {-rc}"
+
+
+def _last_line(log: Path) -> str:
+    try:
+        lines = [ln.strip() for ln in log.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return ""
+    return lines[-1][:200] if lines else ""
+
+
+def run_orbslam3(run_dir: str | Path, calibration_dir: str | Path, out_dir: str | Path, options: OrbSlam3Options,
+                 max_frames: int | None = None) -> dict:
+    """Track a whole run with ORB-SLAM3 in a child process; write the VO output layout; return ``slam.json``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for old in (*out.glob("CameraTrajectory*.txt"), out / "frames.csv", out / "slam.json"):
+        old.unlink(missing_ok=True)
+    if not Path(options.vocabulary).is_file():
+        raise SlamRunError(f"ORB-SLAM3 vocabulary not found: {options.vocabulary}")
+    request = {"run_dir": str(run_dir), "calibration_dir": str(calibration_dir), "out_dir": str(out),
+               "max_frames": max_frames, "options": asdict(options)}
+    (out / "request.json").write_text(json.dumps(request, indent=1))
+    log = out / "orbslam3.log"
+    env = dict(os.environ, OMP_NUM_THREADS="1")
+    with open(log, "wb") as fh:
+        try:
+            proc = subprocess.run([sys.executable, "-m", "bracketry_emulator.slam.orbslam3_child",
+                                   str(out / "request.json")], stdin=subprocess.DEVNULL, stdout=fh,
+                                  stderr=subprocess.STDOUT, env=env, timeout=options.timeout_s, check=False)
+        except subprocess.TimeoutExpired:
+            raise SlamRunError(f"ORB-SLAM3 did not finish within {options.timeout_s:g} s (log: {log})") from None
+    result_file = out / "slam.json"
+    if proc.returncode != 0 or not result_file.is_file():
+        why = (f"killed by {_signal_name(proc.returncode)}" if proc.returncode < 0
+               else f"exit code {proc.returncode}")
+        last = _last_line(log)
+        raise SlamRunError(f"ORB-SLAM3 failed ({why}){': ' + last if last else ''} (log: {log})")
+    return dict(json.loads(result_file.read_text()))
+
+
+def pose_from_result(pose_wc: np.ndarray) -> np.ndarray:
+    """4x4 float64 camera-to-world pose from the binding's (4, 4) array."""
+    T = np.asarray(pose_wc, dtype=np.float64).reshape(4, 4)
+    return T
