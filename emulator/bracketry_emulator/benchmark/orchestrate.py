@@ -51,8 +51,8 @@ def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[dict], out: Pa
     from bracketry_emulator.benchmark.tasks import load_cached
 
     for spec in specs:
-        todo = [t["method"] for t in tasks if t["trajectory"] == spec.name and not t["existing_run"]
-                and load_cached(t) is None]
+        todo = list(dict.fromkeys(t["method"] for t in tasks if t["trajectory"] == spec.name
+                                  and not t["existing_run"] and load_cached(t) is None))
         if todo:
             emulate_runs(spec.path, todo, out / "runs" / spec.name, drl_weights=drl_weights,
                          workers=max(0, workers), progress=progress, options=loop)
@@ -105,7 +105,7 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
                   alpha: float = 0.05, report: bool = True, export_orbslam: bool = False,
                   slam_dir: str | Path | None = None, drl_weights: str | Path | None = None,
                   progress: bool = False, loop: dict | None = None,
-                  on_done: Callable[[dict], None] | None = None) -> BenchmarkResult:
+                  on_done: Callable[[dict], None] | None = None, slam: dict | None = None) -> BenchmarkResult:
     """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
     ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally,
@@ -115,6 +115,9 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     settings (selection, crf, init_exposure_ms, seed, ae_camera; see
     :data:`~bracketry_emulator.benchmark.closedloop.LOOP_DEFAULTS`), part of every cache key.
     ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
+    ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO); with
+    ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and spread
+    (statistics on the medians). Paced ORB-SLAM3 runs mostly wait: locally twice ``workers`` of them run at once.
     """
     paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
     specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
@@ -126,19 +129,39 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
         raise BracketryError(f"reference method {reference!r} is not among the benchmarked methods {method_ids}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    slam = Path(slam_dir).resolve() if slam_dir else None
-    if slam is not None and not slam.is_dir():
-        raise BracketryError(f"--slam-trajectories folder not found: {slam}")
+    slam_path = Path(slam_dir).resolve() if slam_dir else None
+    if slam_path is not None and not slam_path.is_dir():
+        raise BracketryError(f"--slam-trajectories folder not found: {slam_path}")
     loop_config(loop, None)  # bad settings: one clear line before anything runs
-    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam, weights, loop)
-             for s in specs for m in method_ids]
-    if scheduler is None and slam is None:
+    slam_opts: dict = dict(slam) if slam else {"backend": "builtin", "repeats": 1}
+    repeats = int(slam_opts.get("repeats", 1))
+    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam_path, weights, loop, slam_opts, r)
+             for s in specs for m in method_ids for r in range(repeats)]
+    if scheduler is None and slam_path is None:
         _shared_closed_loops(specs, tasks, out, weights, workers, progress, loop)
-    results = _run_dask(tasks, scheduler, on_done) if scheduler else _run_local(tasks, workers, on_done)
+    paced = slam_opts.get("backend") == "orbslam3" and slam_opts.get("pace") != 0.0
+    slam_workers = workers * 2 if paced and workers > 1 else workers
+    runs = _run_dask(tasks, scheduler, on_done) if scheduler else _run_local(tasks, slam_workers, on_done)
+    results = group_repeats(runs)
     results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
     files: dict[str, Path] = {}
     if report:
         from bracketry_emulator.report import write_report
 
-        files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha)
+        files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha, slam=slam_opts)
     return BenchmarkResult(results, out, files)
+
+
+def group_repeats(runs: list[dict]) -> list[dict]:
+    """One result per (trajectory, method): the run itself, or the median and spread of its repeats."""
+    from bracketry_emulator.benchmark.slam import combine_repeats
+
+    groups: dict[tuple[str, str], list[dict]] = {}
+    for r in runs:
+        groups.setdefault((r["trajectory"], r["method"]), []).append(r)
+    out = []
+    for rs in groups.values():
+        rs.sort(key=lambda r: r.get("repeat", 0))
+        out.append(combine_repeats(rs) if len(rs) > 1 else {**rs[0], "repeats": 1,
+                                                             "repeats_ok": 0 if rs[0].get("error") else 1})
+    return out

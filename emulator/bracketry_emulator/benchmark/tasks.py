@@ -1,14 +1,17 @@
-"""One benchmark task = one (trajectory, method): closed loop -> stereo VO -> metrics, with a result cache.
+"""One benchmark task = one (trajectory, method, repeat): closed loop -> SLAM -> metrics, with a result cache.
 
 Output layout under the benchmark folder ``out``::
 
     runs/<trajectory>/<method>/...        emulated run (RunWriter layout), unless the dataset already had it
-    vo/<trajectory>/<method>/frames.csv   VO per-frame log + CameraTrajectory<n>.txt segments
+    vo/<trajectory>/<method>/frames.csv   SLAM per-frame log + CameraTrajectory<n>.txt segments (ORB-SLAM3 adds
+                                          settings.yaml, orbslam3.log, slam.json); repeat r > 0: <method>.r<r>/
     orbslam/<trajectory>/<method>/        with export_orbslam: the run in ORB-SLAM's stereo-example layout
-    cache/<trajectory>/<method>.json      the task's result (metrics); present = done
+    cache/<trajectory>/<method>.json      the task's result (metrics); present = done; repeat r > 0: <method>.r<r>.json
 
-A task whose cache file exists with the same key (dataset path, method, VO/metric settings) is not recomputed, so an
-interrupted benchmark resumes where it stopped. Cache files are written atomically (temporary file + rename).
+A task whose cache file exists with the same key (dataset path, method, SLAM backend/vocabulary/pace, repeat,
+metric settings) is not recomputed, so an interrupted benchmark resumes where it stopped. Cache files are written
+atomically (temporary file + rename). A SLAM run that fails (crash, bad vocabulary or settings) gives a result with
+an ``error`` line and NaN metrics, is not cached, and the benchmark goes on.
 Tasks are plain dicts in and out (picklable for process pools and Dask).
 """
 
@@ -20,17 +23,22 @@ import os
 from pathlib import Path
 
 from bracketry_emulator.benchmark.closedloop import loop_options
+from bracketry_emulator.benchmark.slam import key_options
 from bracketry_emulator.metrics.evaluate import evaluate_run
 from bracketry_emulator.metrics.manifest import TrajectorySpec
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
 
-CACHE_VERSION = 2
+CACHE_VERSION = 3
 
 
 def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M,
               max_frames: int | None = None, export_orbslam: bool = False, slam_dir: Path | None = None,
-              drl_weights: str | None = None, loop: dict | None = None) -> dict:
+              drl_weights: str | None = None, loop: dict | None = None, slam: dict | None = None,
+              repeat: int = 0) -> dict:
     """A picklable task description.
+
+    ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO).
+    ``repeat``: which repeat of the (trajectory, method) run this is (0-based; part of the key and the paths).
 
     ``drl_weights``: the DRL actor's .pth (used by the ``drl`` method's closed loop; part of its cache key).
     ``loop``: closed-loop settings (:data:`~bracketry_emulator.benchmark.closedloop.LOOP_DEFAULTS`; part of the key).
@@ -39,7 +47,8 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
     ``out/orbslam/<trajectory>/<method>/``. ``slam_dir``: evaluate external SLAM trajectories
     ``slam_dir/<trajectory>/<method>/CameraTrajectory*.txt`` instead of running the built-in VO.
     """
-    task = {
+    slam_opts: dict = dict(slam) if slam else {"backend": "builtin"}
+    task: dict = {
         "trajectory": spec.name, "subset": spec.subset, "method": method,
         "dataset": str(spec.path), "out": str(out_dir),
         "groundtruth": str(spec.groundtruth_path()) if spec.groundtruth_path() else None,
@@ -49,16 +58,23 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
         "export_orbslam": bool(export_orbslam), "slam_dir": str(slam_dir) if slam_dir else None,
         "drl_weights": str(Path(drl_weights).resolve()) if drl_weights and method == "drl" else None,
         "loop": loop_options(**(loop or {})),
+        "slam": slam_opts, "repeat": int(repeat),
     }
-    key_src = json.dumps({k: task[k] for k in ("dataset", "method", "groundtruth", "calibration", "existing_run",
-                                               "windows_m", "max_frames", "slam_dir", "drl_weights", "loop")},
-                         sort_keys=True)
+    key_src = json.dumps({**{k: task[k] for k in ("dataset", "method", "groundtruth", "calibration", "existing_run",
+                                                  "windows_m", "max_frames", "slam_dir", "drl_weights", "loop",
+                                                  "repeat")},
+                          "slam": key_options(slam_opts)}, sort_keys=True)
     task["key"] = hashlib.sha256(f"v{CACHE_VERSION}:{key_src}".encode()).hexdigest()[:16]
     return task
 
 
+def _run_name(task: dict) -> str:
+    r = int(task.get("repeat", 0))
+    return task["method"] if r == 0 else f"{task['method']}.r{r}"
+
+
 def cache_path(task: dict) -> Path:
-    return Path(task["out"]) / "cache" / task["trajectory"] / f"{task['method']}.json"
+    return Path(task["out"]) / "cache" / task["trajectory"] / f"{_run_name(task)}.json"
 
 
 def load_cached(task: dict) -> dict | None:
@@ -104,7 +120,8 @@ def _tune_malloc() -> None:
 def run_task(task: dict) -> dict:
     """Run (or load from the cache) one task and return its result dict.
 
-    Result keys: trajectory, subset, method, key, run_dir, vo_dir, cached (bool) and the metrics of
+    Result keys: trajectory, subset, method, repeat, key, run_dir, vo_dir, slam (backend), s_per_frame,
+    cached (bool), ``error`` (one line, only when the SLAM run failed) and the metrics of
     :func:`~bracketry_emulator.metrics.evaluate.evaluate_run`.
     """
     cached = load_cached(task)
@@ -117,7 +134,7 @@ def run_task(task: dict) -> dict:
     _tune_malloc()
     from bracketry.errors import BracketryError
     from bracketry_emulator.benchmark.closedloop import emulate_run
-    from bracketry_emulator.vo.runner import run_vo
+    from bracketry_emulator.benchmark.slam import run_slam
 
     out = Path(task["out"])
     if task["calibration"] is None:
@@ -131,17 +148,33 @@ def run_task(task: dict) -> dict:
         from bracketry_emulator.vo.orbslam import export_orbslam
 
         export_orbslam(run_dir, task["calibration"], out / "orbslam" / task["trajectory"] / task["method"])
-    vo_dir = out / "vo" / task["trajectory"] / task["method"]
+    vo_dir = out / "vo" / task["trajectory"] / _run_name(task)
+    base = {"trajectory": task["trajectory"], "subset": task["subset"], "method": task["method"],
+            "repeat": int(task.get("repeat", 0)), "key": task["key"], "run_dir": str(run_dir),
+            "vo_dir": str(vo_dir)}
     if task.get("slam_dir"):
         from bracketry_emulator.vo.orbslam import import_orbslam
 
         slam = Path(task["slam_dir"]) / task["trajectory"] / task["method"]
         import_orbslam(slam, run_dir / "times_images_left.txt", vo_dir)
+        info: dict = {"backend": "external", "s_per_frame": float("nan")}
     else:
-        run_vo(run_dir, task["calibration"], vo_dir, max_frames=task["max_frames"])
+        try:
+            info = run_slam(task.get("slam"), run_dir, task["calibration"], vo_dir, task["max_frames"])
+        except BracketryError as exc:  # this run only: a clear line in the report, the benchmark goes on
+            return {**base, **failed_metrics(), "slam": task.get("slam", {}).get("backend", "builtin"),
+                    "s_per_frame": float("nan"), "error": str(exc), "cached": False}
     metrics = evaluate_run(vo_dir, task["groundtruth"], tuple(task["windows_m"]))
-    result = {"trajectory": task["trajectory"], "subset": task["subset"], "method": task["method"],
-              "key": task["key"], "run_dir": str(run_dir), "vo_dir": str(vo_dir), **metrics}
+    result = {**base, **metrics, "slam": info["backend"], "s_per_frame": info["s_per_frame"]}
     _write_atomic(cache_path(task), json.dumps(result))
     result["cached"] = False
     return result
+
+
+def failed_metrics() -> dict:
+    """The metrics of a run whose SLAM failed: unknown (NaN), not a tracking failure of the AE method."""
+    nan = float("nan")
+    return {"n_frames": 0, "success": False, "time_before_failure_s": nan, "duration_s": nan,
+            "tracked_fraction": nan, "tracked_distance_fraction": nan, "n_failures": 0, "n_segments": 0,
+            "coverage_mean": nan, "matches_mean": nan, "keypoints_mean": nan, "coverage": [], "matches": [],
+            "rte_pct": nan, "rre_deg_per_m": nan, "windows": [], "reference": "run failed"}

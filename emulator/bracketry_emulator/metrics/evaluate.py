@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry_emulator.metrics.failures import robustness
+from bracketry_emulator.metrics.failures import robustness, tracked_distance_fraction
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M, relative_errors, trajectory_rte_rre
 from bracketry_emulator.vo.runner import read_frames_csv
 from bracketry_emulator.vo.tum import read_tum
@@ -44,9 +44,10 @@ def evaluate_run(vo_dir: str | Path, groundtruth: str | Path | None,
 
     Returns a JSON-ready dict: n_frames, success, time_before_failure_s, duration_s, tracked_fraction,
     n_segments, coverage_mean (fraction, all frames), matches_mean (matches to map, all frames),
-    keypoints_mean, rte_pct, rre_deg_per_m (NaN without reference), windows: list of
-    {window_m, n_pairs, rte_pct, rre_deg_per_m}, and per-frame lists coverage, matches. When frames of the run
-    are listed in :data:`UNKNOWN_POSES_FILE` next to the reference, RTE/RRE stay NaN and ``rte_refused`` says why.
+    keypoints_mean, rte_pct, rre_deg_per_m, tracked_distance_fraction (NaN without reference), ``reference``
+    ("groundtruth" or "no reference: <why>"), windows: list of {window_m, n_pairs, rte_pct, rre_deg_per_m}, and
+    per-frame lists coverage, matches. When frames of the run are listed in :data:`UNKNOWN_POSES_FILE` next to the
+    reference, RTE/RRE stay NaN and ``rte_refused`` (and ``reference``) say why.
     """
     frames = read_frames_csv(Path(vo_dir) / "frames.csv")
     rob = robustness(frames)
@@ -65,13 +66,21 @@ def evaluate_run(vo_dir: str | Path, groundtruth: str | Path | None,
         "matches": [f["n_map_matches"] for f in frames],
         "rte_pct": float("nan"),
         "rre_deg_per_m": float("nan"),
+        "tracked_distance_fraction": float("nan"),
         "windows": [],
+        "reference": "groundtruth",
     }
     unknown = frames_without_pose(groundtruth, [f["t_ns"] for f in frames]) if groundtruth is not None else 0
-    if unknown:  # their nearest neighbours' poses would be taken for theirs: no RTE rather than a wrong one
+    if groundtruth is None:
+        out["reference"] = "no reference: the trajectory has no groundtruth.txt (or reference file)"
+    elif unknown:  # their nearest neighbours' poses would be taken for theirs: no RTE rather than a wrong one
         out["rte_refused"] = f"{unknown} frames have no known ground-truth pose ({UNKNOWN_POSES_FILE})"
-    elif groundtruth is not None and Path(groundtruth).is_file():
+        out["reference"] = f"no reference: {out['rte_refused']}"
+    elif not Path(groundtruth).is_file():
+        out["reference"] = f"no reference: {groundtruth} not found"
+    else:
         gt_t, gt_p = read_tum(groundtruth)
+        out["tracked_distance_fraction"] = tracked_distance_fraction(frames, gt_t, gt_p[:, :3, 3])
         errs = relative_errors(gt_t, gt_p, read_segments(vo_dir), windows_m)
         out["rte_pct"], out["rre_deg_per_m"] = trajectory_rte_rre(errs)
         out["windows"] = [e.__dict__ for e in errs]

@@ -36,3 +36,26 @@ def robustness(frames: list[dict]) -> Robustness:
     tbf = (failed[0]["t_ns"] - t0) * 1e-9 if failed else duration
     segments = {f["segment"] for f in frames if f["state"] in TRACKED}
     return Robustness(not failed, tbf, duration, 1.0 - len(failed) / len(frames), len(failed), len(segments))
+
+
+def tracked_distance_fraction(frames: list[dict], gt_times_s, gt_positions) -> float:
+    """Fraction in [0, 1] of the reference path length travelled between consecutive frames tracked in one segment.
+
+    RTE over tracked fragments alone favours a method that loses track on the hard stretches; this says how much of
+    the way those fragments cover. ``gt_times_s`` float (M,), ``gt_positions`` float (M, 3) metres, interpolated
+    linearly at the frame times (clamped at the ends). NaN when the path has no length.
+    """
+    import numpy as np
+
+    if len(frames) < 2 or len(gt_times_s) < 2:
+        return float("nan")
+    t = np.array([f["t_ns"] for f in frames], np.float64) * 1e-9
+    gt_t = np.asarray(gt_times_s, np.float64)
+    gt_p = np.asarray(gt_positions, np.float64)
+    p = np.stack([np.interp(t, gt_t, gt_p[:, i]) for i in range(3)], axis=1)
+    step = np.linalg.norm(np.diff(p, axis=0), axis=1)
+    tracked = np.array([f["state"] in TRACKED for f in frames])
+    seg = np.array([f["segment"] for f in frames])
+    both = tracked[1:] & tracked[:-1] & (seg[1:] == seg[:-1])
+    total = float(step.sum())
+    return float(step[both].sum() / total) if total > 0 else float("nan")

@@ -9,9 +9,10 @@ import numpy as np
 from bracketry_emulator.metrics.manifest import success_counts
 from bracketry_emulator.stats.mannwhitney import METRICS, SYMBOL, Comparison, verdict_table
 
-RESULT_COLUMNS = ("trajectory", "subset", "method", "n_frames", "success", "time_before_failure_s", "duration_s",
-                  "tracked_fraction", "n_segments", "coverage_mean", "matches_mean", "keypoints_mean", "rte_pct",
-                  "rre_deg_per_m")
+RESULT_COLUMNS = ("trajectory", "subset", "method", "slam", "repeats", "n_frames", "success", "time_before_failure_s",
+                  "duration_s", "tracked_fraction", "tracked_distance_fraction", "n_segments", "coverage_mean",
+                  "matches_mean", "keypoints_mean", "rte_pct", "rte_pct_spread", "rre_deg_per_m",
+                  "rre_deg_per_m_spread", "s_per_frame", "reference", "error")
 
 
 def _fmt(v, digits: int = 3) -> str:
@@ -22,9 +23,28 @@ def _fmt(v, digits: int = 3) -> str:
     return str(v)
 
 
+def _cell(r: dict, c: str) -> str:
+    v = r.get(c)
+    if c == "error":
+        return "; ".join(r.get("errors") or ([v] if v else []))
+    if c == "reference":
+        return "" if v in (None, "groundtruth") else str(v)
+    return "" if v is None else _fmt(v)
+
+
 def results_table(results: list[dict]) -> list[list[str]]:
-    """One row per (trajectory, method)."""
-    return [list(RESULT_COLUMNS)] + [[_fmt(r.get(c)) for c in RESULT_COLUMNS] for r in results]
+    """One row per (trajectory, method); with repeats: medians, spreads (max - min), failed repeats' errors."""
+    return [list(RESULT_COLUMNS)] + [[_cell(r, c) for c in RESULT_COLUMNS] for r in results]
+
+
+def failed_runs_table(results: list[dict]) -> list[list[str]]:
+    """One row per (trajectory, method) with a failed SLAM run: how many repeats failed and why."""
+    rows = [["trajectory", "method", "failed runs", "error"]]
+    for r in results:
+        errors = r.get("errors") or ([r["error"]] if r.get("error") else [])
+        if errors:
+            rows.append([r["trajectory"], r["method"], f"{len(errors)}/{r.get('repeats', 1)}", errors[0]])
+    return rows
 
 
 def windows_table(results: list[dict]) -> list[list[str]]:
@@ -45,19 +65,23 @@ def per_metric_values(results: list[dict], methods: list[str]) -> dict[str, dict
 def summary_table(results: list[dict], methods: list[str]) -> list[list[str]]:
     """Per method: RTE and RRE (mean over trajectories of the per-trajectory means over windows, the paper's
     equations), median coverage (%) and matches, median time before failure, successful trajectories."""
-    rows = [["method", "RTE (%)", "RRE (deg/m)", "coverage median (%)", "matches median", "time before failure "
-             "median (s)", "successful"]]
+    rows = [["method", "RTE (%)", "RRE (deg/m)", "distance tracked (%)", "coverage median (%)", "matches median",
+             "time before failure median (s)", "successful"]]
     for m in methods:
         rs = [r for r in results if r["method"] == m]
         cov = [c for r in rs for c in r.get("coverage", [])]
         mat = [c for r in rs for c in r.get("matches", [])]
         rte = [r["rte_pct"] for r in rs if np.isfinite(r["rte_pct"])]
         rre = [r["rre_deg_per_m"] for r in rs if np.isfinite(r["rre_deg_per_m"])]
+        dist = [r.get("tracked_distance_fraction", float("nan")) for r in rs]
+        dist = [d for d in dist if np.isfinite(d)]
+        tbf = [r["time_before_failure_s"] for r in rs if np.isfinite(r["time_before_failure_s"])]
         rows.append([m, _fmt(float(np.mean(rte)) if rte else float("nan"), 2),
                      _fmt(float(np.mean(rre)) if rre else float("nan"), 3),
+                     _fmt(100 * float(np.mean(dist)) if dist else float("nan"), 1),
                      _fmt(100 * float(np.median(cov)) if cov else float("nan"), 1),
                      _fmt(float(np.median(mat)) if mat else float("nan"), 0),
-                     _fmt(float(np.median([r["time_before_failure_s"] for r in rs])) if rs else float("nan"), 1),
+                     _fmt(float(np.median(tbf)) if tbf else float("nan"), 1),
                      f"{sum(bool(r['success']) for r in rs)}/{len(rs)}"])
     return rows
 

@@ -17,6 +17,7 @@ import numpy as np
 
 from bracketry_emulator.report import plots
 from bracketry_emulator.report.tables import (
+    failed_runs_table,
     results_table,
     stats_tables,
     success_table,
@@ -64,8 +65,9 @@ def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, d
 
 
 def write_report(results: list[dict], out_dir: str | Path, reference: str, methods: list[str],
-                 alpha: float = 0.05) -> dict[str, Path]:
-    """Write every table and figure; returns {name: path}."""
+                 alpha: float = 0.05, slam: dict | None = None) -> dict[str, Path]:
+    """Write every table and figure; returns {name: path}. ``slam``: the SLAM options (named in the report)."""
+    from bracketry_emulator.benchmark.slam import describe
     rep = Path(out_dir) / "report"
     rep.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
@@ -79,6 +81,8 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     files["success.csv"] = _write_csv(rep / "success.csv", suc_rows)
     files["verdicts.csv"] = _write_csv(rep / "verdicts.csv", verdicts)
     files["stats.csv"] = _write_csv(rep / "stats.csv", pvalues)
+    failed_rows = failed_runs_table(results)
+    files["failed_runs.csv"] = _write_csv(rep / "failed_runs.csv", failed_rows)
 
     figs: list[tuple[str, str]] = []
     cov = {m: [100 * c for r in results if r["method"] == m for c in r.get("coverage", [])] for m in methods}
@@ -108,8 +112,13 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     intro = (f"{n_traj} trajectories x {len(methods)} methods. Reference: **{reference}**. Mann-Whitney U, "
              f"alpha = {alpha} with Bonferroni over {max(len(methods) - 1, 1)} methods "
              f"(▲ better, ▼ worse, ≡ not different from {reference}). RTE/RRE: evo RPE, windows "
-             f"{_window_text(results)} m, per segment, paper equations.")
+             f"{_window_text(results)} m, per segment, paper equations; distance tracked = share of the reference "
+             f"path covered by tracked segments. Localisation: {describe(slam)}.")
+    no_ref = sorted({r["reference"] for r in results if str(r.get("reference", "")).startswith("no reference")})
+    if no_ref:
+        intro += " RTE/RRE: " + "; ".join(no_ref) + "."
     sections = [("Summary", sum_rows), ("Statistical difference with " + reference, verdicts),
+                *([("Failed SLAM runs (left out of the statistics)", failed_rows)] if len(failed_rows) > 1 else []),
                 ("Successful trajectories per subset", suc_rows), ("Per trajectory", res_rows),
                 ("Tests", pvalues)]
     md = ["# Auto-exposure benchmark", "", intro, ""]

@@ -92,7 +92,7 @@ def _track(request: dict) -> dict:
     for seg in sorted({s for s in segments if s >= 0}):
         idx = [i for i, s in enumerate(segments) if s == seg]
         write_tum(out / f"CameraTrajectory{seg}.txt", [times_ns[i] * 1e-9 for i in idx],
-                  [poses[i] for i in idx if poses[i] is not None])
+                  [p for p in (poses[i] for i in idx) if p is not None])
     summary = {"backend": "orbslam3", "pyorbslam3": _version(), "vocabulary": opts["vocabulary"],
                "pace_s": pace, "loop_closing": opts["loop_closing"], "settings": str(settings_file),
                "fps_settings": max(1, round(fps)), "n_frames": len(times_ns), "vocabulary_load_s": load_s,

@@ -25,7 +25,6 @@ import numpy as np
 
 from bracketry_emulator.features.orb import OrbSettings
 
-
 #: smallest short side (px) of ORB-SLAM3's coarsest pyramid level that we let it use
 MIN_TOP_LEVEL_PX = 64
 
@@ -72,6 +71,7 @@ def settings_yaml(cam: OrbSlamCamera, fps: float, loop_closing: bool = True, th_
     ``orb``: the ORB extractor (default: the paper's 3000 features, scale 1.2, 13 levels, FAST 15/5).
     """
     o = orb or OrbSettings()
+    n_levels = pyramid_levels(cam.width_px, cam.height_px, o.n_levels, o.scale_factor)
     T = np.eye(4)
     T[0, 3] = cam.baseline_m
     lines = ["%YAML:1.0", 'File.version: "1.0"', "", 'Camera.type: "PinHole"']
@@ -82,7 +82,7 @@ def settings_yaml(cam: OrbSlamCamera, fps: float, loop_closing: bool = True, th_
               f"Camera.fps: {max(1, round(fps))}", "Camera.RGB: 0", "",
               *_mat("Stereo.T_c1_c2", T), f"Stereo.ThDepth: {_real(th_depth)}", "",
               f"ORBextractor.nFeatures: {int(o.n_features)}", f"ORBextractor.scaleFactor: {_real(o.scale_factor)}",
-              f"ORBextractor.nLevels: {pyramid_levels(cam.width_px, cam.height_px, o.n_levels, o.scale_factor)}", f"ORBextractor.iniThFAST: {int(o.ini_th_fast)}",
+              f"ORBextractor.nLevels: {n_levels}", f"ORBextractor.iniThFAST: {int(o.ini_th_fast)}",
               f"ORBextractor.minThFAST: {int(o.min_th_fast)}", "",
               f"loopClosing: {1 if loop_closing else 0}", "",
               "Viewer.KeyFrameSize: 0.05", "Viewer.KeyFrameLineWidth: 1.0", "Viewer.GraphLineWidth: 0.9",

@@ -1,0 +1,144 @@
+"""The benchmark's localisation step: which SLAM backend, its options, running it, and combining repeats.
+
+Backends: ``orbslam3`` (default; ORB-SLAM3 stereo in a child process per run, see
+:mod:`bracketry_emulator.slam.orbslam3`) and ``builtin`` (the OpenCV stereo VO of :mod:`bracketry_emulator.vo`,
+fast and deterministic, for quick runs). Options are a plain dict (picklable, JSON, part of every cache key):
+
+    backend        "orbslam3" | "builtin"
+    vocabulary     DBoW2 text file (orbslam3; resolved before the run, see ``resolve_vocabulary``)
+    vocabulary_id  "<file name>:<sha256 prefix>" of that file (the cache key follows its content)
+    pace           "realtime" (the recording's own timestamps) or seconds between fed frames (0 = unpaced)
+    loop_closing   bool (orbslam3; off also turns relocalisation off)
+    repeats        runs per (trajectory, method); the report gives their median and spread
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+
+from bracketry.errors import BracketryError
+
+BACKENDS = ("orbslam3", "builtin")
+#: defaults (chosen from the measurements in ARCHITECTURE.md: real-time feed, loop closing on)
+SLAM_DEFAULTS: dict = {"backend": "orbslam3", "vocabulary": None, "vocabulary_id": None, "pace": "realtime",
+                       "loop_closing": True, "repeats": 1}
+
+
+def parse_pace(text: str | float | None) -> str | float:
+    """``realtime`` or a non-negative number of seconds -> the option value; anything else: one-line error."""
+    if text is None or text == "realtime":
+        return "realtime"
+    try:
+        v = float(text)
+    except (TypeError, ValueError):
+        raise BracketryError(f"bad --slam-pace {text!r} (use 'realtime' or seconds per frame, e.g. 0.12)") from None
+    if not np.isfinite(v) or v < 0:
+        raise BracketryError(f"bad --slam-pace {text!r} (seconds per frame must be >= 0)")
+    return v
+
+
+def file_id(path: str | Path) -> str:
+    """``name:sha256[:12]`` of a file (vocabularies are tens of MB: read in chunks)."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for chunk in iter(lambda: fh.read(1 << 20), b""):
+            h.update(chunk)
+    return f"{Path(path).name}:{h.hexdigest()[:12]}"
+
+
+def slam_options(backend: str = "orbslam3", vocabulary: str | Path | None = None, pace: str | float | None = None,
+                 loop_closing: bool = True, repeats: int = 1, echo=None) -> dict:
+    """Checked, complete SLAM options; for ORB-SLAM3 the vocabulary is resolved (the default built once)."""
+    if backend not in BACKENDS:
+        raise BracketryError(f"unknown SLAM backend {backend!r} (choose from {', '.join(BACKENDS)})")
+    if int(repeats) < 1:
+        raise BracketryError(f"--slam-repeats must be >= 1 (got {repeats})")
+    opts = dict(SLAM_DEFAULTS, backend=backend, pace=parse_pace(pace), loop_closing=bool(loop_closing),
+                repeats=int(repeats))
+    if backend == "orbslam3":
+        from bracketry_emulator.slam.vocabulary_files import resolve_vocabulary
+
+        voc = resolve_vocabulary(vocabulary, echo=echo)
+        opts.update(vocabulary=str(voc), vocabulary_id=file_id(voc))
+    else:
+        opts.update(pace=0.0, loop_closing=False)  # the built-in VO is not paced and has no loop closing
+    return opts
+
+
+def key_options(opts: dict | None) -> dict:
+    """The part of the options that decides a run's result (cache key): not the vocabulary's path, its content."""
+    o = dict(SLAM_DEFAULTS, **(opts or {"backend": "builtin"}))
+    return {k: o[k] for k in ("backend", "vocabulary_id", "pace", "loop_closing")}
+
+
+def describe(opts: dict | None) -> str:
+    """One line for the report: backend, its settings and the vocabulary."""
+    o = dict(SLAM_DEFAULTS, **(opts or {"backend": "builtin"}))
+    if o["backend"] == "builtin":
+        return "built-in stereo VO (OpenCV, ORB-SLAM2-like front end, 5-frame map, no relocalisation)"
+    pace = "real time" if o["pace"] == "realtime" else ("unpaced" if float(o["pace"]) == 0 else
+                                                         f"{float(o['pace']):g} s per frame")
+    return (f"ORB-SLAM3 stereo (pyorbslam3), fed at {pace}, loop closing {'on' if o['loop_closing'] else 'off'}, "
+            f"ORB 3000 features / scale 1.2 / 13 levels / FAST 15-5, ThDepth 35, vocabulary {o['vocabulary_id']}, "
+            f"{o['repeats']} repeat(s) per run")
+
+
+def run_slam(opts: dict | None, run_dir: Path, calibration_dir: str, vo_dir: Path,
+             max_frames: int | None) -> dict:
+    """Localise one emulated run into ``vo_dir`` (frames.csv + CameraTrajectory<n>.txt); returns run facts."""
+    o = dict(SLAM_DEFAULTS, **(opts or {"backend": "builtin"}))
+    if o["backend"] == "builtin":
+        import time
+
+        from bracketry_emulator.vo.runner import run_vo
+
+        t0 = time.perf_counter()
+        vo = run_vo(run_dir, calibration_dir, vo_dir, max_frames=max_frames)
+        return {"backend": "builtin", "s_per_frame": (time.perf_counter() - t0) / max(len(vo.frames), 1)}
+    from bracketry_emulator.slam.orbslam3 import OrbSlam3Options, run_orbslam3
+
+    pace = None if o["pace"] == "realtime" else float(o["pace"])
+    info = run_orbslam3(run_dir, calibration_dir, vo_dir,
+                        OrbSlam3Options(o["vocabulary"], pace_s=pace, loop_closing=o["loop_closing"]),
+                        max_frames=max_frames)
+    return {"backend": "orbslam3", "s_per_frame": info.get("track_s_median", float("nan")), **{
+        k: info[k] for k in ("settings", "vocabulary_load_s", "raw_states") if k in info}}
+
+
+#: metrics combined over repeats by their median
+REPEAT_METRICS = ("rte_pct", "rre_deg_per_m", "tracked_fraction", "tracked_distance_fraction", "coverage_mean",
+                  "matches_mean", "keypoints_mean", "time_before_failure_s", "n_failures", "n_segments",
+                  "s_per_frame")
+
+
+def combine_repeats(runs: list[dict]) -> dict:
+    """One result per (trajectory, method) from its repeats: medians, spreads (max - min) and the runs' values.
+
+    Failed repeats (``error``) are left out of the medians; with none left the result carries the first error.
+    The per-frame lists and windows come from the repeat whose RTE is closest to the median.
+    """
+    ok = [r for r in runs if not r.get("error")]
+    if not ok:
+        out = dict(runs[0])
+        out.update(repeats=len(runs), repeats_ok=0)
+        return out
+    rte = np.array([r.get("rte_pct", np.nan) for r in ok], float)
+    if np.isfinite(rte).any():
+        med = float(np.nanmedian(rte))
+        rep = ok[int(np.nanargmin(np.abs(np.where(np.isfinite(rte), rte, np.inf) - med)))]
+    else:
+        rep = ok[0]
+    out = dict(rep)
+    for k in REPEAT_METRICS:
+        vals = np.array([float(r.get(k, np.nan)) for r in ok], float)
+        fin = vals[np.isfinite(vals)]
+        out[k] = float(np.median(fin)) if len(fin) else float("nan")
+        if k in ("rte_pct", "rre_deg_per_m", "tracked_fraction", "tracked_distance_fraction"):
+            out[f"{k}_runs"] = [float(v) for v in vals]
+            out[f"{k}_spread"] = float(np.ptp(fin)) if len(fin) else float("nan")
+    out["success"] = sum(bool(r["success"]) for r in ok) * 2 > len(ok)  # the majority of the repeats
+    out.update(repeats=len(runs), repeats_ok=len(ok), errors=[r["error"] for r in runs if r.get("error")])
+    return out
