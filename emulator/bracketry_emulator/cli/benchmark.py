@@ -58,20 +58,34 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--parity", type=click.Choice(["default", "upstream"]), default="default", show_default=True,
               help="Closed loops: the methods as their papers describe them (default) or as the authors' code runs "
                    "them (upstream: with their emulation arithmetic; needs --crf pcalib_inside1.txt).")
+@click.option("--slam", "slam_backend", type=click.Choice(["orbslam3", "builtin"]), default="orbslam3",
+              show_default=True, help="Localisation: ORB-SLAM3 stereo, or the built-in VO (fast, deterministic).")
+@click.option("--vocabulary", type=click.Path(dir_okay=False), default=None,
+              help="ORB-SLAM3 vocabulary (e.g. ORBvoc.txt; env PYORBSLAM3_VOCAB). Default: the project's own, "
+                   "built once into the user cache (never downloaded).")
+@click.option("--slam-pace", default="realtime", show_default=True,
+              help="ORB-SLAM3 feed: 'realtime' (the recording's timestamps) or seconds per frame (0 = unpaced).")
+@click.option("--loop-closing/--no-loop-closing", default=True, show_default=True,
+              help="ORB-SLAM3's loop-closing thread; off also turns relocalisation off.")
+@click.option("--slam-repeats", default=1, show_default=True, type=click.IntRange(1, 50),
+              help="SLAM runs per (trajectory, method): the report gives median and spread, statistics use medians.")
 @click.option("--quiet", "-q", is_flag=True, help="No progress bar for the closed loops.")
 def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: str, scheduler: str | None,
             workers: int, windows_text: str, alpha: float, max_frames: int | None, export_orbslam: bool,
             slam_dir: str | None, drl_weights: str | None, selection: str, crf: str, init_exposure_ms: float,
-            seed: int, ae_camera: str, parity: str, quiet: bool) -> int:
+            seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: str | None,
+            slam_pace: str, loop_closing: bool, slam_repeats: int, quiet: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
-    in one pass that decodes each bracket sequence once; then per (trajectory, method) the built-in stereo VO
-    (ORB-SLAM2-like), RTE/RRE with evo and the failure metrics. Results are cached under
+    in one pass that decodes each bracket sequence once; then per (trajectory, method) ORB-SLAM3 stereo (each run
+    in its own process, its output in a log beside the run; a failed run is a line in the report) or the built-in
+    VO, RTE/RRE with evo, the distance tracked and the failure metrics. Results are cached under
     OUT/cache, so running the same command again resumes. The report is written to OUT/report (CSV, Markdown,
     HTML, figures). Exit code 0.
     """
     from bracketry_emulator.benchmark import run_benchmark
+    from bracketry_emulator.benchmark.slam import slam_options
 
     if scheduler is not None and not scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise BracketryError(f"bad --scheduler {scheduler!r} (expected tcp://HOST:PORT)")
@@ -81,18 +95,24 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
 
         workers = os.cpu_count() or 1
 
+    slam = slam_options(slam_backend, vocabulary, slam_pace, loop_closing, slam_repeats, echo=click.echo)
+
     def done(r: dict) -> None:
+        rep = f" (repeat {r['repeat'] + 1})" if slam_repeats > 1 else ""
+        if r.get("error"):
+            click.echo(f"failed {r['trajectory']} / {r['method']}{rep}: {r['error']}")
+            return
         state = "cached" if r.get("cached") else "done"
         outcome = "success" if r["success"] else f"failed at {r['time_before_failure_s']:.1f} s"
         rte = f"RTE refused: {r['rte_refused']}" if r.get("rte_refused") else f"RTE {r['rte_pct']:.2f} %"
-        click.echo(f"{state:6s} {r['trajectory']} / {r['method']}: {outcome}, "
+        click.echo(f"{state:6s} {r['trajectory']} / {r['method']}{rep}: {outcome}, "
                    f"{rte}, coverage {100 * r['coverage_mean']:.1f} %, "
                    f"matches {r['matches_mean']:.0f}")
 
     result = run_benchmark(list(datasets), methods, out_dir, reference=reference, scheduler=scheduler,
                            workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
                            export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
-                           progress=not quiet, on_done=done,
+                           progress=not quiet, on_done=done, slam=slam,
                            loop={"selection": selection, "crf": crf, "init_exposure_ms": init_exposure_ms,
                                  "seed": seed, "ae_camera": ae_camera, "parity": parity})
     click.echo(f"report: {result.report_files.get('report.html')}")

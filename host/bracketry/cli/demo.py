@@ -16,11 +16,13 @@ import click
 @click.option("--drl-weights", type=click.Path(dir_okay=False, exists=True), default=None,
               envvar="BRACKETRY_DRL_WEIGHTS",
               help="The DRL actor's .pth (env BRACKETRY_DRL_WEIGHTS); without it DRL is left out.")
-def command(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | None) -> int:
+@click.option("--slam", type=click.Choice(["orbslam3", "builtin"]), default=None,
+              help="Localisation (default: orbslam3; builtin with --quick).")
+def command(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | None, slam: str | None) -> int:
     """Run the whole pipeline on the embedded default: simulated rig -> recording -> AE benchmark -> report."""
     from bracketry.demo.pipeline import plan, run
 
-    summary = run(plan(out_dir, seconds, quick, drl_weights), echo=lambda s: click.echo(s, err=True))
+    summary = run(plan(out_dir, seconds, quick, drl_weights, slam), echo=lambda s: click.echo(s, err=True))
     click.echo("")
     verdict = "verified clean" if summary["recording_verified"] else "HAS PROBLEMS"
     click.echo(f"bracketry demo: {summary['frames']['left']} + {summary['frames']['right']} frames recorded, "

@@ -43,6 +43,8 @@ class DemoPlan:
     methods: str = "all"
     #: the DRL actor's .pth; None leaves DRL out (its public weights are not shipped)
     drl_weights: str | None = None
+    #: localisation: "orbslam3" (ORB-SLAM3 stereo) or "builtin" (the built-in VO)
+    slam: str = "orbslam3"
 
 
 DEFAULT_SECONDS = 40.0
@@ -51,11 +53,19 @@ DEFAULT_RESOLUTION = (640, 400)
 QUICK_RESOLUTION = (320, 200)
 
 
-def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | None = None) -> DemoPlan:
-    """The default plan (a VO run long enough to mean something), or the quick one for CI (< 2 minutes)."""
+def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | None = None,
+         slam: str | None = None) -> DemoPlan:
+    """The default plan (a SLAM run long enough to mean something), or the quick one for CI (< 2 minutes).
+
+    SLAM: ORB-SLAM3 by default; the quick plan uses the built-in VO unless ``slam`` says otherwise (its 320x200
+    images leave ORB-SLAM3 a 7-level pyramid, and the first ORB-SLAM3 run on a machine builds the vocabulary,
+    ~1-2 minutes, which alone would break the quick plan's budget).
+    """
     if quick:
-        return DemoPlan(out_dir, seconds or QUICK_SECONDS, QUICK_RESOLUTION, drl_weights=drl_weights)
-    return DemoPlan(out_dir, seconds or DEFAULT_SECONDS, DEFAULT_RESOLUTION, drl_weights=drl_weights)
+        return DemoPlan(out_dir, seconds or QUICK_SECONDS, QUICK_RESOLUTION, drl_weights=drl_weights,
+                        slam=slam or "builtin")
+    return DemoPlan(out_dir, seconds or DEFAULT_SECONDS, DEFAULT_RESOLUTION, drl_weights=drl_weights,
+                    slam=slam or "orbslam3")
 
 
 def record(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
@@ -121,25 +131,28 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     """Step 3: all AE methods in closed loop (one shared-decode pass, with a progress bar), VO, metrics, statistics
     and the report."""
     from bracketry_emulator.benchmark.orchestrate import parse_methods, run_benchmark
+    from bracketry_emulator.benchmark.slam import slam_options
 
     methods = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
+    slam = slam_options(p.slam, echo=echo)
     out = p.out_dir / "benchmark"
     if out.exists():  # a new recording: earlier runs and cached results belong to the old one
         shutil.rmtree(out)
     echo(f"[3/3] benchmarking {len(methods)} AE methods ({', '.join(methods)}): closed loops (each bracket "
-         f"sequence decoded once for all), then VO and metrics per method")
+         f"sequence decoded once for all), then {'ORB-SLAM3' if p.slam == 'orbslam3' else 'the built-in VO'} and "
+         f"metrics per method")
     bar: Any = None
 
     def done(r: dict) -> None:
         nonlocal bar
         if bar is None:  # after the closed loops' own bar
-            bar = Progress("VO + metrics", total=len(methods), unit="method")
+            bar = Progress("SLAM + metrics", total=len(methods), unit="method")
         bar.set_postfix(r["method"])
         bar.update(1)
 
     try:
         return run_benchmark([dataset], methods, out, reference="ae50", workers=p.workers,
-                             drl_weights=p.drl_weights, progress=True, on_done=done)
+                             drl_weights=p.drl_weights, progress=True, on_done=done, slam=slam)
     finally:
         if bar is not None:
             bar.close()
