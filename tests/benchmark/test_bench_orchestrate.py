@@ -108,12 +108,17 @@ def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Pa
 def test_bench_cli(datasets, local_run, tmp_path: Path, capsys) -> None:
     # same settings as the library run in the same folder: every task comes from the cache
     rc = cli_main(["benchmark", str(datasets[0]), "--methods", ",".join(METHODS), "--out", str(local_run.out_dir),
-                   "--windows", "1"])
+                   "--windows", "1", "--slam", "builtin"])
     assert rc == 0
     out = capsys.readouterr().out
     assert "cached traj1 / burst: failed at 0.8 s" in out and "report:" in out
     assert cli_main(["benchmark", str(datasets[0]), "--methods", "dim", "--out", str(tmp_path)]) == 2
-    assert "reference method 'ae50'" in capsys.readouterr().err
+    assert "reference method 'ae50'" in capsys.readouterr().err  # before any vocabulary is resolved or built
+    assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
+                     "--vocabulary", str(tmp_path / "missing.txt")]) == 2
+    assert "vocabulary file not found" in capsys.readouterr().err
+    assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
+                     "--slam-pace", "fast"]) == 2
     assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
                      "--windows", "x"]) == 2
 

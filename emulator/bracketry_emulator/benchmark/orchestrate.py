@@ -105,7 +105,8 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
                   alpha: float = 0.05, report: bool = True, export_orbslam: bool = False,
                   slam_dir: str | Path | None = None, drl_weights: str | Path | None = None,
                   progress: bool = False, loop: dict | None = None,
-                  on_done: Callable[[dict], None] | None = None, slam: dict | None = None) -> BenchmarkResult:
+                  on_done: Callable[[dict], None] | None = None, slam: dict | None = None,
+                  slam_echo: Callable[[str], None] | None = None) -> BenchmarkResult:
     """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
     ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally,
@@ -118,6 +119,8 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO); with
     ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and spread
     (statistics on the medians). Paced ORB-SLAM3 runs mostly wait: locally twice ``workers`` of them run at once.
+    An unresolved ORB-SLAM3 vocabulary is resolved after the other input was checked (``slam_echo`` says when the
+    default vocabulary is being built).
     """
     paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
     specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
@@ -133,7 +136,9 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     if slam_path is not None and not slam_path.is_dir():
         raise BracketryError(f"--slam-trajectories folder not found: {slam_path}")
     loop_config(loop, None)  # bad settings: one clear line before anything runs
-    slam_opts: dict = dict(slam) if slam else {"backend": "builtin", "repeats": 1}
+    from bracketry_emulator.benchmark.slam import resolve_options
+
+    slam_opts: dict = resolve_options(dict(slam), echo=slam_echo) if slam else {"backend": "builtin", "repeats": 1}
     repeats = int(slam_opts.get("repeats", 1))
     tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam_path, weights, loop, slam_opts, r)
              for s in specs for m in method_ids for r in range(repeats)]

@@ -50,8 +50,9 @@ def file_id(path: str | Path) -> str:
 
 
 def slam_options(backend: str = "orbslam3", vocabulary: str | Path | None = None, pace: str | float | None = None,
-                 loop_closing: bool = True, repeats: int = 1, echo=None) -> dict:
-    """Checked, complete SLAM options; for ORB-SLAM3 the vocabulary is resolved (the default built once)."""
+                 loop_closing: bool = True, repeats: int = 1, echo=None, resolve: bool = True) -> dict:
+    """Checked, complete SLAM options; for ORB-SLAM3 the vocabulary is resolved (the default built once) unless
+    ``resolve`` is False (then :func:`resolve_options` does it, e.g. after the rest of the input was checked)."""
     if backend not in BACKENDS:
         raise BracketryError(f"unknown SLAM backend {backend!r} (choose from {', '.join(BACKENDS)})")
     if int(repeats) < 1:
@@ -59,18 +60,27 @@ def slam_options(backend: str = "orbslam3", vocabulary: str | Path | None = None
     opts = dict(SLAM_DEFAULTS, backend=backend, pace=parse_pace(pace), loop_closing=bool(loop_closing),
                 repeats=int(repeats))
     if backend == "orbslam3":
-        from bracketry_emulator.slam.vocabulary_files import resolve_vocabulary
-
-        voc = resolve_vocabulary(vocabulary, echo=echo)
-        opts.update(vocabulary=str(voc), vocabulary_id=file_id(voc))
-    else:
-        opts.update(pace=0.0, loop_closing=False)  # the built-in VO is not paced and has no loop closing
+        opts["vocabulary"] = str(vocabulary) if vocabulary else None
+        return resolve_options(opts, echo) if resolve else opts
+    opts.update(pace=0.0, loop_closing=False)  # the built-in VO is not paced and has no loop closing
     return opts
+
+
+def resolve_options(opts: dict, echo=None) -> dict:
+    """``opts`` with the ORB-SLAM3 vocabulary resolved to a file and identified by its content."""
+    if opts.get("backend") != "orbslam3" or opts.get("vocabulary_id"):
+        return opts
+    from bracketry_emulator.slam.vocabulary_files import resolve_vocabulary
+
+    voc = resolve_vocabulary(opts.get("vocabulary"), echo=echo)
+    return dict(opts, vocabulary=str(voc), vocabulary_id=file_id(voc))
 
 
 def key_options(opts: dict | None) -> dict:
     """The part of the options that decides a run's result (cache key): not the vocabulary's path, its content."""
     o = dict(SLAM_DEFAULTS, **(opts or {"backend": "builtin"}))
+    if o["backend"] == "builtin":  # no options of its own
+        return {"backend": "builtin"}
     return {k: o[k] for k in ("backend", "vocabulary_id", "pace", "loop_closing")}
 
 

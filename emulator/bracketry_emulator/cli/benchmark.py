@@ -95,7 +95,7 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
 
         workers = os.cpu_count() or 1
 
-    slam = slam_options(slam_backend, vocabulary, slam_pace, loop_closing, slam_repeats, echo=click.echo)
+    slam = slam_options(slam_backend, vocabulary, slam_pace, loop_closing, slam_repeats, resolve=False)
 
     def done(r: dict) -> None:
         rep = f" (repeat {r['repeat'] + 1})" if slam_repeats > 1 else ""
@@ -112,7 +112,7 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
     result = run_benchmark(list(datasets), methods, out_dir, reference=reference, scheduler=scheduler,
                            workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
                            export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
-                           progress=not quiet, on_done=done, slam=slam,
+                           progress=not quiet, on_done=done, slam=slam, slam_echo=click.echo,
                            loop={"selection": selection, "crf": crf, "init_exposure_ms": init_exposure_ms,
                                  "seed": seed, "ae_camera": ae_camera, "parity": parity})
     click.echo(f"report: {result.report_files.get('report.html')}")

@@ -134,7 +134,7 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     from bracketry_emulator.benchmark.slam import slam_options
 
     methods = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
-    slam = slam_options(p.slam, echo=echo)
+    slam = slam_options(p.slam, echo=echo)  # the default vocabulary is built here the first time
     out = p.out_dir / "benchmark"
     if out.exists():  # a new recording: earlier runs and cached results belong to the old one
         shutil.rmtree(out)
