@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
 import sys
 from pathlib import Path
 
@@ -53,6 +56,7 @@ def command(seconds: float, out_dir: Path, trigger: str, resolution: str, fps: f
 
             out_dir.mkdir(parents=True, exist_ok=True)
             bridge = monitor_bridge_outside(out_dir, monitor_port)
+            _end_with_sigterm(bridge)
         try:
             return reexec_in_netns(sys.argv[1:] if sys.argv[1:2] == ["simulate"] else
                                    ["simulate", "--seconds", str(seconds), "--out", str(out_dir), "--trigger",
@@ -67,6 +71,17 @@ def command(seconds: float, out_dir: Path, trigger: str, resolution: str, fps: f
                 bridge.wait(timeout=10)
     return run(out_dir, seconds, trigger, res, fps, preset, seed, not no_world, monitor_port, world_seconds,
                keep_frames)
+
+
+def _end_with_sigterm(proc: subprocess.Popen) -> None:
+    """On SIGTERM, end ``proc`` (a helper this process started), then terminate as SIGTERM would have."""
+
+    def handler(signum: int, _frame: object) -> None:
+        proc.terminate()
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+
+    signal.signal(signal.SIGTERM, handler)
 
 
 def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: float, preset: str, seed: int,
