@@ -51,3 +51,17 @@ def test_token_is_required_beyond_loopback(tmp_path: Path) -> None:
     assert r["apply_recording"][0] == 409 and r["sensors_off_recording"][0] == 409
     assert r["record_stop"][0] == 200 and r["sensors_off"][0] == 200
     assert r["unknown"][0] == 400
+
+
+def test_simulate_monitor_port_in_use_is_a_one_line_error(tmp_path: Path) -> None:
+    import socket
+
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen(1)
+        port = busy.getsockname()[1]
+        res = subprocess.run([sys.executable, "-m", "bracketry", "simulate", "--out", str(tmp_path / "sim"),
+                              "--monitor", str(port), "--no-world"], capture_output=True, text=True, timeout=60)
+    assert res.returncode != 0
+    assert f"--monitor {port}: cannot listen on 127.0.0.1:{port}" in res.stderr
+    assert "Traceback" not in res.stderr and len(res.stderr.strip().splitlines()) == 1, res.stderr

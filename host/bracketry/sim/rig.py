@@ -440,6 +440,13 @@ def monitor_bridge_outside(out_dir: Path, port: int) -> subprocess.Popen:
     is up are refused)."""
     if shutil.which("socat") is None:
         raise BracketryError("socat not found: apt-get install socat (or run ./setup.sh)")
+    import socket
+
+    with socket.socket() as probe:
+        try:
+            probe.bind(("127.0.0.1", port))
+        except OSError as exc:
+            raise BracketryError(f"--monitor {port}: cannot listen on 127.0.0.1:{port}: {exc.strerror}") from None
     return subprocess.Popen(["socat", f"TCP-LISTEN:{port},bind=127.0.0.1,reuseaddr,fork",
                              f"UNIX-CONNECT:{monitor_socket(out_dir)}"],
                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
