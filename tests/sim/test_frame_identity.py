@@ -52,7 +52,12 @@ def test_cycle_time() -> None:
 def test_source_serves_identified_frames_by_exposure(tmp_path: Path) -> None:
     """The source serves the next frame of the cycle with the triggered exposure; each carries its own index, equal
     to what the renderer wrote; a skipped trigger resynchronises; an exposure outside the cycle has no identity."""
-    sched = FrameSchedule(tmp_path, None, BRACKETS_US, 20.0, 24, resolution=(32, 16)).start()
+    sched = FrameSchedule(tmp_path, None, BRACKETS_US, 20.0, 24, resolution=(32, 16), wait_for_render_s=0.0)
+    late = sched.source("right")(1000, 32, 16)  # nothing rendered yet (not started): served without identity
+    assert read_frame_id(late) is None and sched.unidentified["right"] == 1 and sched.waited["right"] == 1
+    sched.served["right"] = 0
+    sched.wait_for_render_s = 60.0
+    sched.start()
     try:
         src = sched.source("left")
         first = src(1000, 32, 16)  # waits for the renderer

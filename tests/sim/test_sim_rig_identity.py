@@ -79,21 +79,21 @@ def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_show
     from bracketry_emulator.synth import World
 
     world = World("forest-winter", seed=0, resolution=(w, h))
-    gt = {}
+    gt: list[tuple[int, np.ndarray]] = []
     for line in (out / "groundtruth.txt").read_text().splitlines():
         if line.startswith("#"):
             continue
-        v = line.split()
-        gt[round(float(v[0]) * 1e9)] = np.array([float(x) for x in v[1:]])
+        sec, _, frac = line.split()[0].partition(".")
+        gt.append((int(sec) * 1_000_000_000 + int(frac.ljust(9, "0")), np.array([float(x) for x in line.split()[1:]])))
     unknown_file = out / "groundtruth_unknown.txt"
-    unknown = {int(x) for x in unknown_file.read_text().split()} if unknown_file.exists() else set()
+    unknown = [int(x) for x in unknown_file.read_text().split()] if unknown_file.exists() else []
     assert summary["groundtruth"]["unknown"] == len(unknown)
-    assert len(gt) + len(unknown) == len(recorded["left"]) == summary["groundtruth"]["frames"]
-    for t_ns, k in recorded["left"]:
-        if k is None:
-            assert t_ns in unknown
-            continue
-        near = min(gt, key=lambda t: abs(t - t_ns))
-        assert abs(near - t_ns) < 2000, "a ground-truth stamp is the recorded frame's own"
+    left = sorted(recorded["left"], key=lambda tk: tk[0])
+    assert len(left) == summary["groundtruth"]["frames"]
+    assert sorted(t for t, k in left if k is None) == sorted(unknown)
+    known_left = [(t, k) for t, k in left if k is not None]
+    assert len(gt) == len(known_left)
+    for (t_ns, k), (gt_ns, pose) in zip(known_left, gt):
+        assert gt_ns == t_ns, "the ground-truth stamp is the recorded frame's own"
         T_wc = world.pose(cycle_time_s(k, 6, fps))
-        assert np.allclose(gt[near][:3], T_wc[:3, 3], atol=1e-5), (k, gt[near][:3], T_wc[:3, 3])
+        assert np.allclose(pose[:3], T_wc[:3, 3], atol=1e-5), (k, pose[:3], T_wc[:3, 3])

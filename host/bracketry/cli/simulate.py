@@ -103,6 +103,8 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     try:
         rig.prepare_frames()  # rendered ahead in a separate process while the rig starts and records
         rig.start()
+        # a lead of two seconds of frames before recording starts, so that the cameras rarely wait for the renderer
+        rig.schedule.wait(timeout_s=120.0, frames=round(2.0 * fps))
         session = run_session(rig, seconds)
         render_done_ns = rig.schedule.render_done_ns()
     finally:

@@ -36,8 +36,9 @@ FRAME_ID_PIXELS = 4
 _TAGS = (0xA00, 0x500, 0xC00, 0x300)
 #: largest index a frame can carry (24 bits)
 MAX_FRAME_ID = (1 << 24) - 1
-#: how long the image source waits for the renderer before serving a frame without identity, seconds
-WAIT_FOR_RENDER_S = 2.0
+#: how long the image source waits for the renderer before serving a frame without identity, seconds (short: a camera
+#: blocked in its image source delivers late and merges triggers, which confuses the pairing of the frames)
+WAIT_FOR_RENDER_S = 0.02
 
 
 def embed_frame_id(image: np.ndarray, k: int) -> None:
@@ -156,10 +157,12 @@ class FrameSchedule:
     def failed(self) -> bool:
         return int(self._counter[1]) == 2 or (self._proc is not None and self._proc.exitcode not in (None, 0))
 
-    def wait(self, progress: ProgressFn | None = None, timeout_s: float | None = None) -> None:
-        """Block until every frame is rendered (``progress(done, total)`` on the way)."""
+    def wait(self, progress: ProgressFn | None = None, timeout_s: float | None = None,
+             frames: int | None = None) -> None:
+        """Block until ``frames`` (default: every frame) are rendered (``progress(done, total)`` on the way)."""
         deadline = None if timeout_s is None else time.monotonic() + timeout_s
-        while self.rendered() < self.n_frames:
+        wanted = self.n_frames if frames is None else min(int(frames), self.n_frames)
+        while self.rendered() < wanted:
             if self.failed():
                 raise RuntimeError(f"the frame renderer failed (see {self.folder / 'render.log'})")
             if deadline is not None and time.monotonic() > deadline:
@@ -168,7 +171,7 @@ class FrameSchedule:
                 progress(self.rendered(), self.n_frames)
             time.sleep(0.05)
         if progress is not None:
-            progress(self.n_frames, self.n_frames)
+            progress(wanted, self.n_frames)
 
     def stop(self) -> None:
         """End the renderer process (if still running)."""
