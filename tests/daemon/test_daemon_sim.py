@@ -21,6 +21,8 @@ import pytest
 
 from bracketry.cameras.netns import netns_available
 from bracketry.cli import main as cli_main
+from bracketry.recording import topics as T
+from bracketry.recording.decode import decode
 from bracketry.recording.reader import RecordingReader
 from bracketry.recording.session import PRIMING_EXPOSURE_US
 from bracketry.recording.verify import VerifyReport, recording_files, verify_recording
@@ -296,3 +298,39 @@ def test_simulated_rig_with_the_real_trigger_firmware_in_qemu(tmp_path: Path) ->
         assert sr["bracket_order_breaks"] == sr["exposure_mismatches"] == 0, (side, sr)
     log = (out / "daemon.log").read_text()
     assert "trigger" in log and "segment closed" in log
+
+
+def test_monitor_previews_while_idle_then_a_normal_recording(tmp_path: Path) -> None:
+    """With the monitor on, sensors up and not recording stream to the previews only (nothing on disk); a bracket
+    table applied while idle reaches the previews; a recording then records normally and the previews resume."""
+    result = run_scenario(tmp_path, "preview", "--seconds", "4")
+    table, new_table = result["brackets_us"], result["applied_us"]
+    assert step(result, "ready")["previews"] == {}
+    idle = step(result, "idle_previews")
+    assert idle["states"] == {**idle["states"], "cam_left": "IDLE", "cam_right": "IDLE", "trigger": "IDLE"}
+    assert idle["recording"] is None and idle["files"] == [], idle["files"]  # previews only: nothing written
+    for side in ("left", "right"):
+        assert [idle["previews"][side][str(k)]["exposure_us"] for k in range(len(table))] == table
+        assert idle["status"]["cameras"][side]["state"] == "IDLE" and idle["status"]["cameras"][side]["frames"] > 0
+    assert not idle["status"]["recording"]["active"]
+    applied = step(result, "applied_previews")
+    assert applied["applied"] == [200, {"ok": True, "brackets_us": new_table}], applied["applied"]
+    assert applied["files"] == []
+    for side in ("left", "right"):
+        assert [applied["previews"][side][str(k)]["exposure_us"] for k in range(len(new_table))] == new_table
+    resumed = step(result, "resumed_previews")  # after the recording: previews again, sensors still on
+    assert resumed["states"] == {**resumed["states"], "cam_left": "IDLE", "cam_right": "IDLE", "trigger": "IDLE"}
+    assert resumed["recording"] is None and resumed["status"]["sensors_on"]
+    assert result["daemon_exit_code"] == 0
+    log = daemon_log(result)
+    assert len(logged(log, "previews started")) >= 3 and logged(log, "previews stopped")
+    assert not logged(log, "", "ERROR")
+
+    segments = [Path(p) for p in result["segments"]]
+    assert [p.name for p in segments] == ["seg01"]  # the one recording; the previews wrote nothing
+    report = verify_recording(segments[0])
+    assert_intact(report)
+    assert report.events >= 3 * FPS and report.sides.keys() == {"left", "right"}
+    recorded_us = {int(decode(m.schema_name, m.data).exposure_us) for f in recording_files(segments[0])
+                   for m in RecordingReader(f).messages({T.TRIGGER_TOPIC})}
+    assert recorded_us == set(new_table)  # the table applied while idle is the one recorded

@@ -1,7 +1,8 @@
 """The daemon's side of the browser monitor: its status snapshot, the actions it accepts, and start-up.
 
 The monitor never touches the acquisition path: the recording session hands each paired set (after the recorder
-took it) to :meth:`bracketry.monitor.hub.PreviewHub.offer`; everything else reads the daemon's state.
+took it) to :meth:`bracketry.monitor.hub.PreviewHub.offer` (while the sensors are up and not recording, the daemon's
+preview session does the same and writes nothing); everything else reads the daemon's state.
 """
 
 from __future__ import annotations
@@ -97,8 +98,6 @@ class DaemonBackend:
                 d.set_brackets_us(table)
             except BracketryError as exc:
                 raise ActionError(str(exc), status=409 if d.recording else 400) from None
-            if d.monitor_hub is not None:
-                d.monitor_hub.clear()
             return {"brackets_us": list(d.config.brackets_us)}
         raise ActionError(f"unknown action {action!r}", status=400)
 

@@ -8,6 +8,11 @@ A recording is a sequence of *segments* (``<output_dir>/<rec_name>/segNN/``): on
 restarts at 0) and one set of split MCAP files each, verified on its own.
 When a device fails, the open segment is closed cleanly (nothing already recorded is lost), the failed sensor shows
 ERR, recording continues with what still works, and a new segment with every sensor starts when it is back.
+
+With the browser monitor on (config ``[monitor]``), sensors that are up but not recording still stream: a *preview
+session* (the same ``RecordingSession`` with a ``DiscardSink``: nothing is written) feeds only the monitor's preview
+hub, triggered by the current bracket table. A recording closes it before its first segment starts and reopens it
+when it stops; a new bracket table restarts it. With the monitor off there is no preview session.
 """
 
 from __future__ import annotations
@@ -120,6 +125,8 @@ class RigDaemon:
         self._fired = 0
         self.monitor_hub: Any = None  # the browser monitor (config [monitor]), see bracketry.daemon.monitor_link
         self.monitor_server: Any = None
+        self.previewing = False  # the open session is a preview session (monitor on, sensors up, not recording)
+        self._closing = False
 
     # ------------------------------------------------------------------------------------------------ lifecycle
     def start(self) -> RigDaemon:
@@ -148,6 +155,7 @@ class RigDaemon:
         """Stop recording cleanly (files finished), close every device, the panel and the status socket."""
         self.notifier.stopping()
         with self._lock:
+            self._closing = True  # no preview session between the recording's end and the sensors' shutdown
             if self.recording:
                 self.stop_recording()
             self.sensors_down()
@@ -230,15 +238,24 @@ class RigDaemon:
     def sensors_up(self) -> bool:
         """Open and configure the trigger and both cameras; True when all are up (each failure -> ERR)."""
         with self._lock:
-            self.sensors_on = True
-            ok = self._trigger_up()
-            for cam in self.config.cameras:
-                ok = self._camera_up(cam.side) and ok
-            self.state.set_message("SENSORS OK" if ok else "SENSOR ERROR")
+            ok = self._sensors_up()
+            session = self._session
+            if not self.recording and (session is None or set(session.cameras) != set(self.cameras)):
+                self._preview_stop()  # a camera back (retry) joins the previews
+                self._preview_start()
             return ok
+
+    def _sensors_up(self) -> bool:
+        self.sensors_on = True
+        ok = self._trigger_up()
+        for cam in self.config.cameras:
+            ok = self._camera_up(cam.side) and ok
+        self.state.set_message("SENSORS OK" if ok else "SENSOR ERROR")
+        return ok
 
     def sensors_down(self) -> None:
         with self._lock:
+            self._preview_stop()
             self.sensors_on = False
             for side in list(self.cameras):
                 self._camera_down(side, SensorState.OFF)
@@ -339,10 +356,15 @@ class RigDaemon:
             problem = check_brackets_ms(brackets_ms, self.config.fps)
             if problem:
                 raise BracketryError(f"brackets_us{problem[0]}: {problem[1]}")
+            previewing = self._preview_stop()  # the trigger takes a new table only when stopped
             if self.trigger is not None:
                 self.trigger.configure(self.config.period_us, list(brackets_us))
             self.config = dataclasses.replace(self.config, brackets_ms=tuple(brackets_ms))
             log.info("bracket table changed: brackets_us=%s", self.config.brackets_us)
+            if self.monitor_hub is not None:
+                self.monitor_hub.clear()  # previews of the old table are gone; the new table's come next
+            if previewing:
+                self._preview_start()
 
     # ------------------------------------------------------------------------------------------------ recording
     def start_recording(self) -> bool:
@@ -356,8 +378,9 @@ class RigDaemon:
                 self.state.set_message(f"DISK LOW {free // 1024}GB" if free >= 1024 else f"DISK LOW {free}MB")
                 log.error("recording refused: %d MB free < min_free_mb %d", free, self.config.min_free_mb)
                 return False
+            self._preview_stop()
             if not self.sensors_on:
-                self.sensors_up()
+                self._sensors_up()
             self.config.output_dir.mkdir(parents=True, exist_ok=True)
             self.rec_name = time.strftime("rec_%Y%m%d_%H%M%S")
             self.recording = True
@@ -382,7 +405,60 @@ class RigDaemon:
                 self.state.set_state("trigger", SensorState.IDLE)
             self.state.set_message("SAVED")
             log.info("recording %s stopped after %d segment(s)", self.rec_name, len(self.segments))
+            self._preview_start()
             return summary
+
+    # ------------------------------------------------------------------------------------------------ previews
+    def _preview_start(self) -> bool:
+        """Open the preview session (monitor on, sensors up, not recording): the cameras stream on the trigger's
+        pulses, paired sets go only to the monitor's hub, nothing is written. True when it started."""
+        from bracketry.recording.session import DiscardSink, RecordingSession, SessionStartError
+
+        if (self.monitor_hub is None or self._closing or self.recording or not self.sensors_on
+                or self._session is not None or self.trigger is None or not self.cameras):
+            return False
+        soft = self.options.software_trigger
+        try:
+            session = RecordingSession(dict(self.cameras), DiscardSink(self.config.output_dir),
+                                       disk_path=self.config.output_dir,
+                                       initial_alignment="host_time" if soft else "count",
+                                       tap=self.monitor_hub.offer).start()
+        except SessionStartError as exc:
+            log.error("preview start: %s", exc)
+            self._camera_down(exc.side, SensorState.ERR, str(exc))
+            self._backoff[exc.side].failed()
+            return self._preview_start()
+        if soft:
+            from bracketry.recording.session import SoftwareTrigger
+
+            SoftwareTrigger(dict(self.cameras)).prime()
+        self._fired = 0
+        self._soft_failed = set()
+        self._session_id = (self._session_id + 1) & 0xFFFFFFFF or 1
+        self._recorder, self._session = None, session
+        self.previewing = True
+        self._last_frames = {}
+        self._pulses = {}
+        try:
+            self.trigger.start(self._session_id)
+        except Exception as exc:
+            log.error("trigger START (previews) failed: %s", exc)
+            self._preview_stop()
+            self._trigger_down(SensorState.ERR, f"START failed: {exc}")
+            return False
+        log.info("previews started: sides=%s session_id=%d", ",".join(session.cameras), self._session_id)
+        return True
+
+    def _preview_stop(self) -> bool:
+        """Close the preview session (the cameras stop, stay open and configured); True when one was open."""
+        if not self.previewing:
+            return False
+        self._close_session()
+        self.previewing = False
+        for side in self.cameras:
+            self.state.set_fps(side, 0.0)
+        log.info("previews stopped")
+        return True
 
     def _segment_start(self) -> bool:
         from bracketry.recording.recorder import Recorder, RecorderConfig
@@ -442,9 +518,21 @@ class RigDaemon:
         return True
 
     def _segment_stop(self) -> dict[str, Any] | None:
-        session, recorder = self._session, self._recorder
-        if session is None:
+        recorder = self._recorder
+        if self._session is None or recorder is None:
             return None
+        status = self._close_session()
+        rsum = recorder.summary
+        summary = {"dir": str(recorder.out_dir), "files": list(rsum.files), "frames_written": dict(rsum.frames_written),
+                   "status": status, "overflows": rsum.overflows, "error": rsum.error}
+        self.segments.append(summary)
+        # cameras were stopped by the session; they stay open and configured for the next segment
+        log.info("segment closed: files=%s frames=%s", rsum.files, rsum.frames_written)
+        return summary
+
+    def _close_session(self) -> dict[str, Any]:
+        """Stop the trigger, deliver its last events, stop the open session (recording or previews)."""
+        session = self._session
         if self.trigger is not None:
             try:
                 self.trigger.stop()  # events of every pulse before STOP arrive before its ACK
@@ -460,14 +548,7 @@ class RigDaemon:
             self._drain_events(session)
         finally:
             self._pump_paused.clear()
-        status = session.stop(drain_s=1.0, expect_frames=self._fired)
-        rsum = recorder.summary
-        summary = {"dir": str(recorder.out_dir), "files": list(rsum.files), "frames_written": dict(rsum.frames_written),
-                   "status": status, "overflows": rsum.overflows, "error": rsum.error}
-        self.segments.append(summary)
-        # cameras were stopped by the session; they stay open and configured for the next segment
-        log.info("segment closed: files=%s frames=%s", rsum.files, rsum.frames_written)
-        return summary
+        return session.stop(drain_s=1.0, expect_frames=self._fired)
 
     def _restart_segment(self, reason: str) -> None:
         """Close the open segment cleanly and start a new one with the sensors that work."""
@@ -581,6 +662,7 @@ class RigDaemon:
             why = "lost (no heartbeat)" if lost else "rebooted"
             log.error("trigger %s", why)
             self._trigger_down(SensorState.ERR, why)
+            self._preview_stop()  # its trigger is gone: the previews start again when it is back
             if self.recording:
                 self._segment_stop()
                 self.state.set_message("TRIGGER LOST")
@@ -639,7 +721,11 @@ class RigDaemon:
         self.state.set_state(CAM_SENSOR[side], SensorState.ERR, "no frames")
         self.state.set_fps(side, 0.0)
         self._backoff[side].failed()
-        self._restart_segment(f"camera {side} lost")
+        if self.previewing:
+            self._preview_stop()
+            self._preview_start()
+        else:
+            self._restart_segment(f"camera {side} lost")
         if cam is not None:
             threading.Thread(target=_close_quietly, args=(cam,), name=f"close-{side}", daemon=True).start()
 
@@ -654,6 +740,9 @@ class RigDaemon:
                 changed = self._camera_up(cc.side) or changed
         if changed and self.recording:
             self._restart_segment("sensor back")
+        elif changed and self.monitor_hub is not None:
+            self._preview_stop()
+            self._preview_start()
 
     # ------------------------------------------------------------------------------------------------ status
     def handle_request(self, request: dict[str, Any]) -> dict[str, Any]:

@@ -158,7 +158,8 @@ class PreviewHub:
             return dict(self._latest)
 
     def clear(self) -> None:
-        """Forget every preview (the bracket table changed)."""
+        """Forget every preview and every frame not yet rendered (the bracket table changed)."""
+        self._queue.clear()
         with self._lock:
             self._latest.clear()
         self._taken.clear()

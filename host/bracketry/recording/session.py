@@ -16,6 +16,7 @@ import shutil
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -61,8 +62,44 @@ class SessionStartError(BracketryError):
         self.side = side
 
 
+@dataclass
+class DiscardSummary:
+    """What a :class:`DiscardSink` took (nothing was written)."""
+
+    sets: int = 0
+    events: int = 0
+    statuses: int = 0
+
+
+class DiscardSink:
+    """Stands for the ``Recorder`` when nothing is recorded (the monitor's previews while the rig is idle): takes
+    sets, events and statuses and writes nothing; a :class:`RecordingSession` with this sink and a ``tap`` feeds
+    only the tap."""
+
+    def __init__(self, out_dir: str | Path) -> None:
+        self.out_dir = Path(out_dir)
+        self.summary = DiscardSummary()
+        self.error: str | None = None
+
+    def put_set(self, pset: PairedSet) -> bool:
+        self.summary.sets += 1
+        return True
+
+    def put_event(self, event: TriggerEvent) -> bool:
+        self.summary.events += 1
+        return True
+
+    def put_status(self, status: dict[str, Any]) -> bool:
+        self.summary.statuses += 1
+        return True
+
+    def stop(self) -> DiscardSummary:
+        return self.summary
+
+
 class RecordingSession:
-    """Record ``cameras`` (side -> ``GigECamera``, already configured) through ``recorder``.
+    """Record ``cameras`` (side -> ``GigECamera``, already configured) through ``recorder`` (a ``Recorder``, or a
+    :class:`DiscardSink` when the session only feeds its ``tap``).
 
     Args:
         window: pairing window in pulses (see ``Pairer``); it delays writing after a drop, so it counts in the
@@ -74,7 +111,7 @@ class RecordingSession:
             monitor's ``PreviewHub.offer``).
     """
 
-    def __init__(self, cameras: dict[str, Any], recorder: Recorder, *, window: int = 8,
+    def __init__(self, cameras: dict[str, Any], recorder: Recorder | DiscardSink, *, window: int = 8,
                  status_period_s: float = 1.0, disk_path: str | Path | None = None, inbox_max_items: int = 256,
                  initial_alignment: str = "count", tap: Callable[[PairedSet], None] | None = None) -> None:
         self.cameras = cameras

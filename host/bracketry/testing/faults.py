@@ -15,6 +15,9 @@ status socket):
 - ``disk``: recording on a small tmpfs that a ballast file fills: the daemon stops cleanly below ``stop_free_mb``
   and refuses RECORD below ``min_free_mb``; the segments are verified inside (the tmpfs dies with the namespace).
   Then the left camera drops off the network while idle and comes back.
+- ``preview``: the monitor on (127.0.0.1:8470 in the namespace): SENSORS -> IDLE, previews of every bracket of both
+  cameras arrive while nothing is recorded; a new bracket table applied through the monitor reaches the previews;
+  RECORD -> REC, ``--seconds`` of recording, RECORD -> IDLE, and the previews resume.
 
 The result holds ``steps`` (name, monotonic time, screen lines, sensor states, message, counters at each checkpoint),
 ``served`` (exposure of every frame each fake camera served, in order, across restarts, with ``served_at`` counts per
@@ -41,7 +44,9 @@ from bracketry.errors import BracketryError
 from bracketry.sim.rig import CAMERA_ADDRESSES, NETNS_ENV, SimOptions, SimulatedRig
 
 ALL = ("cam_left", "cam_right", "trigger")
-SCENARIOS = ("e2e", "faults", "disk")
+SCENARIOS = ("e2e", "faults", "disk", "preview")
+#: the monitor's port in the scenario's private network namespace
+PREVIEW_PORT = 8470
 
 
 def scenario_argv(scenario: str, out: Path, result: Path, *args: str, tmpfs_mb: int | None = None) -> list[str]:
@@ -338,6 +343,81 @@ def run_disk(s: Session, ballast_mb: int) -> dict[str, Any]:
     return {"daemon_exit_code": rc, "ballast_mb": written, "verify": reports}
 
 
+def _http(url: str, body: dict[str, Any] | None = None, token: str | None = None) -> tuple[int, Any]:
+    import urllib.error
+    import urllib.request
+
+    headers = {"Content-Type": "application/json", **({"X-Bracketry-Token": token} if token else {})}
+    req = urllib.request.Request(url, data=json.dumps(body).encode() if body is not None else None, headers=headers)
+    try:
+        with urllib.request.urlopen(req, timeout=10) as r:
+            return r.status, json.loads(r.read())
+    except urllib.error.HTTPError as exc:
+        return exc.code, json.loads(exc.read())
+
+
+def _previews(base: str) -> dict[str, dict[int, dict[str, Any]]]:
+    """side -> bracket index -> the monitor's latest preview entry."""
+    _code, data = _http(f"{base}/api/previews")
+    return {side: {e["bracket"]: e for e in entries} for side, entries in data["cameras"].items()}
+
+
+def _wait_previews(s: Session, base: str, brackets_us: list[int], timeout_s: float,
+                   newer_than: dict[str, dict[int, dict[str, Any]]] | None = None) -> dict[str, Any]:
+    """Wait until both cameras have a preview of every bracket of ``brackets_us`` (with its exposure), each newer
+    than in ``newer_than`` when given."""
+    deadline = time.monotonic() + timeout_s
+    last: dict[str, Any] = {}
+    while time.monotonic() < deadline:
+        last = _previews(base)
+        ok = all([last.get(side, {}).get(k, {}).get("exposure_us") for k in range(len(brackets_us))] == brackets_us
+                 for side in ("left", "right"))
+        if ok and newer_than is not None:
+            ok = all(last[side][k]["version"] > newer_than.get(side, {}).get(k, {}).get("version", 0)
+                     for side in ("left", "right") for k in range(len(brackets_us)))
+        if ok:
+            return last
+        s.rig.check_alive()
+        time.sleep(0.3)
+    raise BracketryError(f"no previews of {brackets_us} from both cameras within {timeout_s:g} s: {last}")
+
+
+def _files_under(path: Path) -> list[str]:
+    return sorted(str(p.relative_to(path)) for p in path.rglob("*")) if path.exists() else []
+
+
+def run_preview(s: Session, seconds: float) -> dict[str, Any]:
+    """Previews while the sensors are idle, a bracket table applied while idle, then a recording."""
+    rig = s.rig
+    base = f"http://127.0.0.1:{PREVIEW_PORT}"
+    token = str(rig.status()["monitor"]["url"]).split("token=", 1)[1]
+    brackets_us = [round(b * 1000) for b in rig.o.brackets_ms]
+    s.wait_screen("READY", 30.0)
+    s.step("ready", previews=_previews(base))
+    rig.press("sensors")
+    rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
+    idle = _wait_previews(s, base, brackets_us, 60.0)
+    s.step("idle_previews", previews=idle, files=_files_under(rig.rec_dir), status=_http(f"{base}/api/status")[1])
+    new_us = [b // 2 for b in brackets_us]
+    applied = _http(f"{base}/api/action", {"action": "apply_brackets", "brackets_us": new_us}, token)
+    applied_previews = _wait_previews(s, base, new_us, 60.0)
+    s.step("applied_previews", applied=applied, previews=applied_previews, files=_files_under(rig.rec_dir))
+    rig.press("record")
+    rig.wait_states({k: "REC" for k in ALL}, 60.0)
+    s.step("rec")
+    s.wait_recorded_events(round(seconds * rig.o.fps), 60.0 + 3 * seconds)
+    s.step("before_stop", previews=_previews(base))
+    rig.press("record")
+    rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
+    s.wait_message("SAVED", 20.0)
+    s.step("stopped", previews=_previews(base))
+    resumed = _wait_previews(s, base, new_us, 60.0, newer_than=s.steps[-1]["previews"])
+    s.step("resumed_previews", previews=resumed, status=_http(f"{base}/api/status")[1])
+    rc = rig.stop_daemon(signal.SIGTERM)
+    s.step("sigterm", daemon_exit_code=rc)
+    return {"daemon_exit_code": rc, "brackets_us": brackets_us, "applied_us": new_us}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenario", choices=SCENARIOS, required=True)
@@ -361,6 +441,7 @@ def main(argv: list[str] | None = None) -> int:
     opts = SimOptions(out_dir=out, resolution=parse_resolution(args.resolution), fps=args.fps, world_seconds=3.0,
                       world=args.world, min_free_mb=args.min_free_mb, stop_free_mb=args.stop_free_mb,
                       output_dir=out / "disk" if args.scenario == "disk" else None,
+                      monitor_port=PREVIEW_PORT if args.scenario == "preview" else None,
                       echo=(lambda _s: None) if args.quiet else (lambda s: print(s, file=sys.stderr, flush=True)))
     rig = SimulatedRig(opts)
     session = Session(rig)
@@ -376,6 +457,8 @@ def main(argv: list[str] | None = None) -> int:
             result.update(run_e2e(session, args.seconds, args.record_seconds))
         elif args.scenario == "faults":
             result.update(run_faults(session, args.seconds))
+        elif args.scenario == "preview":
+            result.update(run_preview(session, args.seconds))
         else:
             result.update(run_disk(session, args.ballast_mb))
     except Exception as exc:
