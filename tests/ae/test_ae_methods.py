@@ -77,7 +77,7 @@ def test_classical_step_rule_values() -> None:
 
 
 def test_fix_is_classical_for_four_steps_then_constant(scene: np.ndarray) -> None:
-    fix, ae50 = FixAE(), ClassicalAE(50)  # the authors' Fix (id fix with --parity upstream)
+    fix, ae50 = FixAE(), ClassicalAE(50, parity="upstream")  # the authors' Fix and AE50 (--parity upstream)
     a = closed_loop(fix, scene, DARK_US, 8)
     b = closed_loop(ae50, scene, DARK_US, 8)
     assert a[:5] == b[:5]
@@ -206,3 +206,35 @@ def test_default_fix_converges_to_50_percent_once_then_holds(scene: np.ndarray, 
     assert abs(bayer_gray(render(scene, traj[-1])).mean() / 2048 - 1) <= 0.05
     upstream = closed_loop(get_method("fix", parity="upstream"), scene, init_us, 8)
     assert len(set(upstream[4:])) == 1
+
+
+def test_default_classical_is_the_authors_step_at_4_ms_and_relative_elsewhere() -> None:
+    from bracketry_emulator.ae.classical import classical_step_default_ms
+
+    for mean in (100.0, 1500.0, 2600.0, 2040.0):
+        up = classical_step_ms(mean, 4.0, 50)
+        assert classical_step_default_ms(mean, 4.0, 50) == pytest.approx(up, rel=1e-12)
+    assert classical_step_default_ms(3048.0, 1.0, 50) == pytest.approx(1.0 * (1 - 0.002 * 1000 / 4))
+    assert classical_step_default_ms(1048.0, 40.0, 50) == pytest.approx(40.0 * (1 + 0.002 * 1000 / 4))
+    assert classical_step_default_ms(4000.0, 0.5, 30) == 0.125  # no abs() reflection: at most a 4x reduction
+
+
+SCENE_GAINS = {"dark": 0.1, "mid": 0.5, "bright": 8.0}  # mean 16 % / 37 % / 99 % (92 % saturated) at 4 ms
+
+
+@pytest.mark.parametrize("name", ["ae30", "ae50", "ae70"])
+def test_default_classical_settles_on_dark_mid_and_mostly_saturated_scenes(name: str, scene: np.ndarray) -> None:
+    """From 4 ms on static scenes (dark, mid, mostly saturated at 4 ms): the right direction, then
+    within 2 % of full scale of the target brightness for the last 5 of 25 steps; the authors' rule never settles
+    on the bright one (it oscillates below 1 ms, or sticks at the abs() fixed point)."""
+    from bracketry_emulator.ae.base import bayer_gray
+
+    pct = int(name[2:])
+    for label, gain in SCENE_GAINS.items():
+        irr = scene * gain
+        start = bayer_gray(render(irr, 4000.0)).mean()
+        traj = closed_loop(get_method(name), irr, 4000.0, 25)
+        target = int(pct / 100 * 4096)
+        assert (traj[1] > 4000.0) == (start < target), (label, traj[:3])
+        for t in traj[-5:]:
+            assert abs(bayer_gray(render(irr, t)).mean() - target) < 0.02 * 4096, (label, np.array(traj) / 1000)

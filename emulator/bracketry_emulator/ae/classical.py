@@ -13,9 +13,21 @@ Update rule (the authors' ``classical-P``, reproduced exactly, parity tested on 
              |t - 0.002 e| otherwise                  # +0.002 ms per DN below the target
 
 Parameters: ``percent`` (P), ``gain_ms_per_dn`` = 0.002, ``deadband_dn`` = 15. No clamp of its own (the runner's
-bounds apply), as upstream. The classical rule is the same in both modes (the paper's "limited update rate" is this
-additive step); its one quirk, ``abs()`` turning a step below zero into a positive exposure, only fires below
-``gain * error`` ms (e.g. under 4 ms on a fully white image) and is kept in both modes (the runner's bounds apply).
+bounds apply), as upstream. That is ``parity="upstream"``. Its two quirks: a fixed step in ms per DN is a
+relative step that shrinks as the exposure grows and grows as it shrinks (loop gain 0.002 x dB/dt: above 2 below
+about 1 ms on a mid-grey scene, where the exposure oscillates and never settles; about 0.05 at 40 ms, where a dark
+scene takes dozens of steps), and ``abs()`` turns an overshoot below zero into a positive exposure, which makes
+t = 0.001 e a false fixed point (measured: AE30 stuck at 2.17 ms with 83 % brightness on a static scene 70 %
+saturated at 4 ms).
+
+Default (the paper's proportional control towards the target, corrected so that it settles at any exposure)::
+
+    t_next = t                                  if |e| < 15
+             t max(1 - 0.002 e / 4 ms, 1/4)      otherwise
+
+i.e. the same proportional control on the RELATIVE exposure, its gain equal to the authors' at their 4 ms start
+(so the first step from 4 ms is theirs), a loop gain of about 0.5 at any exposure, and an overshoot below zero
+becomes a 4x reduction instead of a reflection.
 
 Fix:
 - ``parity="upstream"`` (the authors' code): the classical-50 step for the first 4 calls (their counter 0..3),
@@ -47,17 +59,33 @@ def classical_step_ms(mean_dn: float, t_ms: float, percent: float, gain_ms_per_d
     return abs(t_ms - gain_ms_per_dn * err)
 
 
+#: Exposure (ms) at which the default classical step equals the authors' (their initial exposure).
+CLASSICAL_REFERENCE_MS = 4.0
+
+
+def classical_step_default_ms(mean_dn: float, t_ms: float, percent: float, gain_ms_per_dn: float = 0.002,
+                              deadband_dn: float = 15.0) -> float:
+    """The corrected classical step (module docstring): the authors' gain scaled by t / 4 ms (their step at 4 ms),
+    never below t / 4 (no abs() reflection)."""
+    target = int(percent / 100.0 * FULL_SCALE_12BIT)
+    err = mean_dn - target
+    if abs(err) < deadband_dn:
+        return t_ms
+    return t_ms * max(1.0 - gain_ms_per_dn * err / CLASSICAL_REFERENCE_MS, 0.25)
+
+
 class ClassicalAE:
     """AE-P: proportional control of the mean gray brightness to P % of 4096 (ids ae30, ae50, ae70)."""
 
     def __init__(self, percent: float = 50.0, gain_ms_per_dn: float = 0.002, deadband_dn: float = 15.0,
-                 name: str | None = None) -> None:
+                 name: str | None = None, parity: str = "default") -> None:
         if not 0 < percent < 100:
             raise ValueError(f"brightness target must be in (0, 100) %, got {percent}")
         self.percent = percent
         self.gain_ms_per_dn = gain_ms_per_dn
         self.deadband_dn = deadband_dn
         self.name = name or f"ae{percent:g}"
+        self._step = classical_step_ms if parity == "upstream" else classical_step_default_ms
 
     def reset(self, init_exposure_us: float) -> None:
         """Stateless: nothing to forget."""
@@ -65,7 +93,7 @@ class ClassicalAE:
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         check_input(image, exposure_us)
         mean_dn = float(np.mean(gray_for(image, meta)))
-        t_ms = classical_step_ms(mean_dn, exposure_us / 1000.0, self.percent, self.gain_ms_per_dn, self.deadband_dn)
+        t_ms = self._step(mean_dn, exposure_us / 1000.0, self.percent, self.gain_ms_per_dn, self.deadband_dn)
         return t_ms * 1000.0
 
 
@@ -75,7 +103,7 @@ class FixAE:
 
     def __init__(self, settle_steps: int = 4, percent: float = 50.0, name: str = "fix") -> None:
         self.settle_steps = settle_steps
-        self._classical = ClassicalAE(percent)
+        self._classical = ClassicalAE(percent, parity="upstream")
         self.name = name
         self._calls = 0
 

@@ -49,7 +49,7 @@ def _builtin(name: str, options: dict[str, Any]) -> AEMethod | None:
             return upstream.UpstreamKimAE(seed=seed)
         return upstream.UpstreamZhangAE()
     if name in ("ae30", "ae50", "ae70"):
-        return ClassicalAE(float(name[2:]), name=name)
+        return ClassicalAE(float(name[2:]), name=name, parity=parity)
     if name == "fix":
         return FixAE() if parity == "upstream" else ConvergingFixAE()
     if name == "shim":
