@@ -79,3 +79,20 @@ def test_source_serves_identified_frames_by_exposure(tmp_path: Path) -> None:
         assert sched.mismatches == 1
     finally:
         sched.stop()
+
+
+def test_a_renderer_behind_holds_the_world_for_both_sides(tmp_path: Path) -> None:
+    """Frames not rendered yet: both sides get the latest rendered frame of the same exposure (same index), never a
+    delayed trigger and never a frame without identity."""
+    sched = FrameSchedule(tmp_path, None, BRACKETS_US, 20.0, 60, resolution=(32, 16), wait_for_render_s=0.0)
+    sched._counter[0] = 14  # frames 0..13 "rendered" (pattern frames, written here)
+    for k in range(14):
+        for side in ("left", "right"):
+            img = np.zeros((16, 32), np.uint16)
+            embed_frame_id(img, k)
+            sched.frames[side][k] = img
+    left, right = sched.source("left"), sched.source("right")
+    sched.served = {"left": 12, "right": 12}
+    got = [(read_frame_id(left(e, 32, 16)), read_frame_id(right(e, 32, 16))) for e in BRACKETS_US]
+    assert got == [(12, 12), (13, 13), (8, 8), (9, 9), (10, 10), (11, 11)]
+    assert sched.held == 4 and sched.unidentified == {"left": 0, "right": 0}

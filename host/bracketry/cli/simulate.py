@@ -118,6 +118,7 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
                                           "frame_mismatches": rig.schedule.mismatches if rig.schedule else None,
                                           "frames_without_identity": dict(rig.schedule.unidentified),
                                           "frames_waited_for_renderer": dict(rig.schedule.waited),
+                                          "frames_held_for_renderer": rig.schedule.held,
                                           "started_ns": started_ns, "first_frame_ns": first_ns,
                                           "render_done_ns": render_done_ns})
     frames = {s: sum(r.sides[s].frames for r in reports if s in r.sides) for s in ("left", "right")}

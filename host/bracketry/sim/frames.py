@@ -105,6 +105,8 @@ class FrameSchedule:
     #: per side, frames the camera had to wait for (the renderer was behind the triggers)
     waited: dict[str, int] = field(default_factory=dict, init=False)
     mismatches: int = field(default=0, init=False)
+    #: bracket frames served from an earlier rendered cycle because the renderer was behind (the world held)
+    held: int = field(default=0, init=False)
 
     def __post_init__(self) -> None:
         self.folder = Path(self.folder)
@@ -122,6 +124,7 @@ class FrameSchedule:
         self._counter = np.lib.format.open_memmap(self.folder / "rendered.npy", mode="w+", dtype=np.int64,
                                                   shape=(3,))
         self._lock = threading.Lock()
+        self._chosen: dict[int, int] = {}
         self._proc: Any = None
 
     def frame_path(self, side: str) -> Path:
@@ -194,31 +197,61 @@ class FrameSchedule:
             time.sleep(0.002)
         return self.frames[side][k]
 
+    def choose(self, m: int) -> int | None:
+        """The rendered frame served for bracket frame ``m`` of the trigger sequence (the same for both sides):
+        ``m`` itself when rendered, else the latest rendered frame with the same exposure (the world waits for the
+        renderer instead of the camera: no trigger is delayed), None when none is rendered yet. Call with the lock
+        held."""
+        k = self._chosen.get(m)
+        if k is None:
+            n, r = len(self.brackets_us), self.rendered()
+            if m < r or r == self.n_frames:  # rendered (frames beyond n_frames repeat the rendered ones)
+                k = m
+            else:
+                k = m % n + ((r - 1 - m % n) // n) * n if r > m % n else -1
+                k = None if k < 0 else k
+                if k is not None:
+                    self.held += 1
+            if k is not None:
+                self._chosen[m] = k
+                for old in [key for key in self._chosen if key < m - 8 * n]:
+                    del self._chosen[old]
+        return k
+
     def source(self, side: str) -> Callable[[int, int, int], np.ndarray]:
         """The fake camera image source of ``side``: (exposure_us, width, height) -> uint16 (height, width)."""
         n = len(self.brackets_us)
 
         def fill(exposure_us: int, width: int, height: int) -> np.ndarray:
             with self._lock:
-                k = self.served[side]
+                m = self.served[side]
                 matched = None
                 for step in range(n):
-                    if abs(self.exposure_us(k + step) - exposure_us) <= 1:
+                    if abs(self.exposure_us(m + step) - exposure_us) <= 1:
                         if step:
                             self.mismatches += 1
-                        matched = k + step
+                        matched = m + step
                         break
+                k = None
                 if matched is not None:
                     self.served[side] = matched + 1
-            frame = self._frame(side, matched if matched is not None else k)
+                    k = self.choose(matched)
+            frame = None
+            if matched is not None:
+                if k is None:  # nothing of that exposure rendered yet: wait a moment for the renderer
+                    frame = self._frame(side, matched)
+                    k = matched if frame is not None else None
+                else:
+                    frame = self.frames[side][k % self.n_frames]
             out = np.zeros((height, width), np.uint16)
             if frame is not None:
                 h, w = min(height, frame.shape[0]), min(width, frame.shape[1])
                 out[:h, :w] = frame[:h, :w]
-            if frame is None or matched is None:  # not a bracket frame (e.g. the priming trigger) or not rendered
-                clear_frame_id(out)
+            else:  # not a bracket frame (e.g. the priming trigger) or nothing rendered
                 with self._lock:
                     self.unidentified[side] += 1
+            if frame is None or matched is None:
+                clear_frame_id(out)
             return out
 
         return fill
