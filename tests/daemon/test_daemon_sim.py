@@ -262,7 +262,7 @@ def test_simulate_cli_prints_the_panel_screen_and_verifies(tmp_path: Path) -> No
     if reason:
         missing_component(f"private network namespace unavailable: {reason}")
     out = tmp_path / "sim"
-    res = subprocess.run([sys.executable, "-m", "bracketry", "simulate", "--seconds", "3", "--out", str(out),
+    res = subprocess.run([sys.executable, "-m", "bracketry", "simulate", "--duration-s", "3", "--out", str(out),
                           "--resolution", "160x100", "--fps", str(FPS), "--no-world"],
                          capture_output=True, text=True, timeout=240)
     summary = json.loads((out / "simulation.json").read_text())
@@ -283,7 +283,7 @@ def test_simulated_rig_with_the_real_trigger_firmware_in_qemu(tmp_path: Path) ->
     if reason:
         missing_component(f"private network namespace unavailable: {reason}")
     out = tmp_path / "simq"
-    res = subprocess.run([sys.executable, "-m", "bracketry", "simulate", "--trigger", "qemu", "--seconds", "3",
+    res = subprocess.run([sys.executable, "-m", "bracketry", "simulate", "--trigger", "qemu", "--duration-s", "3",
                           "--out", str(out), "--resolution", "160x100", "--fps", str(FPS), "--no-world"],
                          capture_output=True, text=True, timeout=300)
     summary = json.loads((out / "simulation.json").read_text())

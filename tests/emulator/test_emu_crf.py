@@ -98,7 +98,7 @@ def test_emu_calibrate_crf_command(tmp_path: Path, capsys: pytest.CaptureFixture
     assert main(["calibrate-crf", str(root), "--out", str(out), "--noise-out", str(noise)]) == 0
     assert load_pcalib(out).shape == (4096,)
     assert "read" in noise.read_text()
-    assert main(["calibrate-crf", str(root), "--out", str(out)]) == 2  # exists, no --force
+    assert main(["calibrate-crf", str(root), "--out", str(out)]) == 2  # exists, no --overwrite
     assert main(["calibrate-crf", str(root), "--out", str(tmp_path / "p256.txt"), "--levels", "256"]) == 0
     assert load_pcalib(tmp_path / "p256.txt").shape == (256,)
     assert main(["calibrate-crf", str(tmp_path / "nope"), "--out", str(tmp_path / "x.txt")]) == 2

@@ -64,7 +64,7 @@ def test_synth_bad_input_is_one_line(tmp_path: Path, capsys: pytest.CaptureFixtu
 def test_synth_refuses_non_empty_out(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     (tmp_path / "keep.txt").write_text("x")
     rc = main(["synth", "trajectory", "--out", str(tmp_path), "--seconds", "0.3", "--resolution", "32x20", "-q"])
-    assert rc != 0 and "--force" in capsys.readouterr().err
+    assert rc == 2 and "--overwrite" in capsys.readouterr().err
     assert (tmp_path / "keep.txt").read_text() == "x"
 
 

@@ -115,7 +115,9 @@ def load_actor(weights: str | Path | None) -> Any:
     try:
         state = torch.load(str(path), map_location="cpu", weights_only=True)
     except Exception as exc:
-        raise BracketryError(f"cannot read DRL weights {path}: {type(exc).__name__}: {exc}") from exc
+        first = (str(exc).strip().splitlines() or [""])[0][:200]  # torch adds paragraphs of advice
+        raise BracketryError(f"cannot read DRL weights {path} (not a PyTorch state_dict .pth?): "
+                             f"{type(exc).__name__}: {first}") from exc
     if isinstance(state, dict) and "actor" in state and isinstance(state["actor"], dict):
         state = state["actor"]
     if not isinstance(state, dict):

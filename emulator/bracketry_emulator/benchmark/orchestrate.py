@@ -41,6 +41,12 @@ def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> lis
                 out.append(m)
     if not out:
         raise BracketryError("no AE method given (--methods all or a comma-separated list)")
+    from bracketry_emulator.ae.registry import get_method
+
+    builtin = set(all_methods())
+    for m in out:
+        if m not in builtin:
+            get_method(m)  # an unknown id or a broken plugin: one line naming it, before any work
     return out
 
 

@@ -10,11 +10,21 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import (
+    EXIT_OK,
+    EXIT_PROBLEMS,
+    Integer,
+    Number,
+    input_dir,
+    input_path,
+    output_dir,
+    overwrite_option,
+)
 from bracketry.errors import BracketryError
 
 
 def _write(out_dir: Path, name: str, result: dict) -> Path:
-    out_dir.mkdir(parents=True, exist_ok=True)
+    out_dir.mkdir(exist_ok=True)
     path = out_dir / f"{name}.json"
     path.write_text(json.dumps(result, indent=1, allow_nan=True) + "\n")
     return path
@@ -40,28 +50,35 @@ def command() -> None:
 
 
 @command.command("static")
-@click.argument("stack_dir", type=click.Path(path_type=Path))
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=None,
-              help="output folder for accuracy_static.json and .png (default: STACK_DIR/accuracy)")
-@click.option("--crf", default="srgb", show_default=True, help="'srgb' or a pcalib.txt file")
-@click.option("--max-targets", type=int, default=250, show_default=True,
-              help="ground-truth exposures used (evenly spread; 0 = all)")
-@click.option("--alpha", type=float, default=0.01, show_default=True, help="HigherNoSat saturation threshold")
-@click.option("--side", default="left", show_default=True, help="camera side of a plain BorealHDR-tree stack")
+@click.argument("stack_dir", type=input_dir())
+@click.option("--out", "out_dir", type=output_dir(), default=None,
+              help="Output folder (new or empty) for accuracy_static.json and .png [default: STACK_DIR/accuracy].")
+@overwrite_option()
+@click.option("--crf", default="srgb", show_default=True, help="Camera response: 'srgb' or a pcalib.txt file.")
+@click.option("--max-targets", type=Integer(0, 10**6), default=250, show_default=True,
+              help="Ground-truth exposures used (evenly spread; 0 = all).")
+@click.option("--alpha", type=Number(0.0, 1.0, min_open=True, max_open=True), default=0.01, show_default=True,
+              help="HigherNoSat saturation threshold (fraction of saturated pixels), in (0, 1).")
+@click.option("--side", type=click.Choice(["left", "right"]), default="left", show_default=True,
+              help="Camera side of a plain BorealHDR-tree stack.")
 @click.option("--noise", type=click.Path(path_type=Path, exists=True, dir_okay=False), default=None,
-              help="camera noise model of the fusion weights (calibrate-crf --noise-out JSON or camera_model.json) "
-                   "[default: STACK_DIR/camera_model.json when present, else built-in]")
-@click.option("--json", "as_json", is_flag=True, help="print the summary as JSON")
-def static_cmd(stack_dir: Path, out_dir: Path | None, crf: str, max_targets: int, alpha: float, side: str,
-               noise: Path | None, as_json: bool) -> int:
+              help="Camera noise model of the fusion weights (calibrate-crf --noise-out JSON or camera_model.json) "
+                   "[default: STACK_DIR/camera_model.json when present, else built-in].")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+def static_cmd(stack_dir: Path, out_dir: Path | None, overwrite: bool, crf: str, max_targets: int, alpha: float,
+               side: str, noise: Path | None, as_json: bool) -> int:
     """Emulate the ground-truth exposures of a static stack (the paper's protocol; 250 spread evenly over the
     sweep by default, --max-targets 0 for every one); RMSE median/max per mode.
 
     Exit code 0 when the HigherNoSat goals (median <= 9 DN, max <= 73 DN, noise-corrected) hold, 1 otherwise.
     """
+    from bracketry.outputs import check_output
     from bracketry_emulator.accuracy import open_static_stack, run_static
     from bracketry_emulator.accuracy.plots import plot_static
 
+    if out_dir is None:
+        out_dir = check_output(stack_dir / "accuracy", "dir", overwrite=overwrite)
+    _check_crf(crf)
     stack = open_static_stack(stack_dir, side=side)
     noise_model = None
     if noise is not None:
@@ -70,7 +87,7 @@ def static_cmd(stack_dir: Path, out_dir: Path | None, crf: str, max_targets: int
         noise_model, _source = resolve_noise_model(noise)
     result = run_static(stack, crf=crf, max_targets=max_targets or None, alpha=alpha,
                         progress=_progress("static targets"), noise_model=noise_model)
-    out = out_dir or (stack_dir / "accuracy")
+    out = out_dir
     jpath = _write(out, "accuracy_static", result)
     ppath = plot_static(result, out / "accuracy_static.png")
     if as_json:
@@ -89,26 +106,30 @@ def static_cmd(stack_dir: Path, out_dir: Path | None, crf: str, max_targets: int
         click.echo(f"wrote {jpath} and {ppath}")
     g = result["goals"]
     ok = all(g[k]["met"] for k in ("highernosat_median_le_9dn", "highernosat_max_le_73dn") if k in g)
-    return 0 if ok else 1
+    return EXIT_OK if ok else EXIT_PROBLEMS
 
 
 @command.command("neighbours")
-@click.argument("dataset", type=click.Path(path_type=Path))
-@click.option("--out", "out_dir", type=click.Path(path_type=Path), default=Path("accuracy-neighbours"),
-              show_default=True, help="output folder for accuracy_neighbours.json and .png")
-@click.option("--crf", default="srgb", show_default=True, help="'srgb' or a pcalib.txt file")
-@click.option("--camera", type=click.Choice(["left", "right", "both"]), default="both", show_default=True)
+@click.argument("dataset", type=input_path())
+@click.option("--out", "out_dir", type=output_dir(), default=Path("accuracy-neighbours"),
+              show_default=True, help="Output folder (new or empty) for accuracy_neighbours.json and .png.")
+@overwrite_option()
+@click.option("--crf", default="srgb", show_default=True, help="Camera response: 'srgb' or a pcalib.txt file.")
+@click.option("--camera", type=click.Choice(["left", "right", "both"]), default="both", show_default=True,
+              help="Cameras whose brackets are emulated.")
 @click.option("--alignment", type=click.Choice(["homography", "translation"]), default="homography",
-              show_default=True, help="global alignment used for the aligned variant")
-@click.option("--max-sequences", type=int, default=0, help="use the first N sequences (0 = all)")
-@click.option("--json", "as_json", is_flag=True, help="print the summary as JSON")
-def neighbours_cmd(dataset: Path, out_dir: Path, crf: str, camera: str, alignment: str, max_sequences: int,
-                   as_json: bool) -> int:
+              show_default=True, help="Global alignment used for the aligned variant.")
+@click.option("--max-sequences", type=Integer(0, 10**6), default=0, show_default=True,
+              help="Use the first N bracket sequences (0 = all).")
+@click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
+def neighbours_cmd(dataset: Path, out_dir: Path, overwrite: bool, crf: str, camera: str, alignment: str,
+                   max_sequences: int, as_json: bool) -> int:
     """Emulate bracket k from k-1 and k+1 on real data, with and without alignment; RMSE and bias per mode."""
     from bracketry_emulator.accuracy import run_neighbours
     from bracketry_emulator.accuracy.plots import plot_neighbours
     from bracketry_emulator.dataset import open_dataset
 
+    _check_crf(crf)
     ds = open_dataset(dataset)
     sides = ds.sides if camera == "both" else (camera,)
     if any(s not in ds.sides for s in sides):
@@ -129,4 +150,9 @@ def neighbours_cmd(dataset: Path, out_dir: Path, crf: str, camera: str, alignmen
         for name, g in result["goals"].items():
             click.echo(f"goal {name}: {'met' if g['met'] else 'NOT met'}")
         click.echo(f"wrote {jpath} and {ppath}")
-    return 0
+    return EXIT_OK
+
+
+def _check_crf(crf: str) -> None:
+    if crf.lower() != "srgb" and not Path(crf).is_file():
+        raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf!r}")

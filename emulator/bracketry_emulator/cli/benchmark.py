@@ -2,8 +2,22 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 
+from bracketry.cli.options import (
+    EXIT_OK,
+    SEED,
+    WORKERS,
+    Integer,
+    Number,
+    input_dir,
+    input_file,
+    input_path,
+    output_dir,
+    quiet_option,
+)
 from bracketry.errors import BracketryError
 
 
@@ -27,32 +41,34 @@ def _windows(text: str) -> tuple[float, ...]:
 
 
 @click.command("benchmark")
-@click.argument("datasets", nargs=-1, required=True, type=click.Path(exists=True))
-@click.option("--methods", default="all", show_default=True, help="'all' or a comma-separated list of AE method ids.")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False), help="Output folder (resumable).")
+@click.argument("datasets", nargs=-1, required=True, type=input_path())
+@click.option("--methods", "-m", default="all", show_default=True,
+              help="'all' or a comma-separated list of AE method ids.")
+@click.option("--out", "out_dir", required=True, type=output_dir(existing="resume"),
+              help="Output folder; an existing one is resumed (its cache is reused), not replaced.")
 @click.option("--reference", default="ae50", show_default=True, help="Reference method of the statistics.")
 @click.option("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (default: local processes).")
-@click.option("--workers", default=0, show_default=True, type=click.IntRange(0, 64),
+@click.option("--workers", default=0, show_default=True, type=WORKERS,
               help="Local worker processes, 0 = one per CPU (1 = in this process; ignored with --scheduler).")
 @click.option("--windows", "windows_text", default="5:50:1", show_default=True,
               help="RTE/RRE windows in metres: START:STOP:STEP or a list.")
-@click.option("--alpha", default=0.05, show_default=True, type=click.FloatRange(0, 1, min_open=True, max_open=True),
-              help="Significance level before the Bonferroni correction.")
-@click.option("--max-frames", default=None, type=click.IntRange(2), help="Only the first N frames of each run.")
+@click.option("--alpha", default=0.05, show_default=True, type=Number(0, 1, min_open=True, max_open=True),
+              help="Significance level before the Bonferroni correction, in (0, 1).")
+@click.option("--max-frames", default=None, type=Integer(2), help="Only the first N frames of each run (N >= 2).")
 @click.option("--export-orbslam", is_flag=True,
               help="Also export each run for ORB-SLAM2/3's stereo examples to OUT/orbslam/<trajectory>/<method>/.")
-@click.option("--slam-trajectories", "slam_dir", default=None, type=click.Path(file_okay=False),
+@click.option("--slam-trajectories", "slam_dir", default=None, type=input_dir(),
               help="Evaluate external SLAM output DIR/<trajectory>/<method>/CameraTrajectory*.txt instead of the "
                    "built-in VO.")
-@click.option("--drl-weights", type=click.Path(dir_okay=False), default=None, envvar="BRACKETRY_DRL_WEIGHTS",
+@click.option("--drl-weights", type=input_file(), default=None, envvar="BRACKETRY_DRL_WEIGHTS",
               help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth; env "
                    "BRACKETRY_DRL_WEIGHTS). Without it 'all' leaves DRL out.")
 @click.option("--selection", type=click.Choice(["highernosat", "upstream", "fusion"]), default="highernosat",
               show_default=True, help="Closed loops: the emulator's source-bracket selection.")
 @click.option("--crf", default="srgb", show_default=True, help="Closed loops: camera response, 'srgb' or a pcalib.txt.")
-@click.option("--init-exposure-ms", type=float, default=4.0, show_default=True,
-              help="Closed loops: first target exposure of every method.")
-@click.option("--seed", type=int, default=0, show_default=True, help="Closed loops: seed of stochastic methods.")
+@click.option("--init-exposure-ms", type=Number(0.0, 1000.0, min_open=True), default=4.0, show_default=True,
+              help="Closed loops: first target exposure of every method (ms).")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Closed loops: seed of stochastic methods.")
 @click.option("--ae-camera", type=click.Choice(["left", "right"]), default="left", show_default=True,
               help="Closed loops: the camera whose image the methods see.")
 @click.option("--parity", type=click.Choice(["default", "upstream"]), default="default", show_default=True,
@@ -60,20 +76,20 @@ def _windows(text: str) -> tuple[float, ...]:
                    "them (upstream: with their emulation arithmetic; needs --crf pcalib_inside1.txt).")
 @click.option("--slam", "slam_backend", type=click.Choice(["orbslam3", "builtin"]), default="orbslam3",
               show_default=True, help="Localisation: ORB-SLAM3 stereo, or the built-in VO (fast, deterministic).")
-@click.option("--vocabulary", type=click.Path(dir_okay=False), default=None,
+@click.option("--vocabulary", type=input_file(), default=None,
               help="ORB-SLAM3 vocabulary (e.g. ORBvoc.txt; env PYORBSLAM3_VOCAB). Default: the project's own, "
                    "built once into the user cache (never downloaded).")
 @click.option("--slam-pace", default="realtime", show_default=True,
               help="ORB-SLAM3 feed: 'realtime' (the recording's timestamps) or seconds per frame (0 = unpaced).")
 @click.option("--loop-closing/--no-loop-closing", default=True, show_default=True,
               help="ORB-SLAM3's loop-closing thread; off also turns relocalisation off.")
-@click.option("--slam-repeats", default=1, show_default=True, type=click.IntRange(1, 50),
+@click.option("--slam-repeats", default=1, show_default=True, type=Integer(1, 50),
               help="SLAM runs per (trajectory, method): the report gives median and spread, statistics use medians.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar for the closed loops.")
-def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: str, scheduler: str | None,
+@quiet_option("No progress bar for the closed loops.")
+def command(datasets: tuple[Path, ...], methods: str, out_dir: Path, reference: str, scheduler: str | None,
             workers: int, windows_text: str, alpha: float, max_frames: int | None, export_orbslam: bool,
-            slam_dir: str | None, drl_weights: str | None, selection: str, crf: str, init_exposure_ms: float,
-            seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: str | None,
+            slam_dir: Path | None, drl_weights: Path | None, selection: str, crf: str, init_exposure_ms: float,
+            seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: Path | None,
             slam_pace: str, loop_closing: bool, slam_repeats: int, quiet: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
@@ -116,4 +132,4 @@ def command(datasets: tuple[str, ...], methods: str, out_dir: str, reference: st
                            loop={"selection": selection, "crf": crf, "init_exposure_ms": init_exposure_ms,
                                  "seed": seed, "ae_camera": ae_camera, "parity": parity})
     click.echo(f"report: {result.report_files.get('report.html')}")
-    return 0
+    return EXIT_OK

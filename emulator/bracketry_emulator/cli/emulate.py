@@ -6,7 +6,23 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import (
+    EXIT_OK,
+    SEED,
+    WORKERS,
+    Number,
+    count,
+    input_file,
+    input_path,
+    option,
+    output_dir,
+    overwrite_option,
+    quiet_option,
+)
 from bracketry.errors import BracketryError
+
+#: the longest exposure any AE method may ask for (ms): a second is far beyond any bracket of the rig
+MAX_EXPOSURE_MS = 1000.0
 
 
 def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str, depth: int,
@@ -24,8 +40,12 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
             if found is None:
                 raise BracketryError("--parity upstream needs the authors' pcalib: pass --crf PATH/pcalib_inside1.txt")
             crf = str(found)
-    if crf.lower() != "srgb" and not Path(crf).is_file():
-        raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf}")
+    if crf.lower() != "srgb":
+        if not Path(crf).is_file():
+            raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf}")
+        from bracketry_emulator.crf import load_pcalib
+
+        load_pcalib(crf)  # a broken curve is refused before any work
     if parity == "upstream" and selection == "highernosat":
         selection = "upstream"  # the authors' closer_least_sat goes with their arithmetic
     if selection != "fusion" and (fusion_brackets != "bounding" or motion != "none" or deghost_sigma is not None):
@@ -41,13 +61,14 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 
 
 @click.command("emulate")
-@click.argument("dataset", type=click.Path(path_type=Path))
-@click.option("--method", "-m", "methods", default="ae50", show_default=True,
-              help="Comma list of AE methods: fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, constant-<ms> "
-                   "(e.g. constant-8), a plugin pkg.module:Class or an entry point; 'all' = the paper's eight "
-                   "(drl only with --drl-weights; zhang by name).")
-@click.option("--out", "-o", "out_dir", required=True, type=click.Path(path_type=Path),
-              help="Output folder: one sub-folder per method, summary.json, exposures.csv, exposure_times.png.")
+@click.argument("dataset", type=input_path())
+@option("--methods", "-m", "methods", aliases=("--method",), default="ae50", show_default=True,
+        help="Comma list of AE methods: fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, constant-<ms> "
+             "(e.g. constant-8), a plugin pkg.module:Class or an entry point; 'all' = the paper's eight "
+             "(drl only with --drl-weights; zhang by name).")
+@click.option("--out", "-o", "out_dir", required=True, type=output_dir(),
+              help="Output folder (new or empty): one sub-folder per method, summary.json, exposures.csv, "
+                   "exposure_times.png.")
 @click.option("--selection", type=click.Choice(["highernosat", "upstream", "fusion"]), default="highernosat",
               show_default=True, help="Source-bracket selection of the emulator.")
 @click.option("--crf", default=None,
@@ -63,7 +84,8 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
               help="Camera whose emulated image the AE methods see (the authors: left).")
 @click.option("--depth", type=click.Choice(["12", "8"]), default="12", show_default=True,
               help="Bit depth of written images (12: 16-bit PNG of 12-bit codes; 8: code >> 4).")
-@click.option("--gain-db", type=float, default=0.0, show_default=True, help="Emulated analog gain (dB).")
+@click.option("--gain-db", type=Number(0.0, 48.0), default=0.0, show_default=True,
+              help="Emulated analog gain in dB, 0 to 48.")
 @click.option("--noise", type=click.Path(path_type=Path, exists=True, dir_okay=False), default=None,
               help="Camera noise model for --gain-db and fusion weights: a calibrate-crf --noise-out JSON or a "
                    "camera_model.json [default: DATASET/camera_model.json when present, else built-in].")
@@ -71,23 +93,24 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
               help="Fusion: the two brackets around the target, or every bracket.")
 @click.option("--motion", type=click.Choice(["none", "translation", "homography"]), default="none",
               show_default=True, help="Fusion: global motion compensation between the brackets.")
-@click.option("--deghost-sigma", type=float, default=None,
+@click.option("--deghost-sigma", type=Number(0.0, 1e6, min_open=True), default=None,
               help="Fusion: drop pixels of a non-reference bracket more than this many noise sigmas off the reference.")
-@click.option("--init-exposure-ms", type=float, default=4.0, show_default=True,
+@click.option("--init-exposure-ms", type=Number(0.0, MAX_EXPOSURE_MS, min_open=True), default=4.0, show_default=True,
               help="First target exposure of every method (the authors: 4 ms).")
-@click.option("--min-exposure-ms", type=float, default=0.02, show_default=True,
-              help="Lower bound applied to every method's output.")
-@click.option("--max-exposure-ms", type=float, default=64.0, show_default=True,
-              help="Upper bound applied to every method's output.")
-@click.option("--drl-weights", type=click.Path(path_type=Path), default=None,
+@click.option("--min-exposure-ms", type=Number(0.0, MAX_EXPOSURE_MS, min_open=True), default=0.02,
+              show_default=True, help="Lower bound applied to every method's output (ms).")
+@click.option("--max-exposure-ms", type=Number(0.0, MAX_EXPOSURE_MS, min_open=True), default=64.0,
+              show_default=True,
+              help=f"Upper bound applied to every method's output (ms, at most {MAX_EXPOSURE_MS:g}).")
+@click.option("--drl-weights", type=input_file(), default=None,
               help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth).")
-@click.option("--seed", type=int, default=0, show_default=True, help="Seed of stochastic methods (Kim's GP).")
-@click.option("--workers", "-j", type=int, default=0, show_default=True,
-              help="Worker processes (0 = automatic, 1 = in-process).")
-@click.option("--max-sequences", type=int, default=None, help="Stop after this many bracket sequences.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of stochastic methods (Kim's GP).")
+@click.option("--workers", "-j", type=WORKERS, default=0, show_default=True,
+              help="Worker processes (0 = one per CPU, 1 = in this process).")
+@click.option("--max-sequences", type=count(1), default=None, help="Stop after this many bracket sequences.")
 @click.option("--no-images", is_flag=True, help="Do not write images (exposure trajectories and summaries only).")
-@click.option("--overwrite", is_flag=True, help="Replace the files of an earlier run in the same --out.")
-@click.option("--quiet", "-q", is_flag=True, help="No progress bar.")
+@overwrite_option("Replace an earlier run in the same --out (its method folders and summaries are removed first).")
+@quiet_option()
 def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
             ae_camera: str, depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
             deghost_sigma: float | None, init_exposure_ms: float, min_exposure_ms: float,
@@ -101,10 +124,9 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     """
     from bracketry_emulator.ae import LoopConfig, expand_methods, run_methods
 
-    if workers < 0:
-        raise BracketryError("--workers must be >= 0")
-    if max_sequences is not None and max_sequences < 1:
-        raise BracketryError("--max-sequences must be >= 1")
+    if not min_exposure_ms <= init_exposure_ms <= max_exposure_ms:
+        raise BracketryError(f"need --min-exposure-ms <= --init-exposure-ms <= --max-exposure-ms (got "
+                             f"{min_exposure_ms:g}, {init_exposure_ms:g}, {max_exposure_ms:g})")
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
     emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db, noise, fusion_brackets, motion,
                            deghost_sigma)
@@ -113,6 +135,12 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
                      max_exposure_us=max_exposure_ms * 1000.0, seed=seed,
                      drl_weights=str(drl_weights) if drl_weights else None, write_images=not no_images,
                      overwrite=overwrite, max_sequences=max_sequences)
+    if drl_weights is not None and "drl" in specs:
+        from bracketry_emulator.ae.drl import load_actor
+
+        load_actor(drl_weights)  # a file that is not the actor's weights is refused before any work
+    if overwrite:
+        remove_earlier_run(out_dir)
     summary = run_methods(dataset, specs, out_dir, workers=workers, config=cfg, progress=not quiet)
     click.echo(f"{len(summary.runs)} method(s) x {summary.n_sequences} sequence(s), cameras "
                f"{','.join(summary.sides)}, in {summary.wall_s:.1f} s -> {summary.out_dir}")
@@ -124,7 +152,28 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     if summary.plot_path:
         click.echo(f"  plot: {summary.plot_path}")
     warn_dataset_problems(summary.problems)
-    return 0
+    return EXIT_OK
+
+
+def remove_earlier_run(out_dir: Path) -> None:
+    """``--overwrite``: remove what an earlier run wrote into ``out_dir`` (the method folders its summary.json
+    lists, its summaries and plot), so the new summary never lists methods of two different runs."""
+    import json
+    import shutil
+
+    summary = out_dir / "summary.json"
+    if not summary.is_file():
+        return
+    try:
+        methods = json.loads(summary.read_text()).get("methods", {})
+    except (OSError, ValueError):
+        methods = {}
+    for spec in methods:
+        folder = out_dir / spec.replace(":", "-").replace("/", "_")  # as closedloop names the method folders
+        if folder.is_dir() and folder.resolve().parent == out_dir.resolve():
+            shutil.rmtree(folder)
+    for name in ("summary.json", "exposures.csv", "exposure_times.png"):
+        (out_dir / name).unlink(missing_ok=True)
 
 
 def warn_dataset_problems(problems: list[str], shown: int = 5) -> None:

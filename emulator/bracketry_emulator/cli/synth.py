@@ -6,6 +6,18 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import (
+    EXIT_OK,
+    SEED,
+    Duration,
+    Number,
+    count,
+    input_dir,
+    option,
+    output_dir,
+    overwrite_option,
+    quiet_option,
+)
 from bracketry.errors import BracketryError
 
 
@@ -39,10 +51,9 @@ def _make_world(preset: str, seed: int, resolution: str, response: str, calibrat
                  motion_blur=motion_blur)
 
 
-def _out_dir(out: Path, force: bool) -> Path:
-    if out.exists() and any(out.iterdir()) and not force:
-        raise BracketryError(f"{out} exists and is not empty (use --force to write into it)")
-    out.mkdir(parents=True, exist_ok=True)
+def _out_dir(out: Path) -> Path:
+    """The output folder, created (the --out type checked it before any work)."""
+    out.mkdir(exist_ok=True)
     return out
 
 
@@ -58,18 +69,17 @@ def _progress(desc: str, quiet: bool):
 
 
 _common = [
-    click.option("--out", "out", type=click.Path(path_type=Path, file_okay=False), required=True,
-                 help="Output folder."),
+    click.option("--out", "out", type=output_dir(), required=True, help="Output folder (new or empty)."),
+    overwrite_option(),
     click.option("--preset", type=click.Choice(["forest-winter", "campus-summer"]), default="forest-winter",
                  show_default=True, help="World preset."),
-    click.option("--seed", type=int, default=0, show_default=True, help="Seed of the world and of the noise."),
+    click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the world and of the noise."),
     click.option("--response", default="srgb", show_default=True,
                  help="Camera response: srgb (like the real sample), linear, or a pcalib.txt file (TUM 256 values, "
                       "or the 4096 of bracketry calibrate-crf)."),
-    click.option("--calibration", type=click.Path(path_type=Path, file_okay=False, exists=True), default=None,
+    click.option("--calibration", type=input_dir(), default=None,
                  help="Folder with left.yaml/right.yaml to take the intrinsics from (default: the real sample's)."),
-    click.option("--force", is_flag=True, help="Write into a non-empty output folder."),
-    click.option("--quiet", "-q", is_flag=True, help="No progress bar."),
+    quiet_option(),
 ]
 
 
@@ -86,27 +96,27 @@ def command() -> None:
 
 @command.command("trajectory")
 @_with_common
-@click.option("--seconds", type=float, default=10.0, show_default=True, help="Duration (whole bracket cycles).")
+@option("--duration-s", "seconds", aliases=("--seconds",), type=Duration(3600.0), default=10.0, show_default=True,
+        help="Duration in seconds (whole bracket cycles), at most 3600.")
 @click.option("--resolution", default="960x600", show_default=True, help="WxH (even).")
 @click.option("--brackets-ms", default="1,2,4,8,16,32", show_default=True, help="Bracket exposures, ms.")
-@click.option("--fps", type=float, default=22.0, show_default=True, help="Frame rate (one bracket per frame).")
-@click.option("--speed-kmh", type=float, default=2.0, show_default=True, help="Walking speed.")
-@click.option("--start-s", type=float, default=0.0, show_default=True, help="Start time along the walk.")
+@click.option("--fps", type=Number(0.0, 200.0, min_open=True), default=22.0, show_default=True,
+              help="Frame rate (one bracket per frame), in (0, 200].")
+@click.option("--speed-kmh", type=Number(0.0, 20.0, min_open=True), default=2.0, show_default=True,
+              help="Walking speed in km/h, in (0, 20].")
+@click.option("--start-s", type=Number(0.0, 1e6), default=0.0, show_default=True,
+              help="Start time along the walk (s).")
 @click.option("--motion-blur", is_flag=True,
               help="Integrate the motion over each exposure (up to 4 renders per long frame; slower).")
-def trajectory_cmd(out: Path, preset: str, seed: int, response: str, calibration: Path | None, force: bool,
+def trajectory_cmd(out: Path, overwrite: bool, preset: str, seed: int, response: str, calibration: Path | None,
                    quiet: bool, seconds: float, resolution: str, brackets_ms: str, fps: float, speed_kmh: float,
                    start_s: float, motion_blur: bool) -> int:
     """A stereo walk along a loop: BorealHDR tree + groundtruth.txt + calibration/ + camera_model.json."""
     from bracketry_emulator.synth import write_trajectory
 
     brackets = _parse_ms_list(brackets_ms, "--brackets-ms")
-    if seconds <= 0 or seconds > 3600:
-        raise BracketryError("--seconds must be in (0, 3600]")
-    if fps <= 0 or fps > 200:
-        raise BracketryError("--fps must be in (0, 200]")
     world = _make_world(preset, seed, resolution, response, calibration, speed_kmh, motion_blur)
-    out = _out_dir(out, force)
+    out = _out_dir(out)
     bar, update = _progress("synth trajectory", quiet)
     try:
         summary = write_trajectory(world, out, seconds=seconds, brackets_ms=brackets, fps=fps, start_s=start_s,
@@ -116,35 +126,38 @@ def trajectory_cmd(out: Path, preset: str, seed: int, response: str, calibration
     click.echo(f"wrote {summary['frames']} frames x {len(summary['sides'])} cameras ({summary['cycles']} bracket "
                f"cycles, {summary['duration_s']:.2f} s, radiance range {summary['radiance_range_db']:.0f} dB) "
                f"to {out}")
-    return 0
+    return EXIT_OK
 
 
 @command.command("static")
 @_with_common
 @click.option("--resolution", default="640x400", show_default=True, help="WxH (even).")
-@click.option("--n-exposures", type=int, default=1000, show_default=True, help="Sweep length (log-spaced).")
-@click.option("--min-us", type=float, default=20.0, show_default=True, help="Shortest sweep exposure.")
-@click.option("--max-us", type=float, default=50000.0, show_default=True, help="Longest sweep exposure.")
-@click.option("--repeats", type=int, default=25, show_default=True, help="Frames per repeat exposure.")
+@click.option("--n-exposures", type=count(2, 100000), default=1000, show_default=True,
+              help="Sweep length (log-spaced).")
+@click.option("--min-us", type=Number(0.0, 1e7, min_open=True), default=20.0, show_default=True,
+              help="Shortest sweep exposure (us).")
+@click.option("--max-us", type=Number(0.0, 1e7, min_open=True), default=50000.0, show_default=True,
+              help="Longest sweep exposure (us).")
+@click.option("--repeats", type=count(1, 1000), default=25, show_default=True, help="Frames per repeat exposure.")
 @click.option("--repeat-ms", default="0.1,0.5,1,2,4,8,16,32", show_default=True,
               help="Exposures with repeated frames (noise estimation), ms.")
 @click.option("--brackets-ms", default="1,2,4,8,16,32", show_default=True, help="Bracket set, ms.")
-@click.option("--side", type=click.Choice(["left", "right"]), default="left", show_default=True)
-@click.option("--t-s", "t_s", type=float, default=0.0, show_default=True, help="Time of the static view.")
-def static_cmd(out: Path, preset: str, seed: int, response: str, calibration: Path | None, force: bool,
+@click.option("--side", type=click.Choice(["left", "right"]), default="left", show_default=True,
+              help="Camera whose view is rendered.")
+@click.option("--t-s", "t_s", type=Number(0.0, 1e6), default=0.0, show_default=True,
+              help="Time of the static view along the walk (s).")
+def static_cmd(out: Path, overwrite: bool, preset: str, seed: int, response: str, calibration: Path | None,
                quiet: bool, resolution: str, n_exposures: int, min_us: float, max_us: float, repeats: int,
                repeat_ms: str, brackets_ms: str, side: str, t_s: float) -> int:
     """The emulator-validation protocol: sweep, repeats, brackets and the exact noise-free truth of one view."""
     from bracketry_emulator.synth import write_static
 
-    if n_exposures < 2 or n_exposures > 100000:
-        raise BracketryError("--n-exposures must be in [2, 100000]")
-    if repeats < 1 or repeats > 1000:
-        raise BracketryError("--repeats must be in [1, 1000]")
+    if min_us >= max_us:
+        raise BracketryError(f"--min-us ({min_us:g}) must be below --max-us ({max_us:g})")
     reps = _parse_ms_list(repeat_ms, "--repeat-ms")
     brackets = _parse_ms_list(brackets_ms, "--brackets-ms")
     world = _make_world(preset, seed, resolution, response, calibration, 2.0)
-    out = _out_dir(out, force)
+    out = _out_dir(out)
     bar, update = _progress("synth static", quiet)
     try:
         index = write_static(world, out, n_exposures=n_exposures, min_us=min_us, max_us=max_us, repeats=repeats,
@@ -153,4 +166,4 @@ def static_cmd(out: Path, preset: str, seed: int, response: str, calibration: Pa
         bar.close()
     click.echo(f"wrote static protocol: {index['sweep']['n']} sweep exposures, {len(reps)} x {repeats} repeats, "
                f"{len(brackets)} brackets ({side}) to {out}")
-    return 0
+    return EXIT_OK

@@ -22,7 +22,8 @@ Lifting = Literal["tum", "upstream"]
 def load_pcalib(path: str | Path) -> np.ndarray:
     """Read a pcalib file -> float64 (256,) or (4096,) inverse-response values (non-decreasing).
 
-    Raises BracketryError for a missing file, unparsable numbers, a wrong count or a decreasing curve.
+    Raises BracketryError for a missing file, unparsable numbers, a wrong count, a decreasing curve, a negative
+    start or a flat curve.
     """
     p = Path(path)
     if not p.is_file():
@@ -35,6 +36,9 @@ def load_pcalib(path: str | Path) -> np.ndarray:
         raise BracketryError(f"pcalib file must hold 256 (TUM) or 4096 values, found {values.size}: {p}")
     if not np.all(np.isfinite(values)) or np.any(np.diff(values) < 0):
         raise BracketryError(f"pcalib curve must be finite and non-decreasing: {p}")
+    if values[0] < 0 or values[-1] <= values[0]:
+        raise BracketryError(f"pcalib curve must start at a value >= 0 and rise (first {values[0]:g}, last "
+                             f"{values[-1]:g}): {p}")
     return values
 
 

@@ -1,11 +1,14 @@
-"""Reader of our MCAP recordings (spec: host/bracketry/recording/RECORDING.md), through ``mcap`` + ``mcap_ros2``.
+"""Reader of our MCAP recordings (spec: host/bracketry/recording/RECORDING.md), through the recorder's own
+reader (``bracketry.recording.reader``, the one verify and export use: truncated files are read the same way
+everywhere) and ``mcap_ros2``'s CDR decoders.
 
 Per side: ``/stereo/<side>/image_raw`` (sensor_msgs/msg/Image, encoding ``bayer_rggb16``, 12 significant bits
 LSB-aligned, header.stamp = frame time) and ``/stereo/<side>/frame_meta`` (bracketry_msgs/msg/FrameMeta with
 ``exposure_us`` and ``bracket_index``, same log time and header stamp as its image). Frames are paired with their
-metadata by log time, then grouped into bracket sequences exactly like the BorealHDR tree,
-with the cycle order given by ``bracket_index``. Images are decoded lazily (one indexed seek per frame). A recording
-split into several files is read as one when the folder of ``*.mcap`` files is given.
+metadata by log time, then grouped into bracket sequences exactly like the BorealHDR tree, with the cycle order
+given by ``bracket_index``. Images are decoded lazily (one chunk read per frame, at the offset found by the scan).
+A recording split into several files is read as one when the folder of ``*.mcap`` files is given; a
+``<stem>.repaired.mcap`` written by ``verify --repair`` replaces its truncated file.
 """
 
 from __future__ import annotations
@@ -51,50 +54,49 @@ def image_from_ros(msg: Any, source: str) -> np.ndarray:
     return img
 
 
-def _load_frame(path: Path, topic: str, log_time_ns: int) -> np.ndarray:
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
+def _load_frame(path: Path, record_offset: int, channel_id: int, log_time_ns: int, topic: str) -> np.ndarray:
+    from bracketry.recording.decode import decode
+    from bracketry.recording.reader import RecordingReader
 
     source = f"{path}:{topic}@{log_time_ns}"
     try:
-        with path.open("rb") as fh:
-            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
-            try:  # mcap >= 1.3 names the inclusive bounds; older versions only have start_time/end_time
-                found = reader.iter_decoded_messages(topics=[topic], starting_at=log_time_ns, ending_at=log_time_ns)
-            except TypeError:
-                found = reader.iter_decoded_messages(topics=[topic], start_time=log_time_ns, end_time=log_time_ns + 1)
-            for _schema, _channel, message, decoded in found:
-                if message.log_time == log_time_ns:
-                    return image_from_ros(decoded, source)
+        data = RecordingReader(path).message_at(record_offset, channel_id, log_time_ns)
+        if data is None:
+            raise DatasetError(f"image not found: {source}")
+        return image_from_ros(decode("sensor_msgs/msg/Image", data), source)
     except DatasetError:
         raise
-    except Exception as exc:  # corrupt chunk, truncated file, bad CDR
+    except Exception as exc:  # corrupt chunk, bad CDR
         raise DatasetError(f"cannot read image {source}: {exc}") from exc
-    raise DatasetError(f"image not found: {source}")
 
 
 def _scan_file(path: Path, sides: tuple[str, ...], problems: list[str]
                ) -> tuple[dict[str, list[Frame]], dict[str, Counter[tuple[int, int]]]]:
-    from mcap.reader import make_reader
-    from mcap_ros2.decoder import DecoderFactory
+    """One pass over the file with the recorder's own reader (``bracketry.recording.reader``), the one verify and
+    export use: a truncated file (kill -9, power loss) is read up to its last whole record, like they do."""
+    from bracketry.recording.decode import decode
+    from bracketry.recording.reader import RecordingReader
 
     frames: dict[str, list[Frame]] = {s: [] for s in sides}
     order_votes: dict[str, Counter[tuple[int, int]]] = {s: Counter() for s in sides}
     metas: dict[str, dict[int, Any]] = {s: {} for s in sides}
-    images: dict[str, set[int]] = {s: set() for s in sides}  # log times of the image messages
+    images: dict[str, dict[int, tuple[int, int]]] = {s: {} for s in sides}  # log time -> (record offset, channel)
     meta_topics = {_meta_topic(s): s for s in sides}
     image_topics = {_image_topic(s): s for s in sides}
     try:
-        with path.open("rb") as fh:
-            reader = make_reader(fh, decoder_factories=[DecoderFactory()])
-            for _schema, channel, message, decoded in reader.iter_decoded_messages(topics=list(meta_topics)):
-                metas[meta_topics[channel.topic]][message.log_time] = decoded
-        with path.open("rb") as fh:
-            reader = make_reader(fh)
-            for _schema, channel, message in reader.iter_messages(topics=list(image_topics)):
-                images[image_topics[channel.topic]].add(message.log_time)
+        reader = RecordingReader(path)
+        for msg in reader.messages(set(meta_topics) | set(image_topics)):
+            if msg.topic in image_topics:
+                images[image_topics[msg.topic]][msg.log_time] = (msg.record_offset, msg.channel_id)
+            else:
+                schema = reader.schemas.get(reader.channels[msg.channel_id][1], ("", "", ""))
+                metas[meta_topics[msg.topic]][msg.log_time] = decode(msg.schema_name, msg.data, schema[2] or None)
     except Exception as exc:
-        raise DatasetError(f"unreadable MCAP file {path}: {exc}") from exc
+        reason = " ".join(str(exc).split()) or type(exc).__name__
+        raise DatasetError(f"unreadable MCAP file {path}: {reason}") from exc
+    if reader.report.truncated:
+        problems.append(f"{path.name} is truncated (read up to its last whole record"
+                        f"{'; ' + reader.report.problems[0] if reader.report.problems else ''})")
     for side in sides:
         for log_time in sorted(images[side]):
             meta = metas[side].get(log_time)
@@ -103,7 +105,8 @@ def _scan_file(path: Path, sides: tuple[str, ...], problems: list[str]
                 continue
             exposure_us = int(meta.exposure_us)
             t_ns = _stamp_ns(meta)
-            loader = functools.partial(_load_frame, path, _image_topic(side), log_time)
+            offset, channel_id = images[side][log_time]
+            loader = functools.partial(_load_frame, path, offset, channel_id, log_time, _image_topic(side))
             frames[side].append(Frame(side, exposure_us, t_ns, f"{path.name}:{_image_topic(side)}@{t_ns}", loader))
             order_votes[side][(int(getattr(meta, "bracket_index", 0)), exposure_us)] += 1
         orphan_meta = set(metas[side]) - set(images[side])
@@ -114,9 +117,12 @@ def _scan_file(path: Path, sides: tuple[str, ...], problems: list[str]
 
 def open_mcap(path: Path, sides: tuple[str, ...] | None = None, *, tolerance_ns: int = 2_000_000) -> Dataset:
     """Open one MCAP recording file, or a folder of its split ``*.mcap`` files."""
-    files = sorted(path.glob("*.mcap")) if path.is_dir() else [path]
-    if not files:
-        raise DatasetError(f"no .mcap file in {path}")
+    from bracketry.recording.verify import recording_files
+
+    try:
+        files = recording_files(path)  # a <stem>.repaired.mcap replaces its truncated file, as in verify and export
+    except Exception as exc:
+        raise DatasetError(str(exc)) from exc
     wanted = tuple(sides) if sides else SIDES
     problems: list[str] = []
     frames_by_side: dict[str, list[Frame]] = {s: [] for s in wanted}

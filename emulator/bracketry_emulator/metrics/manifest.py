@@ -65,9 +65,15 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
     p = Path(path)
     try:
         doc = yaml.safe_load(p.read_text())
+        if not isinstance(doc, dict) or not isinstance(doc.get("trajectories"), list) or not doc["trajectories"]:
+            raise BracketryError(f"bad dataset manifest {p}: expected a mapping with a non-empty list "
+                                 "'trajectories:' of entries")
         entries = doc["trajectories"]
         out = []
-        for e in entries:
+        for k, e in enumerate(entries):
+            if not isinstance(e, dict) or not isinstance(e.get("path"), str):
+                raise BracketryError(f"bad dataset manifest {p}: trajectories[{k}] must be a mapping with a "
+                                     f"'path:' string (got {e!r:.60})")
             tp = (p.parent / e["path"]).resolve()
             extra = {k: (p.parent / e[k]).resolve() for k in ("groundtruth", "calibration", "runs") if e.get(k)}
             out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all")), **extra))

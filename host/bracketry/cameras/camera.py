@@ -9,6 +9,7 @@ that every frame carries the missing-packet count that arrived with it.
 from __future__ import annotations
 
 import contextlib
+import ipaddress
 import logging
 import threading
 import time
@@ -113,6 +114,12 @@ class GigECamera:
         if device_id and not address and not allow_discovery:
             raise CameraError(f"camera {side}: opening by device id {device_id!r} needs discovery (broadcast); "
                               "give its IP address, or allow discovery inside a private network namespace")
+        if address and not allow_discovery:
+            try:  # a name would be resolved by Aravis through a discovery broadcast on every interface
+                ipaddress.IPv4Address(address)
+            except ValueError:
+                raise CameraError(f"camera {side}: {address!r} is not an IPv4 address (cameras are opened by IP "
+                                  "only)") from None
         self.side = side
         self.address = address
         self.device_id = device_id

@@ -16,6 +16,7 @@ from typing import Any
 import click
 
 from bracketry import __version__
+from bracketry.cli.options import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
 from bracketry.errors import BracketryError
 
 #: name -> (module path, attribute, one-line help, extra needed)
@@ -96,6 +97,13 @@ def cli() -> None:
 
     The rig side (firmware, host daemon) records; the offline side emulates any exposure from the brackets and
     compares AE methods in closed loop. Run `bracketry doctor` to check this machine.
+
+    \b
+    Exit codes of every command:
+      0  ok
+      1  the command ran and found problems / goals not met
+      2  usage or input error (one line on stderr; nothing written)
+      3  internal error (a bug)
     """
 
 
@@ -108,29 +116,35 @@ def main(argv: list[str] | None = None) -> int:
         rv = cli.main(args=argv, prog_name="bracketry", standalone_mode=False)
     except click.exceptions.Abort:
         click.echo("aborted", err=True)
-        return 130
+        return EXIT_INTERRUPTED
+    except click.UsageError as exc:  # bad option value, refused output path, unknown command: one line
+        hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
+        message = " ".join(exc.format_message().split())
+        click.echo(f"error: {message}{hint}", err=True)
+        return EXIT_USAGE
     except click.ClickException as exc:
-        exc.show()
+        click.echo(f"error: {' '.join(exc.format_message().split())}", err=True)
         return exc.exit_code
     except click.exceptions.Exit as exc:
         return int(exc.exit_code or 0)
     except KeyboardInterrupt:
         click.echo("interrupted", err=True)
-        return 130
+        return EXIT_INTERRUPTED
     except BracketryError as exc:
         if debug:
             raise
-        click.echo(f"error: {exc}", err=True)
+        click.echo(f"error: {' '.join(str(exc).split()) or type(exc).__name__}", err=True)
         return exc.exit_code
     except BrokenPipeError:
         return 0
     except Exception as exc:  # last resort: one line, never a traceback unless BRACKETRY_DEBUG=1
         if debug:
             raise
-        click.echo(f"error: unexpected {type(exc).__name__}: {exc} (BRACKETRY_DEBUG=1 shows the traceback)",
-                   err=True)
-        return 1
-    # A command may return an int exit code (e.g. verify: 0 clean, 1 problems, 2 unreadable).
+        detail = " ".join(str(exc).split())[:300]
+        click.echo(f"error: internal error: {type(exc).__name__}: {detail} (a bug; BRACKETRY_DEBUG=1 shows the "
+                   "traceback)", err=True)
+        return EXIT_INTERNAL
+    # A command may return an int exit code (EXIT_PROBLEMS when it ran and found problems).
     return rv if isinstance(rv, int) else 0
 
 

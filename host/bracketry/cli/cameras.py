@@ -9,6 +9,7 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import Integer, IPv4, count, option, output_dir, overwrite_option, positive
 from bracketry.errors import BracketryError
 
 
@@ -30,14 +31,18 @@ def _settings(profile: str, pixel_format: str | None, width: int | None, height:
 
 _profile_options = [
     click.option("--profile", type=click.Choice(["basler_ace2", "aravis_fake"]), default="basler_ace2",
-                 show_default=True),
+                 show_default=True, help="Feature profile: the Basler ace 2 of the rig, or Aravis' fake camera."),
     click.option("--pixel-format", help="BayerRG12p (default, Basler), BayerRG12, Mono16 (default, fake), ..."),
-    click.option("--width", type=int), click.option("--height", type=int),
-    click.option("--trigger-line", default="Line3", show_default=True),
-    click.option("--trigger-activation", default="FallingEdge", show_default=True),
-    click.option("--packet-size", type=int, help="GevSCPSPacketSize, bytes"),
-    click.option("--packet-delay", type=int, help="GevSCPD, camera ticks"),
+    click.option("--width", type=Integer(16, 65535), help="Image width in pixels (default: the camera's maximum)."),
+    click.option("--height", type=Integer(16, 65535), help="Image height in pixels (default: the camera's maximum)."),
+    click.option("--trigger-line", default="Line3", show_default=True, help="TriggerSource: the trigger input line."),
+    click.option("--trigger-activation", default="FallingEdge", show_default=True,
+                 help="TriggerActivation: the edge that starts the exposure."),
+    click.option("--packet-size", type=Integer(576, 16000), help="GevSCPSPacketSize in bytes."),
+    click.option("--packet-delay", type=Integer(0, 2**31 - 1), help="GevSCPD, inter-packet delay in camera ticks."),
 ]
+address_option = click.option("--address", required=True, type=IPv4(),
+                              help="Camera IPv4 address (cameras are opened by IP only, never by discovery).")
 
 
 def profile_options(f):  # type: ignore[no-untyped-def]
@@ -52,8 +57,8 @@ def command() -> None:
 
 
 @command.command("probe")
-@click.option("--address", required=True, help="Camera IPv4 address.")
-@click.option("--json", "as_json", is_flag=True)
+@address_option
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def probe(address: str, as_json: bool) -> None:
     """Identity and the features the profiles use (present or not, value, allowed values)."""
     with _open(address, "camera") as cam:
@@ -72,9 +77,9 @@ def probe(address: str, as_json: bool) -> None:
 
 
 @command.command("configure")
-@click.option("--address", required=True)
+@address_option
 @profile_options
-@click.option("--json", "as_json", is_flag=True)
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def configure(address: str, profile: str, pixel_format: str | None, width: int | None, height: int | None,
               trigger_line: str, trigger_activation: str, packet_size: int | None, packet_delay: int | None,
               as_json: bool) -> int:
@@ -100,17 +105,21 @@ def configure(address: str, profile: str, pixel_format: str | None, width: int |
 
 
 @command.command("grab")
-@click.option("--address", required=True)
+@address_option
 @profile_options
-@click.option("--count", type=int, default=10, show_default=True)
+@click.option("--count", "n_frames", type=count(1, 100000), default=10, show_default=True,
+              help="Frames to grab.")
 @click.option("--software-trigger", is_flag=True, help="Fire TriggerSoftware for each frame (fake camera).")
-@click.option("--exposure-us", type=float, default=4000.0, show_default=True,
-              help="With --software-trigger: exposure set before each trigger.")
-@click.option("--timeout-s", type=float, default=10.0, show_default=True)
-@click.option("--out", type=click.Path(path_type=Path), help="Folder for 16-bit PNGs of the frames.")
+@click.option("--exposure-us", type=positive(10_000_000), default=4000.0, show_default=True,
+              help="With --software-trigger: exposure set before each trigger (us).")
+@option("--timeout-s", "timeout_s", aliases=("--timeout",), type=positive(3600.0), default=10.0, show_default=True,
+        help="Give up when the frames have not arrived within this many seconds (exit 1).")
+@click.option("--out", type=output_dir(), help="Folder for 16-bit PNGs of the frames (new or empty).")
+@overwrite_option()
 def grab(address: str, profile: str, pixel_format: str | None, width: int | None, height: int | None,
-         trigger_line: str, trigger_activation: str, packet_size: int | None, packet_delay: int | None, count: int,
-         software_trigger: bool, exposure_us: float, timeout_s: float, out: Path | None) -> int:
+         trigger_line: str, trigger_activation: str, packet_size: int | None, packet_delay: int | None,
+         n_frames: int, software_trigger: bool, exposure_us: float, timeout_s: float, out: Path | None,
+         overwrite: bool) -> int:
     """Configure, stream ``--count`` frames, print per-frame status and the stream statistics."""
     settings = _settings(profile, pixel_format, width, height, trigger_line, trigger_activation, packet_size,
                          packet_delay)
@@ -119,7 +128,7 @@ def grab(address: str, profile: str, pixel_format: str | None, width: int | None
 
     def on_frame(frame):  # type: ignore[no-untyped-def]
         frames.append(frame)
-        if len(frames) >= count:
+        if len(frames) >= n_frames:
             done.set()
 
     with _open(address, "camera") as cam:
@@ -138,15 +147,15 @@ def grab(address: str, profile: str, pixel_format: str | None, width: int | None
     if out is not None:
         import cv2
 
-        out.mkdir(parents=True, exist_ok=True)
-    for f in frames[:count]:
+        out.mkdir(exist_ok=True)
+    for f in frames[:n_frames]:
         mean = float(f.image.mean()) if f.image is not None else float("nan")
         click.echo(f"frame id {f.frame_id:5d} index {f.frame_index:4d} {f.status:16} {f.width}x{f.height} "
                    f"{f.pixel_format} mean {mean:.1f} missing packets {f.missing_packets}")
         if out is not None and f.image is not None:
             cv2.imwrite(str(out / f"{f.cam_timestamp_ns}.png"), f.image)
     click.echo("stream: " + ", ".join(f"{k} {v}" for k, v in stats.items()))
-    if len(frames) < count:
-        click.echo(f"error: only {len(frames)} of {count} frames within {timeout_s} s", err=True)
+    if len(frames) < n_frames:
+        click.echo(f"error: only {len(frames)} of {n_frames} frames within {timeout_s} s", err=True)
         return 1
     return 0

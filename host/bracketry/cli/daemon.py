@@ -6,15 +6,19 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import EXIT_OK, input_file
 from bracketry.daemon.config import load_config
+from bracketry.outputs import check_output
 
 
 @click.command("daemon")
-@click.option("--config", "config_path", required=True, type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--config", "config_path", required=True, type=input_file(),
               help="Rig configuration (TOML); see host/deploy/rig.example.toml.")
-@click.option("--check", is_flag=True, help="Only validate the configuration and exit.")
-@click.option("--log-level", default="INFO", show_default=True,
-              type=click.Choice(["DEBUG", "INFO", "WARNING", "ERROR"], case_sensitive=False))
+@click.option("--check", is_flag=True,
+              help="Only validate the configuration (and that its output_dir is a writable folder) and exit.")
+@click.option("--log-level", default="info", show_default=True,
+              type=click.Choice(["debug", "info", "warning", "error"], case_sensitive=False),
+              help="Lowest level of the log lines written.")
 @click.option("--plain-logs", is_flag=True, help="Human-readable log lines instead of JSON lines.")
 @click.option("--software-trigger", is_flag=True, hidden=True,
               help="Fire TriggerSoftware on every TRIGGER event (simulated rig with fake cameras).")
@@ -23,6 +27,7 @@ def command(config_path: Path, check: bool, log_level: str, plain_logs: bool, so
             roi: str | None) -> int:
     """Run the rig daemon until SIGTERM: SENSORS brings up cameras and trigger, RECORD starts/stops recording."""
     config = load_config(config_path)
+    check_output(config.output_dir, "dir", existing="resume", what="output_dir", parents=True)
     if check:
         click.echo(f"{config_path}: ok ({len(config.cameras)} cameras, brackets {list(config.brackets_ms)} ms "
                    f"at {config.fps:g} fps, output {config.output_dir})")
@@ -30,7 +35,7 @@ def command(config_path: Path, check: bool, log_level: str, plain_logs: bool, so
     from bracketry.daemon.logs import setup_logging
     from bracketry.daemon.rig import DaemonOptions, RigDaemon, install_signal_handlers
 
-    setup_logging(log_level, json_lines=not plain_logs)
+    setup_logging(log_level.upper(), json_lines=not plain_logs)
     width = height = None
     if roi:
         w, _, h = roi.partition("x")
@@ -43,4 +48,4 @@ def command(config_path: Path, check: bool, log_level: str, plain_logs: bool, so
     finally:
         daemon.close()
         restore()
-    return 0
+    return EXIT_OK

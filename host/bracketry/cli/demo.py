@@ -6,23 +6,28 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Number, input_file, option, output_dir, overwrite_option
+
 
 @click.command("demo")
-@click.option("--out", "out_dir", type=click.Path(file_okay=False, path_type=Path), default=Path("demo-out"),
-              show_default=True, help="Output folder (recording, dataset, benchmark report).")
-@click.option("--seconds", type=click.FloatRange(3.0, 600.0), default=None,
-              help="Seconds to record (default 40, or 8 with --quick).")
-@click.option("--quick", is_flag=True, help="Small and short (320x200, 8 s): under 2 minutes, for CI.")
-@click.option("--drl-weights", type=click.Path(dir_okay=False, exists=True), default=None,
+@click.option("--out", "out_dir", type=output_dir(), default=Path("demo-out"),
+              show_default=True, help="Output folder, new or empty (recording, dataset, benchmark report).")
+@overwrite_option("Run again into a non-empty --out (the earlier demo's files are replaced).")
+@option("--duration-s", "seconds", aliases=("--seconds",), type=Number(3.0, 600.0), default=None,
+        help="Seconds to record, 3 to 600 (default 40, or 8 with --quick).")
+@click.option("--quick", is_flag=True, help="Small and short (320x200, 8 s of recording): the version CI runs.")
+@click.option("--drl-weights", type=input_file(), default=None,
               envvar="BRACKETRY_DRL_WEIGHTS",
               help="The DRL actor's .pth (env BRACKETRY_DRL_WEIGHTS); without it DRL is left out.")
 @click.option("--slam", type=click.Choice(["orbslam3", "builtin"]), default=None,
               help="Localisation (default: orbslam3; builtin with --quick).")
-def command(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | None, slam: str | None) -> int:
+def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, drl_weights: Path | None,
+            slam: str | None) -> int:
     """Run the whole pipeline on the embedded default: simulated rig -> recording -> AE benchmark -> report."""
     from bracketry.demo.pipeline import plan, run
 
-    summary = run(plan(out_dir, seconds, quick, drl_weights, slam), echo=lambda s: click.echo(s, err=True))
+    summary = run(plan(out_dir, seconds, quick, str(drl_weights) if drl_weights else None, slam),
+                  echo=lambda s: click.echo(s, err=True))
     click.echo("")
     verdict = "verified clean" if summary["recording_verified"] else "HAS PROBLEMS"
     click.echo(f"bracketry demo: {summary['frames']['left']} + {summary['frames']['right']} frames recorded, "
@@ -37,4 +42,4 @@ def command(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str 
     report = summary["report"].get("report.html") or summary["report"].get("report.md")
     click.echo(f"report: {report}")
     click.echo(f"took {summary['timing_s']['total']} s (recording {summary['timing_s']['record']} s)")
-    return 0 if summary["recording_verified"] else 1
+    return EXIT_OK if summary["recording_verified"] else EXIT_PROBLEMS

@@ -7,19 +7,22 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import input_file, output_file, overwrite_option
 from bracketry.daemon import devices as dev
 from bracketry.errors import BracketryError
 
 
 @click.command("devices")
 @click.option("--json", "as_json", is_flag=True, help="Print the devices as JSON.")
-@click.option("--udev-rules", "rules_path", type=click.Path(dir_okay=False, path_type=Path),
+@click.option("--udev-rules", "rules_path", type=output_file(dash_stdout=True),
               help="Write udev rules naming the trigger and panel ports to this file ('-' for stdout).")
+@overwrite_option()
 @click.option("--role", "roles", multiple=True, metavar="SERIAL=ROLE",
               help="Assign a role (trigger or panel) to the device with this USB serial number.")
-@click.option("--from-json", "recorded", type=click.Path(exists=True, dir_okay=False, path_type=Path),
+@click.option("--from-json", "recorded", type=input_file(),
               help="Use a recorded descriptor list instead of scanning USB.")
-def command(as_json: bool, rules_path: Path | None, roles: tuple[str, ...], recorded: Path | None) -> int:
+def command(as_json: bool, rules_path: Path | None, overwrite: bool, roles: tuple[str, ...],
+            recorded: Path | None) -> int:
     """List the rig's USB serial devices (ST-LINK/STM32 VCP, FTDI, CP210x, CH340) and their ports."""
     role_map = {}
     for item in roles:

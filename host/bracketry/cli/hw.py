@@ -6,6 +6,17 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import (
+    EXIT_OK,
+    EXIT_PROBLEMS,
+    Integer,
+    Number,
+    count,
+    input_file,
+    non_negative,
+    output_file,
+    overwrite_option,
+)
 from bracketry.errors import BracketryError
 from bracketry.hwcalc import bandwidth as bw
 from bracketry.hwcalc import bom, diagram, power, wiring
@@ -17,11 +28,11 @@ def command() -> None:
 
 
 @command.command("power")
-@click.option("--bom", "bom_path", type=click.Path(path_type=Path), default=None, help="BOM CSV (default hw/bom.csv).")
-@click.option("--efficiency", type=float, default=1.0, show_default=True,
-              help="DC-DC efficiency (load / battery power); 1.0 reproduces the paper's estimate.")
-@click.option("--usable", "usable_fraction", type=float, default=1.0, show_default=True,
-              help="Usable fraction of the packs' nominal energy.")
+@click.option("--bom", "bom_path", type=input_file(), default=None, help="BOM CSV (default hw/bom.csv).")
+@click.option("--efficiency", type=Number(0.0, 1.0, min_open=True), default=1.0, show_default=True,
+              help="DC-DC efficiency (load / battery power), in (0, 1]; 1.0 reproduces the paper's estimate.")
+@click.option("--usable", "usable_fraction", type=Number(0.0, 1.0, min_open=True), default=1.0, show_default=True,
+              help="Usable fraction of the packs' nominal energy, in (0, 1].")
 def power_cmd(bom_path: Path | None, efficiency: float, usable_fraction: float) -> None:
     """Sum the nominal power of every part and print the runtime of each battery pack."""
     parts = bom.load_bom(bom_path)
@@ -41,22 +52,21 @@ def power_cmd(bom_path: Path | None, efficiency: float, usable_fraction: float) 
 
 
 @command.command("bandwidth")
-@click.option("--fps", type=float, default=22.0, show_default=True, help="Frames per second per camera.")
-@click.option("--width", type=int, default=1920, show_default=True)
-@click.option("--height", type=int, default=1200, show_default=True)
+@click.option("--fps", type=Number(0.0, 10000.0, min_open=True), default=22.0, show_default=True,
+              help="Frames per second per camera (0 to 10000).")
+@click.option("--width", type=Integer(1, 65535), default=1920, show_default=True, help="Image width in pixels.")
+@click.option("--height", type=Integer(1, 65535), default=1200, show_default=True, help="Image height in pixels.")
 @click.option("--pixel-format", type=click.Choice(sorted(bw.PIXEL_FORMAT_BITS)), default="BayerRG12",
-              show_default=True)
-@click.option("--packet-size", type=int, default=1500, show_default=True,
+              show_default=True, help="GenICam pixel format (sets the bits per pixel).")
+@click.option("--packet-size", type=Integer(576, 16000), default=1500, show_default=True,
               help="GevSCPSPacketSize in bytes (1500 standard MTU, 9000 jumbo frames).")
 @click.option("--extended-ids", is_flag=True, help="GVSP 2.0 extended ids (20-byte GVSP header instead of 8).")
-@click.option("--cameras", type=int, default=2, show_default=True, help="Cameras sharing the uplink.")
-@click.option("--extra-mbps", type=float, default=0.0, show_default=True,
-              help="Other traffic on the uplink (e.g. 8 for a VLP-16 on the same switch).")
+@click.option("--cameras", type=count(1, 64), default=2, show_default=True, help="Cameras sharing the uplink.")
+@click.option("--extra-mbps", type=non_negative(1e6), default=0.0, show_default=True,
+              help="Other traffic on the uplink in Mbit/s (e.g. 8 for a VLP-16 on the same switch).")
 def bandwidth_cmd(fps: float, width: int, height: int, pixel_format: str, packet_size: int, extended_ids: bool,
                   cameras: int, extra_mbps: float) -> int:
     """GVSP bandwidth per camera (headers included) and whether a shared uplink fits (exit 0 either way)."""
-    if cameras < 1:
-        raise BracketryError("--cameras must be at least 1")
     try:
         s = bw.stream_bandwidth(fps, width, height, pixel_format, packet_size, extended_ids)
     except ValueError as exc:
@@ -74,14 +84,16 @@ def bandwidth_cmd(fps: float, width: int, height: int, pixel_format: str, packet
     for v in bw.uplink_verdicts(s, cameras, extra_mbps):
         click.echo(f"  {v.link:<7} {'fits' if v.fits else 'does NOT fit':<13} ({100 * v.utilisation:.0f} % of "
                    f"{v.link_mbps:g} Mbit/s)")
-    return 0
+    return EXIT_OK
 
 
 @command.command("diagram")
-@click.option("--out", type=click.Path(path_type=Path), default=None,
-              help="Output file (.svg or .dot); default: print SVG to stdout.")
-@click.option("--wiring", "wiring_path", type=click.Path(path_type=Path), default=None)
-def diagram_cmd(out: Path | None, wiring_path: Path | None) -> None:
+@click.option("--out", type=output_file(suffixes=(".svg", ".dot")), default=None,
+              help="Output file: .svg (SVG) or .dot (Graphviz DOT); default: print SVG to stdout.")
+@overwrite_option()
+@click.option("--wiring", "wiring_path", type=input_file(), default=None,
+              help="Wiring description YAML (default hw/wiring.yaml).")
+def diagram_cmd(out: Path | None, overwrite: bool, wiring_path: Path | None) -> None:
     """Render hw/wiring.yaml as an SVG block diagram (or Graphviz DOT with --out FILE.dot)."""
     w = wiring.load_wiring(wiring_path)
     text = diagram.to_dot(w) if out is not None and out.suffix == ".dot" else diagram.to_svg(w)
@@ -103,4 +115,4 @@ def check_cmd() -> int:
         click.echo(p)
     if not problems:
         click.echo("hw/wiring.yaml, pins.h and pins.py agree")
-    return 1 if problems else 0
+    return EXIT_PROBLEMS if problems else EXIT_OK

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from bracketry.errors import BracketryError
+from bracketry.cli.options import Duration, option, output_file
 
 
 @click.group()
@@ -17,10 +17,12 @@ def command() -> None:
 
 @command.command("simulate")
 @click.option("--link", "link_path", required=True, help="Serial device or pty the simulated board talks on.")
-@click.option("--screen-file", type=click.Path(path_type=Path), default=None,
-              help="Rewrite this file with the 4x20 screen (4 lines of 20 chars) on every change.")
-@click.option("--duration", "duration_s", type=float, default=None, help="Stop after this many seconds.")
-@click.option("--quiet", is_flag=True, help="Do not print the screen to the terminal.")
+@click.option("--screen-file", type=output_file(existing="replace"), default=None,
+              help="Rewrite this file with the 4x20 screen (4 lines of 20 chars) on every change (its folder must "
+                   "exist; an existing file is replaced: it is a live mirror).")
+@option("--duration-s", "duration_s", aliases=("--duration",), type=Duration(), default=None,
+        help="Stop after this many seconds (default: until `quit` on standard input).")
+@click.option("--quiet", "-q", is_flag=True, help="Do not print the screen to the terminal.")
 def simulate_cmd(link_path: str, screen_file: Path | None, duration_s: float | None, quiet: bool) -> int:
     """Run firmware/esp32_panel under CPython with a `machine` shim, connected over LINK.
 
@@ -29,8 +31,6 @@ def simulate_cmd(link_path: str, screen_file: Path | None, duration_s: float | N
     """
     from bracketry.panel.sim import simulate
 
-    if screen_file is not None and not screen_file.parent.is_dir():
-        raise BracketryError(f"folder of --screen-file does not exist: {screen_file.parent}")
     return simulate(link_path, screen_file, duration_s, stdin=sys.stdin, out=None if quiet else sys.stdout)
 
 

@@ -2,39 +2,28 @@
 
 from __future__ import annotations
 
-import re
 import time
 from pathlib import Path
 
 import click
 
+from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Duration, input_file, option
 from bracketry.daemon.config import load_config
 from bracketry.errors import BracketryError
-
-
-def parse_duration_s(text: str) -> float:
-    """``30``, ``30s``, ``2m``, ``1h`` or ``1m30s`` -> seconds (> 0)."""
-    total = 0.0
-    pos = 0
-    for m in re.finditer(r"(\d+(?:\.\d+)?)([hms]?)", text.strip()):
-        if m.start() != pos:
-            break
-        total += float(m.group(1)) * {"h": 3600, "m": 60, "s": 1, "": 1}[m.group(2)]
-        pos = m.end()
-    if pos != len(text.strip()) or total <= 0:
-        raise BracketryError(f"--duration {text!r}: expected e.g. 30s, 2m, 1h or 1m30s")
-    return total
+from bracketry.outputs import check_output
 
 
 @click.command("record")
-@click.option("--config", "config_path", required=True, type=click.Path(dir_okay=False, path_type=Path))
-@click.option("--duration", required=True, help="How long to record: 30s, 2m, 1h.")
+@click.option("--config", "config_path", required=True, type=input_file(),
+              help="Rig configuration (TOML, as for the daemon); the recording goes to its output_dir.")
+@option("--duration-s", "duration_s", aliases=("--duration",), required=True, type=Duration(),
+        help="How long to record: seconds, or with a unit: 30s, 2m, 1h, 1m30s (at most a week).")
 @click.option("--software-trigger", is_flag=True, hidden=True)
 @click.option("--roi", default=None, hidden=True, help="WIDTHxHEIGHT region of interest (simulation).")
-def command(config_path: Path, duration: str, software_trigger: bool, roi: str | None) -> int:
-    """Bring the sensors up, record for DURATION, stop cleanly and verify the files (exit 1 if problems)."""
-    duration_s = parse_duration_s(duration)
+def command(config_path: Path, duration_s: float, software_trigger: bool, roi: str | None) -> int:
+    """Bring the sensors up, record for --duration-s, stop cleanly and verify the files (exit 1 if problems)."""
     config = load_config(config_path)
+    check_output(config.output_dir, "dir", existing="resume", what="output_dir", parents=True)
     from bracketry.daemon.logs import setup_logging
     from bracketry.daemon.rig import DaemonOptions, RigDaemon, install_signal_handlers
     from bracketry.recording.verify import format_report, verify_recording
@@ -70,4 +59,4 @@ def command(config_path: Path, duration: str, software_trigger: bool, roi: str |
         report = verify_recording(seg_dir)
         click.echo(format_report(report))
         ok = ok and report.ok
-    return 0 if ok else 1
+    return EXIT_OK if ok else EXIT_PROBLEMS

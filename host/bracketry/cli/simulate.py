@@ -10,6 +10,7 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import SEED, Duration, Integer, Number, option, output_dir, overwrite_option
 from bracketry.errors import BracketryError
 
 
@@ -25,27 +26,32 @@ def parse_resolution(text: str) -> tuple[int, int]:
 
 
 @click.command("simulate")
-@click.option("--seconds", type=click.FloatRange(1.0, 3600.0), default=10.0, show_default=True,
-              help="How long to record.")
-@click.option("--out", "out_dir", required=True, type=click.Path(file_okay=False, path_type=Path),
-              help="Folder for the recordings, logs, config, panel screen and summary.")
+@option("--duration-s", "seconds", aliases=("--seconds",), type=Duration(3600.0), default=10.0, show_default=True,
+        help="How long to record, in seconds (1 to 3600).")
+@click.option("--out", "out_dir", required=True, type=output_dir(),
+              help="Folder (new or empty) for the recordings, logs, config, panel screen and summary.")
+@overwrite_option()
 @click.option("--trigger", type=click.Choice(["simulator", "qemu"]), default="simulator", show_default=True,
               help="The Python trigger simulator, or the real firmware ELF in QEMU (no timing fidelity).")
 @click.option("--resolution", default="640x400", show_default=True, help="Camera resolution WIDTHxHEIGHT.")
-@click.option("--fps", type=click.FloatRange(1.0, 60.0), default=22.0, show_default=True)
+@click.option("--fps", type=Number(1.0, 60.0), default=22.0, show_default=True,
+              help="Trigger rate: frames per second per camera (1 to 60).")
 @click.option("--preset", type=click.Choice(["forest-winter", "campus-summer"]), default="forest-winter",
               show_default=True, help="Synthetic world.")
-@click.option("--seed", type=int, default=0, show_default=True)
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the synthetic world.")
 @click.option("--no-world", is_flag=True, help="Serve a test pattern instead of the synthetic world.")
-@click.option("--monitor", "monitor_port", type=click.IntRange(1024, 65535), default=None,
+@click.option("--monitor", "monitor_port", type=Integer(1024, 65535), default=None,
               help="Serve the browser monitor on 127.0.0.1:PORT (the URL with its token is printed).")
-@click.option("--world-seconds", type=click.FloatRange(1.0, 36000.0), default=None,
-              help="Seconds of distinct world frames (later frames repeat them) [default: --seconds + 5].")
+@click.option("--world-seconds", type=Number(1.0, 36000.0), default=None,
+              help="Seconds of distinct world frames (later frames repeat them) [default: --duration-s + 5].")
 @click.option("--keep-frames", is_flag=True,
               help="Keep the rendered frames in OUT/dev/frames (default: in memory, removed at the end).")
-def command(seconds: float, out_dir: Path, trigger: str, resolution: str, fps: float, preset: str, seed: int,
-            no_world: bool, monitor_port: int | None, world_seconds: float | None, keep_frames: bool) -> int:
+def command(seconds: float, out_dir: Path, overwrite: bool, trigger: str, resolution: str, fps: float, preset: str,
+            seed: int, no_world: bool, monitor_port: int | None, world_seconds: float | None,
+            keep_frames: bool) -> int:
     """Run the simulated backpack: fake GigE cameras, trigger, panel firmware and the daemon under test."""
+    if seconds < 1.0:
+        raise BracketryError("--duration-s must be at least 1 s")
     res = parse_resolution(resolution)
     from bracketry.sim.rig import in_private_netns, reexec_in_netns
 
@@ -58,10 +64,11 @@ def command(seconds: float, out_dir: Path, trigger: str, resolution: str, fps: f
             bridge = monitor_bridge_outside(out_dir, monitor_port)
             _end_with_sigterm(bridge)
         try:
-            return reexec_in_netns(sys.argv[1:] if sys.argv[1:2] == ["simulate"] else
-                                   ["simulate", "--seconds", str(seconds), "--out", str(out_dir), "--trigger",
-                                    trigger, "--resolution", resolution, "--fps", str(fps), "--preset", preset,
-                                    "--seed", str(seed), *(["--no-world"] if no_world else []),
+            # --out was checked here (before the bridge wrote into it): the re-executed process does not refuse it
+            return reexec_in_netns([*sys.argv[1:], "--overwrite"] if sys.argv[1:2] == ["simulate"] else
+                                   ["simulate", "--duration-s", str(seconds), "--out", str(out_dir), "--overwrite",
+                                    "--trigger", trigger, "--resolution", resolution, "--fps", str(fps), "--preset",
+                                    preset, "--seed", str(seed), *(["--no-world"] if no_world else []),
                                     *(["--monitor", str(monitor_port)] if monitor_port is not None else []),
                                     *(["--world-seconds", str(world_seconds)] if world_seconds else []),
                                     *(["--keep-frames"] if keep_frames else [])])

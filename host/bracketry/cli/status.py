@@ -7,6 +7,7 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import input_file
 from bracketry.daemon.status import query
 
 DEFAULT_SOCKET = Path("/run/bracketry/status.sock")
@@ -15,7 +16,7 @@ DEFAULT_SOCKET = Path("/run/bracketry/status.sock")
 @click.command("status")
 @click.option("--socket", "socket_path", type=click.Path(path_type=Path), default=None,
               help=f"The daemon's status socket [default: rig.status_socket of --config, else {DEFAULT_SOCKET}].")
-@click.option("--config", "config_path", type=click.Path(path_type=Path), default=None,
+@click.option("--config", "config_path", type=input_file(), default=None,
               help="The daemon's config file: its rig.status_socket is used.")
 @click.option("--json", "as_json", is_flag=True, help="Print the raw JSON state.")
 def command(socket_path: Path | None, config_path: Path | None, as_json: bool) -> int:

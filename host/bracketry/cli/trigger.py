@@ -11,7 +11,9 @@ from typing import Any
 
 import click
 
+from bracketry.cli.options import SEED, Duration, Integer, count, finite, input_file, non_negative, option, positive
 from bracketry.errors import BracketryError
+from bracketry.outputs import check_output
 
 PORT_HELP = "Serial port of the trigger: /dev/ttyACM0, a pty path, or socket://127.0.0.1:PORT (QEMU)."
 
@@ -23,6 +25,8 @@ def _parse_exposures(text: str) -> list[int]:
         raise BracketryError(f"--exposures-us must be comma-separated integers (us), got {text!r}") from None
     if not values:
         raise BracketryError("--exposures-us is empty")
+    if not 1 <= len(values) <= 16 or any(not 10 <= v <= 1_000_000 for v in values):
+        raise BracketryError(f"--exposures-us {text!r}: 1 to 16 exposures, each 10..1000000 us")
     return values
 
 
@@ -60,26 +64,33 @@ def command() -> None:
     """
 
 
-timeout_option = click.option("--timeout-s", type=float, default=0.1, show_default=True,
-                              help="Reply timeout per attempt (3 retries); use 0.5 for QEMU on a busy machine.")
+timeout_option = option("--timeout-s", "timeout_s", aliases=("--timeout",), type=positive(60.0), default=0.1,
+                        show_default=True,
+                        help="Reply timeout per attempt in seconds (3 retries); use 0.5 for QEMU on a busy machine.")
+duration_option = option("--duration-s", "duration_s", aliases=("--duration",), type=Duration(), default=None,
+                         help="Stop after this many seconds (default: run until Ctrl-C).")
 
 
 @command.command("simulate")
 @click.option("--link", "link_path", required=True, type=click.Path(path_type=Path),
-              help="Symlink to create for the simulated port (open it like a serial port).")
-@click.option("--drift-ppm", type=float, default=0.0, show_default=True, help="Device clock rate error.")
-@click.option("--pulse-jitter-us", type=float, default=0.0, show_default=True, help="Pulse start jitter (std).")
-@click.option("--reply-jitter-us", type=float, default=0.0, show_default=True, help="Mean extra reply latency.")
-@click.option("--drop-prob", type=click.FloatRange(0.0, 1.0), default=0.0, show_default=True,
+              help="Symlink to create for the simulated port (must not exist; open it like a serial port).")
+@click.option("--drift-ppm", type=finite(-1e5, 1e5), default=0.0, show_default=True,
+              help="Device clock rate error (ppm).")
+@click.option("--pulse-jitter-us", type=non_negative(1e6), default=0.0, show_default=True,
+              help="Pulse start jitter, standard deviation (us).")
+@click.option("--reply-jitter-us", type=non_negative(1e6), default=0.0, show_default=True,
+              help="Mean extra reply latency (us).")
+@click.option("--drop-prob", type=finite(0.0, 1.0), default=0.0, show_default=True,
               help="Probability of not sending a TRIGGER event.")
-@click.option("--seed", type=int, default=0, show_default=True)
-@click.option("--reboot-every-s", type=float, default=None, help="Simulate a device reset this often.")
-@click.option("--duration-s", type=float, default=None, help="Stop after this many seconds (default: Ctrl-C).")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the simulated jitter and drops.")
+@click.option("--reboot-every-s", type=positive(86400.0), default=None, help="Simulate a device reset this often (s).")
+@duration_option
 def simulate(link_path: Path, drift_ppm: float, pulse_jitter_us: float, reply_jitter_us: float, drop_prob: float,
              seed: int, reboot_every_s: float | None, duration_s: float | None) -> int:
     """Run the behavioural trigger simulator on a pty linked at --link."""
     from bracketry.trigger.simulator import SimConfig, simulate_on_pty
 
+    check_output(link_path, "file", what="--link")
     config = SimConfig(drift_ppm=drift_ppm, pulse_jitter_us=pulse_jitter_us, reply_jitter_us=reply_jitter_us,
                        drop_prob=drop_prob, seed=seed)
     try:
@@ -109,13 +120,14 @@ def simulate(link_path: Path, drift_ppm: float, pulse_jitter_us: float, reply_ji
 
 
 @command.command("qemu")
-@click.option("--elf", type=click.Path(path_type=Path), default=None,
+@click.option("--elf", type=input_file(), default=None,
               help="Firmware ELF (default: firmware/stm32_trigger/build/stm32_trigger.elf, built if missing).")
 @click.option("--build/--no-build", default=False, help="Rebuild the firmware first.")
 @click.option("--serial", type=click.Choice(["tcp", "pty"]), default="tcp", show_default=True,
               help="Expose USART2 as a loopback TCP server or a pty.")
-@click.option("--tcp-port", type=int, default=None, help="TCP port (default: a free one).")
-@click.option("--duration-s", type=float, default=None, help="Stop after this many seconds (default: Ctrl-C).")
+@click.option("--tcp-port", type=Integer(1024, 65535), default=None,
+              help="TCP port on 127.0.0.1 (default: a free one).")
+@duration_option
 def qemu(elf: Path | None, build: bool, serial: str, tcp_port: int | None, duration_s: float | None) -> int:
     """Boot the real trigger firmware in qemu-system-arm -M netduinoplus2 and print where to connect."""
     from bracketry.trigger.qemu import QemuTrigger, build_firmware, default_elf
@@ -141,7 +153,7 @@ def qemu(elf: Path | None, build: bool, serial: str, tcp_port: int | None, durat
 @command.command("hello")
 @click.option("--port", required=True, help=PORT_HELP)
 @timeout_option
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def hello(port: str, timeout_s: float, as_json: bool) -> int:
     """Ask the trigger who it is (HELLO)."""
     with _client(port, timeout_s) as client:
@@ -158,7 +170,7 @@ def hello(port: str, timeout_s: float, as_json: bool) -> int:
 @command.command("status")
 @click.option("--port", required=True, help=PORT_HELP)
 @timeout_option
-@click.option("--json", "as_json", is_flag=True, help="Print JSON.")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
 def status(port: str, timeout_s: float, as_json: bool) -> int:
     """HELLO, a clock sync (PING/PONG) and the next heartbeat: device, state, clock offset quality."""
     with _client(port, timeout_s) as client:
@@ -186,8 +198,10 @@ def status(port: str, timeout_s: float, as_json: bool) -> int:
 @command.command("start")
 @click.option("--port", required=True, help=PORT_HELP)
 @click.option("--session", "session_id", type=click.IntRange(0, 2**32 - 1), required=True, help="Session id.")
-@click.option("--period-us", type=int, default=None, help="Pulse period (e.g. 45454 for 22 fps).")
-@click.option("--exposures-us", default=None, help="Bracket table, e.g. 1000,2000,4000,8000,16000,32000.")
+@click.option("--period-us", type=Integer(1000, 1_000_000), default=None,
+              help="Pulse period in us, 1000..1000000 (e.g. 45454 for 22 fps); with --exposures-us.")
+@click.option("--exposures-us", default=None,
+              help="Bracket table in us, e.g. 1000,2000,4000,8000,16000,32000; with --period-us.")
 @timeout_option
 def start(port: str, session_id: int, period_us: int | None, exposures_us: str | None, timeout_s: float) -> int:
     """Optionally SET_BRACKETS, then START a session."""
@@ -216,8 +230,8 @@ def stop(port: str, timeout_s: float) -> int:
 @click.option("--port", required=True, help=PORT_HELP)
 @click.option("--start", "session_id", type=click.IntRange(0, 2**32 - 1), default=None,
               help="START this session first (and STOP it at the end).")
-@click.option("--count", type=int, default=None, help="Stop after this many events.")
-@click.option("--duration-s", type=float, default=None, help="Stop after this many seconds (default: Ctrl-C).")
+@click.option("--count", type=count(1), default=None, help="Stop after this many events.")
+@duration_option
 @timeout_option
 def monitor(port: str, session_id: int | None, count: int | None, duration_s: float | None,
             timeout_s: float) -> int:

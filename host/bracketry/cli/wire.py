@@ -9,6 +9,18 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import (
+    EXIT_OK,
+    EXIT_PROBLEMS,
+    Duration,
+    Integer,
+    Number,
+    count,
+    option,
+    output_file,
+    overwrite_option,
+    positive,
+)
 from bracketry.errors import BracketryError
 from bracketry.wire import bproto
 from bracketry.wire.errors import WireError
@@ -38,12 +50,17 @@ def _emit(frame: bproto.Frame, as_json: bool, t_s: float | None = None) -> None:
         click.echo(prefix + describe_frame(frame))
 
 
-def _summary(dec: bproto.Decoder, as_json: bool) -> int:
+def _summary(dec: bproto.Decoder, as_json: bool, frames: int | None = None, n_bytes: int = 0) -> int:
+    """Print the decoder counters; exit 1 when bytes were rejected, or when input bytes held no complete frame."""
     if as_json:
         click.echo(json.dumps({"stats": dec.stats}))
-    else:
+    if frames == 0 and n_bytes:
+        click.echo(f"error: the {n_bytes} input byte(s) hold no complete frame (a frame ends with a 0x00 delimiter; "
+                   f"{describe_stats(dec.stats)})", err=True)
+        return EXIT_PROBLEMS
+    if not as_json:
         click.echo(describe_stats(dec.stats), err=True)
-    return 1 if dec.errors else 0
+    return EXIT_PROBLEMS if dec.errors else EXIT_OK
 
 
 def _read_input(source: str) -> bytes:
@@ -70,9 +87,10 @@ def _read_input(source: str) -> bytes:
 @command.command("decode")
 @click.argument("source", required=False)
 @click.option("--port", help="Read a live serial port (path or pyserial URL such as socket://127.0.0.1:5000).")
-@click.option("--baud", default=921600, show_default=True, help="Baud rate of --port.")
-@click.option("--duration", "duration_s", type=float, default=None, help="With --port: stop after this many seconds.")
-@click.option("--count", type=int, default=None, help="With --port: stop after this many frames.")
+@click.option("--baud", type=Integer(300, 16_000_000), default=921600, show_default=True, help="Baud rate of --port.")
+@option("--duration-s", "duration_s", aliases=("--duration",), type=Duration(), default=None,
+        help="With --port: stop after this many seconds.")
+@click.option("--count", type=count(1), default=None, help="With --port: stop after this many frames.")
 @click.option("--hello", "send_hello", is_flag=True, help="With --port: send a HELLO request first.")
 @click.option("--json", "as_json", is_flag=True, help="One JSON object per frame, then the decoder counters.")
 def decode(source: str | None, port: str | None, baud: int, duration_s: float | None, count: int | None,
@@ -80,15 +98,18 @@ def decode(source: str | None, port: str | None, baud: int, duration_s: float | 
     """Print every frame in SOURCE (hex string, a file with raw bytes or a hex dump, or - for stdin) or on --port.
 
     Each valid frame is one line of readable fields; rejected bytes are counted in the summary (stderr).
-    Exit code 0 when nothing was rejected, 1 otherwise.
+    Exit code 0 when nothing was rejected, 1 when bytes were rejected or SOURCE holds no complete frame.
     """
     if (source is None) == (port is None):
         raise BracketryError("give either SOURCE (hex, file or -) or --port")
     dec = bproto.Decoder()
     if source is not None:
-        for frame in dec.feed(_read_input(source)):
+        data = _read_input(source)
+        n = 0
+        for frame in dec.feed(data):
             _emit(frame, as_json)
-        return _summary(dec, as_json)
+            n += 1
+        return _summary(dec, as_json, n, len(data))
     assert port is not None
     from bracketry.wire.link import open_serial
 
@@ -120,14 +141,15 @@ def decode(source: str | None, port: str | None, baud: int, duration_s: float | 
 @command.command("encode")
 @click.argument("msg_type", metavar="TYPE")
 @click.argument("fields", nargs=-1)
-@click.option("--seq", type=int, default=0, show_default=True, help="Sequence number (0..65535).")
+@click.option("--seq", type=Integer(0, 0xFFFF), default=0, show_default=True, help="Sequence number (0..65535).")
 @click.option("--payload", "payload_hex", help="Raw payload in hex instead of fields (any type, even unknown).")
 @click.option("--format", "fmt", type=click.Choice(["hex", "spaced", "c"]), default="hex", show_default=True,
               help="hex: one hex string; spaced: bytes separated by spaces; c: a C array initialiser.")
-@click.option("--out", "out_path", type=click.Path(path_type=Path), help="Also write the raw frame bytes here.")
+@click.option("--out", "out_path", type=output_file(), help="Also write the raw frame bytes to this file.")
+@overwrite_option()
 @click.option("--port", help="Also send the frame to this serial port (path or pyserial URL).")
 def encode(msg_type: str, fields: tuple[str, ...], seq: int, payload_hex: str | None, fmt: str,
-           out_path: Path | None, port: str | None) -> int:
+           out_path: Path | None, overwrite: bool, port: str | None) -> int:
     """Build one frame: TYPE is a name (PING, SET_BRACKETS, ...) or a number, FIELDS are name=value.
 
     \b
@@ -141,8 +163,6 @@ def encode(msg_type: str, fields: tuple[str, ...], seq: int, payload_hex: str | 
         t = bproto.type_by_name(msg_type)
     except ValueError as exc:
         raise BracketryError(f"{exc} (known: {', '.join(bproto.MSG_NAMES.values())})") from exc
-    if not 0 <= seq <= 0xFFFF:
-        raise BracketryError("--seq must be 0..65535")
     try:
         if payload_hex is not None:
             if fields:
@@ -182,10 +202,13 @@ def encode(msg_type: str, fields: tuple[str, ...], seq: int, payload_hex: str | 
 
 @command.command("ping")
 @click.argument("port")
-@click.option("--baud", default=921600, show_default=True, help="Baud rate.")
-@click.option("--count", default=32, show_default=True, help="Number of PING/PONG exchanges.")
-@click.option("--interval", "interval_s", default=0.02, show_default=True, help="Seconds between PINGs.")
-@click.option("--timeout", "timeout_s", default=0.1, show_default=True, help="Reply timeout per attempt (s).")
+@click.option("--baud", type=Integer(300, 16_000_000), default=921600, show_default=True, help="Baud rate.")
+@click.option("--count", type=count(1, 100000), default=32, show_default=True,
+              help="Number of PING/PONG exchanges.")
+@option("--interval-s", "interval_s", aliases=("--interval",), type=Number(0.0, 60.0), default=0.02,
+        show_default=True, help="Seconds between PINGs.")
+@option("--timeout-s", "timeout_s", aliases=("--timeout",), type=positive(60.0), default=0.1, show_default=True,
+        help="Reply timeout per attempt (s).")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON.")
 def ping(port: str, baud: int, count: int, interval_s: float, timeout_s: float, as_json: bool) -> int:
     """Check a live link: HELLO, then COUNT PINGs; print round trips, the clock model and the link counters."""
@@ -193,8 +216,6 @@ def ping(port: str, baud: int, count: int, interval_s: float, timeout_s: float, 
 
     from bracketry.wire.link import SerialLink
 
-    if count < 1:
-        raise BracketryError("--count must be >= 1")
     try:
         link = SerialLink(port, baud, heartbeat_period_s=None, reconnect=False, name=port)
     except WireError as exc:

@@ -37,6 +37,8 @@ class ExportSummary:
     written: dict[str, int] = field(default_factory=dict)
     skipped_no_event: int = 0
     skipped_no_pixels: int = 0
+    #: frames whose partner of the other camera (same trigger) is missing from the recording
+    unpaired: int = 0
     out_dir: str = ""
 
 
@@ -48,8 +50,12 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 
 def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int = 2,
-                     progress: bool = True) -> ExportSummary:
-    """Export ``recording`` (file or folder of split files) under ``out_dir`` (created)."""
+                     progress: bool = True, keep_unpaired: bool = False) -> ExportSummary:
+    """Export ``recording`` (file or folder of split files) under ``out_dir`` (created).
+
+    In a stereo recording a frame whose partner of the other camera (same trigger) is missing is counted in
+    ``unpaired`` and written only with ``keep_unpaired``, so a BorealHDR tree never holds half a pair silently.
+    """
     try:
         import cv2  # noqa: F401
     except ImportError as exc:
@@ -65,8 +71,13 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
             exposures[int(ev.trigger_seq)] = int(ev.exposure_us)
     total = 0
     image_topics = {T.image_topic(s): s for s in T.SIDES}
+    seen: dict[str, set[int]] = {s: set() for s in T.SIDES}
     for path in files:
-        total += sum(1 for _ in RecordingReader(path).messages(set(image_topics)))
+        for msg in RecordingReader(path).messages(set(image_topics)):
+            seen[image_topics[msg.topic]].add(msg.sequence)
+            total += 1
+    stereo = all(seen[s] for s in T.SIDES)
+    paired = set.intersection(*(seen[s] for s in T.SIDES)) if stereo else set()
     lock = threading.Lock()
     bar: Any = None
     if progress:
@@ -87,6 +98,10 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
         for path in files:
             for msg in RecordingReader(path).messages(set(image_topics)):
                 side = image_topics[msg.topic]
+                if stereo and msg.sequence not in paired:
+                    summary.unpaired += 1
+                    if not keep_unpaired:
+                        continue
                 exposure = exposures.get(msg.sequence)
                 if exposure is None:
                     summary.skipped_no_event += 1

@@ -10,6 +10,7 @@ the camera's last temperature in ``/rig/status`` before the frame, NaN before th
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any
 
@@ -26,16 +27,19 @@ UPSTREAM_METADATA_MSG = "std_msgs/Header header\nint32 FrameId\nint64 Timestamp\
 UPSTREAM_TOPICS = {"left": "/stereo/camera1/metadata", "right": "/stereo/camera2/metadata"}
 
 
-def export_rosbag1(recording: str | Path, out_bag: str | Path) -> dict[str, int]:
-    """Write ``out_bag`` (must not exist); returns message counts per topic."""
+def export_rosbag1(recording: str | Path, out_bag: str | Path, *, overwrite: bool = False) -> dict[str, int]:
+    """Write ``out_bag`` (an existing one only with ``overwrite``, replaced once the new bag is complete; its folder
+    must exist); returns message counts per topic."""
     try:
-        from rosbags.rosbag1 import Writer
+        from rosbags.rosbag1 import Writer  # noqa: F401  (checked here: a one-line error when missing)
         from rosbags.typesys import Stores, get_types_from_msg, get_typestore
     except ImportError as exc:
         raise BracketryError("rosbag1 export needs rosbags (pip install -e '.[host]')") from exc
     out = Path(out_bag)
-    if out.exists():
-        raise BracketryError(f"{out} exists; choose another --out")
+    if out.exists() and not overwrite:
+        raise BracketryError(f"{out} exists (add --overwrite to replace it)")
+    if not out.parent.is_dir():
+        raise BracketryError(f"folder {out.parent} does not exist (create it first)")
     store = get_typestore(Stores.ROS1_NOETIC)  # ROS 1 wire format: Header has seq
     cdr_store = get_typestore(Stores.ROS2_HUMBLE)  # our stored CDR messages
     types = {}
@@ -46,16 +50,30 @@ def export_rosbag1(recording: str | Path, out_bag: str | Path) -> dict[str, int]
     store.register(types)
     counts: dict[str, int] = {}
     files = recording_files(recording)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = out.with_name(f".{out.name}.partial")
+    tmp.unlink(missing_ok=True)
+    try:
+        _write_bag(tmp, files, store, cdr_store, counts)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    os.replace(tmp, out)
+    return counts
+
+
+def _write_bag(tmp: Path, files: list[Path], store: Any, cdr_store: Any, counts: dict[str, int]) -> None:
+    from rosbags.rosbag1 import Writer
+
     Header = store.types["std_msgs/msg/Header"]
     Time = store.types["builtin_interfaces/msg/Time"]
     Meta = store.types[UPSTREAM_METADATA_TYPE]
+
     def header(msg_header: Any, seq: int = 0) -> Any:
         st = msg_header.stamp  # type: ignore[attr-defined]
         return Header(seq=seq, stamp=Time(sec=st.sec, nanosec=st.nanosec),
                       frame_id=msg_header.frame_id)  # type: ignore[attr-defined]
 
-    with Writer(out) as writer:
+    with Writer(tmp) as writer:
         conns: dict[str, Any] = {}
 
         def conn(topic: str, msgtype: str) -> Any:
@@ -86,5 +104,4 @@ def export_rosbag1(recording: str | Path, out_bag: str | Path) -> dict[str, int]
                 writer.write(conn(raw.topic, raw.schema_name), raw.log_time,
                              cdr_store.cdr_to_ros1(bytes(raw.data), raw.schema_name))
                 counts[raw.topic] = counts.get(raw.topic, 0) + 1
-    return counts
 

@@ -8,16 +8,17 @@ from mcap_ros2._dynamic import generate_dynamic
 
 from bracketry.recording.msgdefs import MSGDEFS, DecodedImage, decode_image
 
-_DECODERS: dict[str, Any] = {}
+_DECODERS: dict[tuple[str, str | None], Any] = {}
 
 
 def decode(schema_name: str, data: bytes | memoryview, schema_text: str | None = None) -> Any:
     """Decode one message of ``schema_name`` (attribute access, e.g. ``msg.trigger_seq``)."""
-    decoder = _DECODERS.get(schema_name)
+    key = (schema_name, schema_text or None)
+    decoder = _DECODERS.get(key)
     if decoder is None:
         text = schema_text or MSGDEFS[schema_name]
         decoder = generate_dynamic(schema_name, text)[schema_name]
-        _DECODERS[schema_name] = decoder
+        _DECODERS[key] = decoder
     return decoder(bytes(data))
 
 

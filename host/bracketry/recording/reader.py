@@ -38,6 +38,9 @@ class RawMessage:
     log_time: int
     publish_time: int
     data: memoryview
+    #: byte offset in the file of the top-level record holding the message (its Chunk, or the Message itself):
+    #: ``RecordingReader.message_at`` reads it again without a scan
+    record_offset: int = -1
 
 
 @dataclass
@@ -126,7 +129,7 @@ class RecordingReader:
             elif opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                 self._define(opcode, body)
             elif opcode == Opcode.MESSAGE:
-                msg = self._message(body, topics)
+                msg = self._message(body, topics, off)
                 if msg is not None:
                     yield msg
             elif opcode == Opcode.CHUNK:
@@ -172,7 +175,33 @@ class RecordingReader:
             enc, o = _read_str(body, o)
             self.channels[cid] = (topic, sid, enc)
 
-    def _message(self, body: memoryview, topics: set[str] | None) -> RawMessage | None:
+    def message_at(self, record_offset: int, channel_id: int, log_time: int) -> memoryview | None:
+        """The data of the message on ``channel_id`` at ``log_time`` in the top-level record at ``record_offset``
+        (a ``RawMessage.record_offset`` of an earlier scan of this file): random access to one message without a
+        scan. None when it is not there."""
+        buf = self._data
+        if record_offset < 8 or record_offset + 9 > len(buf):
+            return None
+        opcode, length = struct.unpack_from("<BQ", buf, record_offset)
+        body = buf[record_offset + 9:record_offset + 9 + length]
+        if opcode == Opcode.MESSAGE:
+            records: Iterator[tuple[int, memoryview, int]] = iter([(opcode, body, record_offset)])
+        elif opcode == Opcode.CHUNK:
+            try:
+                inner = memoryview(self._chunk_data(body))
+            except Exception:
+                return None
+            records = self._records(inner, 0, in_chunk=True)
+        else:
+            return None
+        for op, rbody, _ in records:
+            if op == Opcode.MESSAGE:
+                cid, _seq, t = struct.unpack_from("<HIQ", rbody, 0)
+                if cid == channel_id and t == log_time:
+                    return rbody[22:]
+        return None
+
+    def _message(self, body: memoryview, topics: set[str] | None, record_offset: int) -> RawMessage | None:
         cid, seq, log_time, pub_time = struct.unpack_from("<HIQQ", body, 0)
         channel = self.channels.get(cid)
         if channel is None:
@@ -182,17 +211,22 @@ class RecordingReader:
         if topics is not None and channel[0] not in topics:
             return None
         schema_name = self.schemas.get(channel[1], ("?",))[0]
-        return RawMessage(channel[0], schema_name, cid, seq, log_time, pub_time, body[22:])
+        return RawMessage(channel[0], schema_name, cid, seq, log_time, pub_time, body[22:], record_offset)
+
+    @staticmethod
+    def _chunk_data(body: memoryview) -> bytes:
+        _t0, _t1, size, crc = struct.unpack_from("<QQQI", body, 0)
+        compression, o = _read_str(body, 28)
+        (n,) = struct.unpack_from("<Q", body, o)
+        data = _decompress(compression, body[o + 8:o + 8 + n], size)
+        if len(data) != size or (crc and zlib.crc32(data) != crc):
+            raise ValueError("size or CRC mismatch")
+        return data
 
     def _chunk(self, body: memoryview, off: int, topics: set[str] | None) -> Iterator[RawMessage]:
         self.report.chunks += 1
         try:
-            _t0, _t1, size, crc = struct.unpack_from("<QQQI", body, 0)
-            compression, o = _read_str(body, 28)
-            (n,) = struct.unpack_from("<Q", body, o)
-            data = _decompress(compression, body[o + 8:o + 8 + n], size)
-            if len(data) != size or (crc and zlib.crc32(data) != crc):
-                raise ValueError("size or CRC mismatch")
+            data = self._chunk_data(body)
         except Exception as exc:
             self.report.bad_chunks += 1
             self.report.problems.append(f"chunk at byte {off} unreadable ({exc}): skipped")
@@ -202,7 +236,7 @@ class RecordingReader:
             if opcode in (Opcode.SCHEMA, Opcode.CHANNEL):
                 self._define(opcode, rbody)
             elif opcode == Opcode.MESSAGE:
-                msg = self._message(rbody, topics)
+                msg = self._message(rbody, topics, off)
                 if msg is not None:
                     yield msg
 

@@ -8,12 +8,14 @@ A recording is one ``.mcap`` file or a folder of the split files of one recordin
 from __future__ import annotations
 
 import math
+import os
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bracketry.errors import BracketryError
+from bracketry.outputs import check_output
 from bracketry.recording import topics as T
 from bracketry.recording.decode import decode
 from bracketry.recording.mcap_writer import ChunkedMcapWriter
@@ -261,20 +263,36 @@ def format_report(report: VerifyReport) -> str:
     return "\n".join(lines)
 
 
-def repair_recording(src: str | Path, dst: str | Path | None = None) -> tuple[Path, int]:
-    """Write a clean, finished copy of a (truncated) recording file; returns (path, messages copied).
+def repaired_path(src: str | Path, dst: str | Path | None = None) -> Path:
+    """Where the repaired copy of ``src`` goes: ``dst``, or ``<stem>.repaired.mcap`` next to ``src``."""
+    src = Path(src)
+    return Path(dst) if dst else src.with_name(src.stem + REPAIRED_SUFFIX)
 
-    Default output: ``<stem>.repaired.mcap`` next to ``src``. Schemas, channels and metadata are kept; the metadata
-    gains ``repaired_from``.
-    """
+
+def check_repair_target(src: str | Path, dst: str | Path | None = None, *, overwrite: bool = False) -> Path:
+    """The repaired copy's path after the output checks (never the input, never an existing file without
+    ``overwrite``, its folder must exist); BracketryError otherwise. Nothing is written."""
     src = Path(src)
     if src.is_dir():
         raise BracketryError(f"{src}: --repair takes .mcap files, not folders")
-    out = Path(dst) if dst else src.with_name(src.stem + REPAIRED_SUFFIX)
+    out = repaired_path(src, dst)
     if out.resolve() == src.resolve():
         raise BracketryError("--repair never overwrites its input")
+    return check_output(out, "file", overwrite=overwrite, what="repaired copy")
+
+
+def repair_recording(src: str | Path, dst: str | Path | None = None, *, overwrite: bool = False) -> tuple[Path, int]:
+    """Write a clean, finished copy of a (truncated) recording file; returns (path, messages copied).
+
+    Default output: ``<stem>.repaired.mcap`` next to ``src``; an existing file is replaced only with ``overwrite``,
+    and only once the copy is complete (written under a temporary name, then renamed). Schemas, channels and
+    metadata are kept; the metadata gains ``repaired_from``.
+    """
+    src = Path(src)
+    out = check_repair_target(src, dst, overwrite=overwrite)
     reader = RecordingReader(src)
-    writer = ChunkedMcapWriter(out, fsync_interval_s=None)
+    tmp = out.with_name(f".{out.name}.partial")
+    writer = ChunkedMcapWriter(tmp, fsync_interval_s=None)
     schema_map: dict[int, int] = {}
     channel_map: dict[int, int] = {}
     n = 0
@@ -294,5 +312,7 @@ def repair_recording(src: str | Path, dst: str | Path | None = None) -> tuple[Pa
         writer.finish()
     except BaseException:
         writer.close()
+        tmp.unlink(missing_ok=True)
         raise
+    os.replace(tmp, out)
     return out, n
