@@ -111,7 +111,8 @@ def test_emulate_cli_end_to_end(borealhdr_sequence: Path, tmp_path: Path) -> Non
     assert len(rows) == 3 and rows[0].startswith("step,timestamp_ns,fix_ms")
     # a second run into the same folder refuses (nothing recorded is lost), one line, no traceback
     res2 = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT, env=env)
-    assert res2.returncode != 0 and "Traceback" not in res2.stderr and "already holds a run" in res2.stderr
+    assert res2.returncode != 0 and "Traceback" not in res2.stderr and "--overwrite" in res2.stderr
+    assert res2.returncode == 2 and len(res2.stderr.strip().splitlines()) == 1
 
 
 def test_emulate_cli_errors(borealhdr_sequence: Path, tmp_path: Path) -> None:

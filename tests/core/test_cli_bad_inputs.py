@@ -178,6 +178,8 @@ ROWS = [
     Row("file", "daemon --config {tmp}/none.toml", words="does not exist"),
     Row("file", "hw diagram --wiring {tmp}/none.yaml", words="does not exist"),
     Row("file", "calibrate-crf {tmp}/none --out {tmp}/p.txt", words="does not exist"),
+    Row("file", "status --socket {tmp}/none.sock", words="no daemon is listening"),
+    Row("file", "status --config {tmp}/none.toml", words="does not exist"),
     # ---- recordings: empty, not MCAP
     Row("recording", "verify {zero}", words="not an MCAP file"),
     Row("recording", "export {zero} --out {tmp}/exp", words="not an MCAP file"),
@@ -229,7 +231,7 @@ def test_bad_input_is_one_line_and_changes_nothing(row: Row, inputs: dict[str, P
 
 def test_the_table_covers_every_subcommand_and_class() -> None:
     used = {r.argv.split()[0] for r in ROWS}
-    wanted = set(COMMANDS) - {"doctor", "status"}  # no input of theirs can be bad: covered in their own tests
+    wanted = set(COMMANDS) - {"doctor"}  # doctor takes no input (only --json)
     assert wanted <= used, f"subcommands without bad-input rows: {sorted(wanted - used)}"
     assert {r.cls for r in ROWS} == {"number", "path", "file", "recording", "network"}
     assert len(ROWS) >= 80

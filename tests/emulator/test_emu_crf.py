@@ -103,4 +103,4 @@ def test_emu_calibrate_crf_command(tmp_path: Path, capsys: pytest.CaptureFixture
     assert load_pcalib(tmp_path / "p256.txt").shape == (256,)
     assert main(["calibrate-crf", str(tmp_path / "nope"), "--out", str(tmp_path / "x.txt")]) == 2
     err = capsys.readouterr().err
-    assert "exists" in err and "static stack not found" in err and "Traceback" not in err
+    assert "exists" in err and "does not exist" in err and "Traceback" not in err

@@ -229,7 +229,7 @@ def test_daemon_recording_root_with_segments_and_a_repaired_file(tmp_path: Path,
     assert r.tail_lost >= 0 and not r.truncated
 
     out = tmp_path / "tree"
-    assert cli_main(["export", str(root), "--out", str(out), "--no-progress"]) == 0
+    assert cli_main(["export", str(root), "--out", str(out), "-q"]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["seg00", "seg01"]
     assert len(list((out / "seg00" / "camera_left").rglob("*.png"))) == 40
     assert cli_main(["export", str(root), "--format", "rosbag1", "--out", str(tmp_path / "x.bag")]) != 0

@@ -116,7 +116,7 @@ def test_record_10s_verify_clean_and_export_round_trips_pixels(tmp_path: Path) -
             stored[(m.topic.split("/")[2], img.stamp_ns)] = img.image
 
     out = tmp_path / "tree"
-    assert cli_main(["export", str(rec), "--format", "borealhdr", "--out", str(out), "--no-progress"]) == 0
+    assert cli_main(["export", str(rec), "--format", "borealhdr", "--out", str(out), "-q"]) == 0
     stamps = {}
     for side in ("left", "right"):
         pngs = sorted((out / f"camera_{side}").glob("*/*.png"))

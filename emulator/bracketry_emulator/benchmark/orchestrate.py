@@ -41,12 +41,6 @@ def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> lis
                 out.append(m)
     if not out:
         raise BracketryError("no AE method given (--methods all or a comma-separated list)")
-    from bracketry_emulator.ae.registry import get_method
-
-    builtin = set(all_methods())
-    for m in out:
-        if m not in builtin:
-            get_method(m)  # an unknown id or a broken plugin: one line naming it, before any work
     return out
 
 
@@ -134,6 +128,12 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     if weights is not None and not Path(weights).is_file():
         raise BracketryError(f"--drl-weights file not found: {weights}")
     method_ids = parse_methods(methods, has_drl_weights=weights is not None)
+    from bracketry_emulator.ae.registry import get_method
+
+    builtin = set(all_methods())
+    for m in method_ids:  # an unknown id or a broken plugin: one line naming it, before any work
+        if m not in builtin and not any(spec.existing_run(m) for spec in specs):
+            get_method(m)
     if reference not in method_ids:
         raise BracketryError(f"reference method {reference!r} is not among the benchmarked methods {method_ids}")
     out = Path(out_dir)

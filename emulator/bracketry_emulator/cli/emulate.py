@@ -124,9 +124,11 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     """
     from bracketry_emulator.ae import LoopConfig, expand_methods, run_methods
 
+    if min_exposure_ms > max_exposure_ms:
+        raise BracketryError(f"--min-exposure-ms {min_exposure_ms:g} exceeds --max-exposure-ms {max_exposure_ms:g}")
     if not min_exposure_ms <= init_exposure_ms <= max_exposure_ms:
-        raise BracketryError(f"need --min-exposure-ms <= --init-exposure-ms <= --max-exposure-ms (got "
-                             f"{min_exposure_ms:g}, {init_exposure_ms:g}, {max_exposure_ms:g})")
+        raise BracketryError(f"--init-exposure-ms {init_exposure_ms:g} is outside the bounds [--min-exposure-ms "
+                             f"{min_exposure_ms:g}, --max-exposure-ms {max_exposure_ms:g}]")
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
     emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db, noise, fusion_brackets, motion,
                            deghost_sigma)
@@ -136,9 +138,7 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
                      drl_weights=str(drl_weights) if drl_weights else None, write_images=not no_images,
                      overwrite=overwrite, max_sequences=max_sequences)
     if drl_weights is not None and "drl" in specs:
-        from bracketry_emulator.ae.drl import load_actor
-
-        load_actor(drl_weights)  # a file that is not the actor's weights is refused before any work
+        _check_pth(drl_weights)
     if overwrite:
         remove_earlier_run(out_dir)
     summary = run_methods(dataset, specs, out_dir, workers=workers, config=cfg, progress=not quiet)
@@ -153,6 +153,18 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
         click.echo(f"  plot: {summary.plot_path}")
     warn_dataset_problems(summary.problems)
     return EXIT_OK
+
+
+def _check_pth(path: Path) -> None:
+    """Refuse a --drl-weights file that is not a PyTorch file before any work, without importing torch here (the
+    worker processes are forked from this one and load the actor themselves)."""
+    import zipfile
+
+    with open(path, "rb") as f:
+        head = f.read(2)
+    if not zipfile.is_zipfile(path) and not head.startswith(b"\x80"):
+        raise BracketryError(f"DRL weights {path} are not a PyTorch .pth file (a zip or pickle of the actor's "
+                             "state_dict)")
 
 
 def remove_earlier_run(out_dir: Path) -> None:

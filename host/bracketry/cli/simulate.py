@@ -1,4 +1,4 @@
-"""``bracketry simulate --seconds N --out DIR``: the whole rig on this machine, driven by scripted button presses."""
+"""``bracketry simulate --duration-s N --out DIR``: the whole rig on this machine, driven by scripted button presses."""
 
 from __future__ import annotations
 
