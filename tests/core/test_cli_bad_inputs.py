@@ -134,6 +134,10 @@ ROWS = [
     Row("number", "calibrate-crf {stack} --out {tmp}/p.txt --iterations 0", words="--iterations"),
     Row("number", "cameras grab --address 127.0.0.1 --count 0", words="--count"),
     Row("number", "cameras grab --address 127.0.0.1 --width -4", words="--width"),
+    Row("number", "slam vocabulary {random} --out {tmp}/voc.txt --k 1", words="--k"),
+    Row("number", "benchmark {good} --out {tmp}/bench --slam-repeats 0", words="--slam-repeats"),
+    Row("number", "simulate --out {tmp}/sim --monitor 80", words="--monitor"),
+    Row("number", "simulate --out {tmp}/sim --world-seconds nan", words="--world-seconds"),
     Row("number", "panel simulate --link {tmp}/none --duration-s nan", words="--duration-s"),
     # ---- output paths: existing file, missing parent, not writable, file where a folder is expected, wrong kind
     Row("path", "verify --repair --out {tmp}/keep.mcap {trunc}", words="--overwrite"),
@@ -165,6 +169,8 @@ ROWS = [
     Row("path", "benchmark {good} --out {tmp}/keep.txt", words="expected a folder"),
     Row("path", "trigger simulate --link {tmp}/keep.txt", words="--overwrite"),
     Row("path", "panel simulate --link {tmp}/none --screen-file /nonexistent/dir/s.txt", words="does not exist"),
+    Row("path", "slam vocabulary {random} --out {tmp}/keep.txt", words="--overwrite"),
+    Row("path", "slam vocabulary {random} --out /nonexistent/dir/voc.txt", words="does not exist"),
     Row("path", "daemon --check --config {rig_proc}", words="output_dir"),
     # ---- input files: missing, wrong content
     Row("file", "emulate {good} --out {tmp}/emu -m drl --drl-weights {weights}", words="DRL weights"),
@@ -175,6 +181,8 @@ ROWS = [
     Row("file", "wire decode 0000000000", code=EXIT_PROBLEMS, words="no complete frame"),
     Row("file", "wire decode 01020304", code=EXIT_PROBLEMS, words="no complete frame"),
     Row("file", "wire decode {random}", code=EXIT_PROBLEMS, words="no complete frame"),
+    Row("file", "slam vocabulary {tmp}/none.png --out {tmp}/voc.txt", words="does not exist"),
+    Row("file", "benchmark {good} --out {tmp}/bench --vocabulary {tmp}/none.txt", words="does not exist"),
     Row("file", "daemon --config {tmp}/none.toml", words="does not exist"),
     Row("file", "hw diagram --wiring {tmp}/none.yaml", words="does not exist"),
     Row("file", "calibrate-crf {tmp}/none --out {tmp}/p.txt", words="does not exist"),

@@ -6,6 +6,7 @@ from pathlib import Path
 
 import click
 
+from bracketry.cli.options import EXIT_OK, SEED, Integer, input_file, output_file, overwrite_option
 from bracketry.errors import BracketryError
 
 
@@ -15,17 +16,17 @@ def command() -> None:
 
 
 @command.command("vocabulary")
-@click.argument("images", nargs=-1, type=click.Path(dir_okay=False))
-@click.option("--out", "out_file", required=True, type=click.Path(dir_okay=False), help="Vocabulary text file.")
-@click.option("--k", "k", default=10, show_default=True, type=click.IntRange(2, 20), help="Branching factor.")
-@click.option("--levels", "-L", default=5, show_default=True, type=click.IntRange(1, 10),
+@click.argument("images", nargs=-1, type=input_file())
+@click.option("--out", "out_file", required=True, type=output_file(), help="Vocabulary text file to write.")
+@overwrite_option("Replace an existing --out file.")
+@click.option("--k", "k", default=10, show_default=True, type=Integer(2, 20), help="Branching factor.")
+@click.option("--levels", "-L", default=5, show_default=True, type=Integer(1, 10),
               help="Depth (every branch padded to it).")
-@click.option("--seed", default=0, show_default=True, type=int, help="Seed of the k-means++ draws.")
-@click.option("--max-iter", default=10, show_default=True, type=click.IntRange(1, 100),
+@click.option("--seed", default=0, show_default=True, type=SEED, help="Seed of the k-means++ draws.")
+@click.option("--max-iter", default=10, show_default=True, type=Integer(1, 100),
               help="k-means iterations per node at most.")
-@click.option("--overwrite", is_flag=True, help="Replace an existing --out file.")
-def vocabulary(images: tuple[str, ...], out_file: str, k: int, levels: int, seed: int, max_iter: int,
-               overwrite: bool) -> int:
+def vocabulary(images: tuple[Path, ...], out_file: Path, overwrite: bool, k: int, levels: int, seed: int,
+               max_iter: int) -> int:
     """Train a DBoW2 vocabulary (ORB-SLAM's text format) on the ORB features of IMAGES.
 
     IMAGES: 8-bit images, or 16-bit RGGB mosaics of 12-bit codes (BorealHDR, emulated runs); each image counts as
@@ -39,16 +40,14 @@ def vocabulary(images: tuple[str, ...], out_file: str, k: int, levels: int, seed
         write_vocabulary,
     )
 
-    out = Path(out_file)
-    if out.exists() and not overwrite:
-        raise BracketryError(f"{out} exists (pass --overwrite to replace it)")
+    out = out_file
     if not images:
         import shutil
 
         src = ensure_default_vocabulary(echo=click.echo)
         shutil.copyfile(src, out)
         click.echo(f"vocabulary: {out} (the default, cached at {src})")
-        return 0
+        return EXIT_OK
     missing = [p for p in images if not Path(p).is_file()]
     if missing:
         raise BracketryError(f"image not found: {missing[0]}" + (f" (and {len(missing) - 1} more)"
@@ -59,4 +58,4 @@ def vocabulary(images: tuple[str, ...], out_file: str, k: int, levels: int, seed
         raise BracketryError("no ORB features in the given images")
     write_vocabulary(descriptors, out, k=k, levels=levels, seed=seed, max_iter=max_iter)
     click.echo(f"vocabulary: {out} (k={k}, L={levels}, {n} descriptors from {len(images)} images, seed {seed})")
-    return 0
+    return EXIT_OK
