@@ -61,7 +61,7 @@ def test_bench_local_run_and_report(local_run) -> None:
     assert by[("traj1", "burst")]["n_segments"] == 2
     rep = local_run.out_dir / "report"
     for name in ("results.csv", "windows.csv", "summary.csv", "success.csv", "stats.csv", "verdicts.csv",
-                 "report.md", "report.html", "coverage.png", "matches.png", "failure.png", "qualitative.png",
+                 "report.md", "report.html", "wilcoxon.csv", "friedman.csv", "coverage.png", "matches.png", "failure.png", "qualitative.png",
                  "exposure_traj1.png"):
         assert (rep / name).is_file() and (rep / name).stat().st_size > 0, name
     success = (rep / "success.csv").read_text().splitlines()
@@ -69,6 +69,9 @@ def test_bench_local_run_and_report(local_run) -> None:
     assert "Campus (1),1,1,0" in success and "Forest (1),1,1,0" in success and "Total (2),2,2,0" in success
     md = (rep / "report.md").read_text()
     assert "Statistical difference with ae50" in md and "RTE" in md and "![" in md
+    assert "Paired: Wilcoxon signed-rank against ae50" in md and "Kendall W" in md
+    wil = (rep / "wilcoxon.csv").read_text().splitlines()
+    assert len(wil) == 1 + 5 * 2 and wil[1].startswith("Coverage,dim,2,")  # 5 metrics x 2 methods, paired on 2
     assert "<table>" in (rep / "report.html").read_text()
 
 
@@ -133,3 +136,16 @@ def test_methods_all_leaves_drl_out_without_weights_and_names_the_option() -> No
     assert parse_methods("ae50,fix,ae50") == ["ae50", "fix"]
     with pytest.raises(BracketryError, match="--drl-weights"):
         parse_methods("ae50,drl", has_drl_weights=False)
+
+
+def test_methods_paper_and_stats_methods() -> None:
+    from bracketry_emulator.benchmark.orchestrate import parse_methods, select_stats_methods
+
+    paper = parse_methods("paper", has_drl_weights=False)
+    assert paper == ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim"]
+    methods = [*paper, "zhang", "myrun"]
+    assert select_stats_methods("paper", methods, "ae50") == [*paper, "myrun"]  # zhang reported, not tested
+    assert select_stats_methods("all", methods, "ae50") == methods
+    assert select_stats_methods("ae30,zhang", methods, "ae50") == ["ae30", "ae50", "zhang"]
+    with pytest.raises(BracketryError, match="not benchmarked: nope"):
+        select_stats_methods("ae30,nope", methods, "ae50")

@@ -25,7 +25,8 @@ class BenchmarkResult:
 
 
 def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> list[str]:
-    """``all`` or a comma-separated list (or a list) -> method ids, order kept, duplicates removed.
+    """``all`` / ``paper`` (the paper's eight) or a comma-separated list (or a list) -> method ids, order kept,
+    duplicates removed.
 
     Without DRL weights (``has_drl_weights=False``) ``all`` leaves ``drl`` out and an explicit ``drl`` is an error.
     """
@@ -35,7 +36,8 @@ def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> lis
         if item == "drl" and not has_drl_weights:
             raise BracketryError("the drl method needs its weights: pass --drl-weights PATH (or set "
                                  "BRACKETRY_DRL_WEIGHTS)")
-        expanded = [m for m in all_methods() if m != "drl" or has_drl_weights] if item == "all" else [item]
+        expanded = ([m for m in all_methods() if m != "drl" or has_drl_weights] if item in ("all", "paper")
+                    else [item])
         for m in expanded:
             if m and m not in out:
                 out.append(m)
@@ -106,7 +108,8 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
                   slam_dir: str | Path | None = None, drl_weights: str | Path | None = None,
                   progress: bool = False, loop: dict | None = None,
                   on_done: Callable[[dict], None] | None = None, slam: dict | None = None,
-                  slam_echo: Callable[[str], None] | None = None) -> BenchmarkResult:
+                  slam_echo: Callable[[str], None] | None = None,
+                  stats_methods: str | list[str] = "paper") -> BenchmarkResult:
     """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
     ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally,
@@ -120,7 +123,9 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and spread
     (statistics on the medians). Paced ORB-SLAM3 runs mostly wait: locally twice ``workers`` of them run at once.
     An unresolved ORB-SLAM3 vocabulary is resolved after the other input was checked (``slam_echo`` says when the
-    default vocabulary is being built).
+    default vocabulary is being built). ``stats_methods``: the methods the statistics (and their Bonferroni count)
+    cover: ``paper`` (default: the benchmarked methods among the paper's eight; ``zhang`` and plugins are reported
+    but not tested), ``all`` (every benchmarked method) or a list.
     """
     paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
     specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
@@ -136,6 +141,7 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
             get_method(m)
     if reference not in method_ids:
         raise BracketryError(f"reference method {reference!r} is not among the benchmarked methods {method_ids}")
+    select_stats_methods(stats_methods, method_ids, reference)  # bad names: one line before anything runs
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     slam_path = Path(slam_dir).resolve() if slam_dir else None
@@ -159,8 +165,29 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     if report:
         from bracketry_emulator.report import write_report
 
-        files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha, slam=slam_opts)
+        files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha, slam=slam_opts,
+                             stats_methods=select_stats_methods(stats_methods, method_ids, reference))
     return BenchmarkResult(results, out, files)
+
+
+def select_stats_methods(which: str | list[str], methods: list[str], reference: str) -> list[str]:
+    """The benchmarked methods the statistics cover (see :func:`run_benchmark`), the reference always included."""
+    from importlib.metadata import entry_points
+
+    from bracketry_emulator.ae.registry import BUILTIN_METHODS, ENTRY_POINT_GROUP, PAPER_METHODS
+
+    if which == "all":
+        chosen = list(methods)
+    elif which == "paper":  # leave out the non-paper built-ins (zhang) and plugins; runs named otherwise stay
+        extra = {*BUILTIN_METHODS, *(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP))} - set(PAPER_METHODS)
+        chosen = [m for m in methods if m not in extra or m == reference]
+    else:
+        items = which.split(",") if isinstance(which, str) else list(which)
+        chosen = [m for m in methods if m in {i.strip() for i in items} or m == reference]
+        unknown = sorted({i.strip() for i in items} - set(methods))
+        if unknown:
+            raise BracketryError(f"--stats-methods names methods that are not benchmarked: {', '.join(unknown)}")
+    return chosen
 
 
 def group_repeats(runs: list[dict]) -> list[dict]:

@@ -43,7 +43,11 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.command("benchmark")
 @click.argument("datasets", nargs=-1, required=True, type=input_path())
 @click.option("--methods", "-m", default="all", show_default=True,
-              help="'all' or a comma-separated list of AE method ids.")
+              help="'all' or 'paper' (the paper's eight; drl with --drl-weights) or a comma-separated list of AE "
+                   "method ids.")
+@click.option("--stats-methods", default="paper", show_default=True,
+              help="Methods in the statistics and their Bonferroni count: 'paper' (zhang and plugins are reported, "
+                   "not tested), 'all', or a comma-separated list.")
 @click.option("--out", "out_dir", required=True, type=output_dir(existing="resume"),
               help="Output folder; an existing one is resumed (its cache is reused), not replaced.")
 @click.option("--reference", default="ae50", show_default=True, help="Reference method of the statistics.")
@@ -86,10 +90,10 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--slam-repeats", default=1, show_default=True, type=Integer(1, 50),
               help="SLAM runs per (trajectory, method): the report gives median and spread, statistics use medians.")
 @quiet_option("No progress bar for the closed loops.")
-def command(datasets: tuple[Path, ...], methods: str, out_dir: Path, reference: str, scheduler: str | None,
-            workers: int, windows_text: str, alpha: float, max_frames: int | None, export_orbslam: bool,
-            slam_dir: Path | None, drl_weights: Path | None, selection: str, crf: str, init_exposure_ms: float,
-            seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: Path | None,
+def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_dir: Path, reference: str,
+            scheduler: str | None, workers: int, windows_text: str, alpha: float, max_frames: int | None,
+            export_orbslam: bool, slam_dir: Path | None, drl_weights: Path | None, selection: str, crf: str,
+            init_exposure_ms: float, seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: Path | None,
             slam_pace: str, loop_closing: bool, slam_repeats: int, quiet: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
@@ -129,6 +133,7 @@ def command(datasets: tuple[Path, ...], methods: str, out_dir: Path, reference: 
                            workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
                            export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
                            progress=not quiet, on_done=done, slam=slam, slam_echo=click.echo,
+                           stats_methods=stats_methods,
                            loop={"selection": selection, "crf": crf, "init_exposure_ms": init_exposure_ms,
                                  "seed": seed, "ae_camera": ae_camera, "parity": parity})
     click.echo(f"report: {result.report_files.get('report.html')}")

@@ -8,6 +8,7 @@ import numpy as np
 
 from bracketry_emulator.metrics.manifest import success_counts
 from bracketry_emulator.stats.mannwhitney import METRICS, SYMBOL, Comparison, verdict_table
+from bracketry_emulator.stats.paired import friedman, wilcoxon_to_reference
 
 RESULT_COLUMNS = ("trajectory", "subset", "method", "slam", "repeats", "n_frames", "success", "time_before_failure_s",
                   "duration_s", "tracked_fraction", "tracked_distance_fraction", "n_segments", "coverage_mean",
@@ -113,3 +114,30 @@ def stats_tables(results: list[dict], methods: list[str], reference: str, alpha:
             pvalues.append([label, m, str(c.n), _fmt(c.median), _fmt(c.median_ref), _fmt(c.p_two_sided, 4),
                             _fmt(c.p_one_sided, 4), _fmt(c.alpha_corrected, 4), c.verdict])
     return verdicts, pvalues, table
+
+
+def per_trajectory_values(results: list[dict], methods: list[str], key: str) -> dict[str, dict[str, float]]:
+    """{method: {trajectory: value}} of one metric (failed runs are NaN)."""
+    return {m: {r["trajectory"]: float(r.get(key, float("nan"))) for r in results if r["method"] == m}
+            for m in methods}
+
+
+def paired_tables(results: list[dict], methods: list[str], reference: str, alpha: float
+                  ) -> tuple[list[list[str]], list[list[str]]]:
+    """(Wilcoxon signed-rank vs ``reference`` per metric and method, Friedman across ``methods`` per metric)."""
+    others = [m for m in methods if m != reference]
+    wil = [["metric", "method", "pairs", f"median difference vs {reference}", "p two-sided", "effect r (rank-biserial)",
+            "alpha (Bonferroni)", "verdict"]]
+    fri = [["metric", "trajectories", "methods", "chi2", "p", "Kendall W", "mean ranks (1 = smallest)"]]
+    for key, (label, higher) in METRICS.items():
+        values = per_trajectory_values(results, methods, key)
+        comps = wilcoxon_to_reference(values, reference, higher, alpha)
+        for m in others:
+            c = comps[m]
+            wil.append([label, m, str(c.n_pairs), _fmt(c.median_difference), _fmt(c.p_two_sided, 4),
+                        _fmt(c.effect_r, 2), _fmt(c.alpha_corrected, 4), c.verdict])
+        f = friedman(values, methods)
+        ranks = ", ".join(f"{m} {_fmt(v, 2)}" for m, v in f.mean_ranks.items())
+        fri.append([label, str(f.n_blocks), str(len(f.methods)), _fmt(f.statistic, 2), _fmt(f.p_value, 4),
+                    _fmt(f.kendall_w, 2), ranks])
+    return wil, fri

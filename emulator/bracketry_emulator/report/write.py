@@ -18,6 +18,7 @@ import numpy as np
 from bracketry_emulator.report import plots
 from bracketry_emulator.report.tables import (
     failed_runs_table,
+    paired_tables,
     results_table,
     stats_tables,
     success_table,
@@ -65,8 +66,10 @@ def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, d
 
 
 def write_report(results: list[dict], out_dir: str | Path, reference: str, methods: list[str],
-                 alpha: float = 0.05, slam: dict | None = None) -> dict[str, Path]:
-    """Write every table and figure; returns {name: path}. ``slam``: the SLAM options (named in the report)."""
+                 alpha: float = 0.05, slam: dict | None = None, stats_methods: list[str] | None = None
+                 ) -> dict[str, Path]:
+    """Write every table and figure; returns {name: path}. ``slam``: the SLAM options (named in the report).
+    ``stats_methods``: the methods the statistical tests cover (default: all of ``methods``)."""
     from bracketry_emulator.benchmark.slam import describe
     rep = Path(out_dir) / "report"
     rep.mkdir(parents=True, exist_ok=True)
@@ -74,13 +77,17 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     res_rows = results_table(results)
     sum_rows = summary_table(results, methods)
     suc_rows = success_table(results, methods)
-    verdicts, pvalues, _ = stats_tables(results, methods, reference, alpha)
+    tested = [m for m in methods if m in set(stats_methods or methods)]
+    verdicts, pvalues, _ = stats_tables(results, tested, reference, alpha)
+    wilcoxon_rows, friedman_rows = paired_tables(results, tested, reference, alpha)
     files["results.csv"] = _write_csv(rep / "results.csv", res_rows)
     files["windows.csv"] = _write_csv(rep / "windows.csv", windows_table(results))
     files["summary.csv"] = _write_csv(rep / "summary.csv", sum_rows)
     files["success.csv"] = _write_csv(rep / "success.csv", suc_rows)
     files["verdicts.csv"] = _write_csv(rep / "verdicts.csv", verdicts)
     files["stats.csv"] = _write_csv(rep / "stats.csv", pvalues)
+    files["wilcoxon.csv"] = _write_csv(rep / "wilcoxon.csv", wilcoxon_rows)
+    files["friedman.csv"] = _write_csv(rep / "friedman.csv", friedman_rows)
     failed_rows = failed_runs_table(results)
     files["failed_runs.csv"] = _write_csv(rep / "failed_runs.csv", failed_rows)
 
@@ -110,17 +117,24 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
 
     n_traj = len({r["trajectory"] for r in results})
     intro = (f"{n_traj} trajectories x {len(methods)} methods. Reference: **{reference}**. Mann-Whitney U, "
-             f"alpha = {alpha} with Bonferroni over {max(len(methods) - 1, 1)} methods "
+             f"alpha = {alpha} with Bonferroni over {max(len(tested) - 1, 1)} methods "
              f"(▲ better, ▼ worse, ≡ not different from {reference}). RTE/RRE: evo RPE, windows "
              f"{_window_text(results)} m, per segment, paper equations; distance tracked = share of the reference "
              f"path covered by tracked segments. Localisation: {describe(slam)}.")
+    untested = [m for m in methods if m not in tested]
+    if untested:
+        intro += (f" Reported but not in the statistics: {', '.join(untested)} (--stats-methods all adds them to the "
+                  f"tests and the Bonferroni count).")
+    intro += (" Paired tests (every method runs on the same trajectories): Wilcoxon signed-rank against the reference "
+              "with the rank-biserial effect r, and Friedman across methods with Kendall's W.")
     no_ref = sorted({r["reference"] for r in results if str(r.get("reference", "")).startswith("no reference")})
     if no_ref:
         intro += " RTE/RRE: " + "; ".join(no_ref) + "."
     sections = [("Summary", sum_rows), ("Statistical difference with " + reference, verdicts),
                 *([("Failed SLAM runs (left out of the statistics)", failed_rows)] if len(failed_rows) > 1 else []),
                 ("Successful trajectories per subset", suc_rows), ("Per trajectory", res_rows),
-                ("Tests", pvalues)]
+                ("Tests", pvalues), ("Paired: Wilcoxon signed-rank against " + reference, wilcoxon_rows),
+                ("Paired: Friedman across methods", friedman_rows)]
     md = ["# Auto-exposure benchmark", "", intro, ""]
     for title, rows in sections:
         md += [f"## {title}", "", _markdown(rows), ""]

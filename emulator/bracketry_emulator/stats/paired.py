@@ -1,0 +1,115 @@
+"""Paired statistics: every method runs on the same trajectories, so compare them trajectory by trajectory.
+
+Next to the paper's Mann-Whitney U (independent samples, :mod:`~bracketry_emulator.stats.mannwhitney`):
+
+* **Wilcoxon signed-rank** of each method against the reference on the trajectories where both have a value
+  (two-sided, Bonferroni over the compared methods like the Mann-Whitney table), with the matched-pairs rank-biserial
+  correlation as effect size: ``r = (W+ - W-) / (W+ + W-)`` in [-1, 1], positive when the method's values are
+  larger (1: larger on every trajectory). The verdict reads the sign of ``r`` with the metric's direction.
+* **Friedman** across all methods on the trajectories where every method has a value (blocks = trajectories), with
+  Kendall's ``W = chi2 / (n (k - 1))`` in [0, 1] as effect size (1: every trajectory ranks the methods the same way)
+  and the methods' mean ranks (1 = smallest value).
+
+Inputs are ``{method: {trajectory: value}}``; NaN values are dropped (a pair or a block with one is left out).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.stats import friedmanchisquare, rankdata, wilcoxon
+
+from bracketry_emulator.stats.mannwhitney import BETTER, EQUAL, NA, WORSE
+
+
+@dataclass
+class PairedComparison:
+    """One method vs the reference on one metric, paired by trajectory."""
+
+    method: str
+    n_pairs: int
+    median_difference: float
+    p_two_sided: float
+    effect_r: float
+    alpha_corrected: float
+    verdict: str
+
+
+@dataclass
+class FriedmanResult:
+    """All methods on one metric: blocks (trajectories) used, chi-square, p, Kendall's W, mean ranks."""
+
+    n_blocks: int
+    methods: list[str]
+    statistic: float
+    p_value: float
+    kendall_w: float
+    mean_ranks: dict[str, float]
+
+
+def _pairs(a: dict[str, float], b: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+    keys = [t for t in a if t in b and np.isfinite(a[t]) and np.isfinite(b[t])]
+    return np.array([a[t] for t in keys], float), np.array([b[t] for t in keys], float)
+
+
+def rank_biserial(x: np.ndarray, y: np.ndarray) -> float:
+    """Matched-pairs rank-biserial correlation of ``x - y`` (zero differences dropped); NaN without differences."""
+    d = np.asarray(x, float) - np.asarray(y, float)
+    d = d[d != 0]
+    if len(d) == 0:
+        return float("nan")
+    r = rankdata(np.abs(d))
+    w_plus, w_minus = float(r[d > 0].sum()), float(r[d < 0].sum())
+    return (w_plus - w_minus) / (w_plus + w_minus)
+
+
+def wilcoxon_to_reference(values: dict[str, dict[str, float]], reference: str, higher_is_better: bool,
+                          alpha: float = 0.05, n_tests: int | None = None) -> dict[str, PairedComparison]:
+    """Wilcoxon signed-rank of every method against ``reference`` (see the module text).
+
+    ``n_tests``: the Bonferroni count (default: the number of compared methods).
+    """
+    if reference not in values:
+        raise KeyError(f"reference method {reference!r} has no values")
+    others = [m for m in values if m != reference]
+    alpha_c = alpha / max(n_tests if n_tests is not None else len(others), 1)
+    out = {}
+    for m in others:
+        x, y = _pairs(values[m], values[reference])
+        if len(x) == 0:
+            out[m] = PairedComparison(m, 0, float("nan"), float("nan"), float("nan"), alpha_c, NA)
+            continue
+        diff = x - y
+        med = float(np.median(diff))
+        if not np.any(diff != 0):
+            out[m] = PairedComparison(m, len(x), med, 1.0, float("nan"), alpha_c, EQUAL)
+            continue
+        p = float(wilcoxon(x, y, alternative="two-sided").pvalue)
+        r = rank_biserial(x, y)
+        if p >= alpha_c:
+            verdict = EQUAL
+        else:
+            verdict = BETTER if (r > 0) == higher_is_better else WORSE
+        out[m] = PairedComparison(m, len(x), med, p, r, alpha_c, verdict)
+    return out
+
+
+def friedman(values: dict[str, dict[str, float]], methods: list[str] | None = None) -> FriedmanResult:
+    """Friedman test over ``methods`` (default: all of ``values``; at least 3) on their common trajectories."""
+    ms = list(methods or values)
+    nan = float("nan")
+    if len(ms) < 3:
+        return FriedmanResult(0, ms, nan, nan, nan, {m: nan for m in ms})
+    blocks = [t for t in values[ms[0]] if all(t in values[m] and np.isfinite(values[m][t]) for m in ms)]
+    if len(blocks) < 2:
+        return FriedmanResult(len(blocks), ms, nan, nan, nan, {m: nan for m in ms})
+    data = np.array([[values[m][t] for m in ms] for t in blocks], float)  # (n blocks, k methods)
+    ranks = np.vstack([rankdata(row) for row in data])
+    mean_ranks = {m: float(v) for m, v in zip(ms, ranks.mean(axis=0))}
+    if np.all(np.ptp(data, axis=1) == 0):  # every block a tie: no evidence of any difference
+        return FriedmanResult(len(blocks), ms, 0.0, 1.0, 0.0, mean_ranks)
+    res = friedmanchisquare(*data.T)
+    chi2 = float(res.statistic)
+    w = chi2 / (len(blocks) * (len(ms) - 1))
+    return FriedmanResult(len(blocks), ms, chi2, float(res.pvalue), float(min(max(w, 0.0), 1.0)), mean_ranks)
