@@ -61,7 +61,8 @@ def test_bench_local_run_and_report(local_run) -> None:
     assert by[("traj1", "burst")]["n_segments"] == 2
     rep = local_run.out_dir / "report"
     for name in ("results.csv", "windows.csv", "summary.csv", "success.csv", "stats.csv", "verdicts.csv",
-                 "report.md", "report.html", "wilcoxon.csv", "friedman.csv", "coverage.png", "matches.png", "failure.png", "qualitative.png",
+                 "report.md", "report.html", "wilcoxon.csv", "friedman.csv",
+                 "coverage.png", "matches.png", "failure.png", "qualitative.png",
                  "exposure_traj1.png"):
         assert (rep / name).is_file() and (rep / name).stat().st_size > 0, name
     success = (rep / "success.csv").read_text().splitlines()

@@ -152,8 +152,9 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
 
     slam_opts: dict = resolve_options(dict(slam), echo=slam_echo) if slam else {"backend": "builtin", "repeats": 1}
     repeats = int(slam_opts.get("repeats", 1))
-    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam_path, weights, loop, slam_opts, r)
-             for s in specs for m in method_ids for r in range(repeats)]
+    references = {s.name: _reference(s, out) for s in specs}
+    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam_path, weights, loop, slam_opts, r,
+                       references[s.name]) for s in specs for m in method_ids for r in range(repeats)]
     if scheduler is None and slam_path is None:
         _shared_closed_loops(specs, tasks, out, weights, workers, progress, loop)
     paced = slam_opts.get("backend") == "orbslam3" and slam_opts.get("pace") != 0.0
@@ -168,6 +169,14 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
         files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha, slam=slam_opts,
                              stats_methods=select_stats_methods(stats_methods, method_ids, reference))
     return BenchmarkResult(results, out, files)
+
+
+def _reference(spec: TrajectorySpec, out: Path) -> Path | None:
+    """A trajectory's ``reference.yaml`` (TUM/KITTI/EuRoC, any sensor frame) as a left-camera TUM file under
+    ``out/reference/``; None when it has none (then its ``groundtruth.txt``, if any, is the reference)."""
+    from bracketry_emulator.metrics.reference import write_camera_reference
+
+    return write_camera_reference(spec.path, out / "reference" / f"{spec.name}.txt")
 
 
 def select_stats_methods(which: str | list[str], methods: list[str], reference: str) -> list[str]:

@@ -34,11 +34,12 @@ CACHE_VERSION = 3
 def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M,
               max_frames: int | None = None, export_orbslam: bool = False, slam_dir: Path | None = None,
               drl_weights: str | None = None, loop: dict | None = None, slam: dict | None = None,
-              repeat: int = 0) -> dict:
+              repeat: int = 0, groundtruth: Path | None = None) -> dict:
     """A picklable task description.
 
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO).
     ``repeat``: which repeat of the (trajectory, method) run this is (0-based; part of the key and the paths).
+    ``groundtruth``: a TUM left-camera reference replacing the spec's (e.g. made from its ``reference.yaml``).
 
     ``drl_weights``: the DRL actor's .pth (used by the ``drl`` method's closed loop; part of its cache key).
     ``loop``: closed-loop settings (:data:`~bracketry_emulator.benchmark.closedloop.LOOP_DEFAULTS`; part of the key).
@@ -51,7 +52,8 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
     task: dict = {
         "trajectory": spec.name, "subset": spec.subset, "method": method,
         "dataset": str(spec.path), "out": str(out_dir),
-        "groundtruth": str(spec.groundtruth_path()) if spec.groundtruth_path() else None,
+        "groundtruth": (str(groundtruth) if groundtruth else
+                        str(spec.groundtruth_path()) if spec.groundtruth_path() else None),
         "calibration": str(spec.calibration_dir()) if spec.calibration_dir() else None,
         "existing_run": str(spec.existing_run(method)) if spec.existing_run(method) else None,
         "windows_m": [float(w) for w in windows_m], "max_frames": max_frames,
