@@ -32,7 +32,7 @@ def test_demo_quick_records_verifies_and_reports_every_method(tmp_path: Path) ->
     assert "Traceback" not in res.stderr
     # progress all the way: the rig's render bar and panel screens, the closed loops' bar, VO per method
     for text in ("[1/3]", "rendering camera frames", "|L:REC R:REC TRIG:REC|", "[2/3]", "[3/3]", "emulate",
-                 "VO + metrics"):
+                 "SLAM + metrics"):
         assert text in res.stderr, text
     summary = json.loads((out / "demo_summary.json").read_text())
     assert summary["recording_verified"] is True
