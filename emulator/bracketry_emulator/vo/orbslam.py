@@ -6,7 +6,7 @@ Export layout (``out_dir``), what ``stereo_euroc`` of ORB-SLAM2 and ORB-SLAM3 re
     mav0/cam1/data/<t_ns>.png    right image of the same pair, saved under the LEFT timestamp
     times.txt                    one t_ns per line (the left timestamps)
     settings.yaml                OpenCV YAML in the legacy ORB-SLAM2 format (ORB-SLAM3 reads it too): Camera.*
-                                 of the rectified camera, Camera.bf, ThDepth 35, the paper's ORBextractor.* values,
+                                 of the rectified camera, Camera.bf, ThDepth 35.0 (a real: an integer makes ORB-SLAM3 fail), the paper's ORBextractor.* values,
                                  and LEFT/RIGHT.{K,D,R,P} set to identity rectification (images are already
                                  rectified)
     run_orbslam.sh               the command lines (ORB-SLAM2: stereo_euroc VOC settings LEFT RIGHT times.txt)
@@ -54,7 +54,7 @@ def orbslam_settings_yaml(rect: StereoRectifier, fps: float, orb: OrbSettings | 
         f"Camera.fx: {rect.fx:.6f}", f"Camera.fy: {rect.fy:.6f}", f"Camera.cx: {rect.cx:.6f}",
         f"Camera.cy: {rect.cy:.6f}", "Camera.k1: 0.0", "Camera.k2: 0.0", "Camera.p1: 0.0", "Camera.p2: 0.0",
         f"Camera.width: {rect.width_px}", f"Camera.height: {rect.height_px}", f"Camera.fps: {fps:.4f}",
-        f"Camera.bf: {rect.bf:.6f}", "Camera.RGB: 1", f"ThDepth: {th_depth:g}", "",
+        f"Camera.bf: {rect.bf:.6f}", "Camera.RGB: 1", f"ThDepth: {float(th_depth):.1f}", "",
         f"ORBextractor.nFeatures: {o.n_features}", f"ORBextractor.scaleFactor: {o.scale_factor}",
         f"ORBextractor.nLevels: {o.n_levels}", f"ORBextractor.iniThFAST: {o.ini_th_fast}",
         f"ORBextractor.minThFAST: {o.min_th_fast}", "",
