@@ -6,7 +6,7 @@ Export layout (``out_dir``), what ``stereo_euroc`` of ORB-SLAM2 and ORB-SLAM3 re
     mav0/cam1/data/<t_ns>.png    right image of the same pair, saved under the LEFT timestamp
     times.txt                    one t_ns per line (the left timestamps)
     settings.yaml                OpenCV YAML in the legacy ORB-SLAM2 format (ORB-SLAM3 reads it too): Camera.*
-                                 of the rectified camera, Camera.bf, ThDepth 35.0 (a real: an integer makes ORB-SLAM3 fail), the paper's ORBextractor.* values,
+                                 of the rectified camera, Camera.bf, ThDepth 35.0, the paper's ORBextractor.* values,
                                  and LEFT/RIGHT.{K,D,R,P} set to identity rectification (images are already
                                  rectified)
     run_orbslam.sh               the command lines (ORB-SLAM2: stereo_euroc VOC settings LEFT RIGHT times.txt)
