@@ -120,7 +120,7 @@ def test_bench_cli(datasets, local_run, tmp_path: Path, capsys) -> None:
     assert "reference method 'ae50'" in capsys.readouterr().err  # before any vocabulary is resolved or built
     assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
                      "--vocabulary", str(tmp_path / "missing.txt")]) == 2
-    assert "vocabulary file not found" in capsys.readouterr().err
+    assert "--vocabulary" in capsys.readouterr().err
     assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
                      "--slam-pace", "fast"]) == 2
     assert cli_main(["benchmark", str(datasets[0]), "--methods", "ae50", "--out", str(tmp_path),
