@@ -118,6 +118,18 @@ def work_gray_for(image: np.ndarray, width: int, meta: dict[str, Any] | None = N
     return shared.work(width) if shared is not None else work_gray(image, width)
 
 
+#: Default-mode saturation guard of the synthesis-based methods (Shim, Wang): above this fraction of pixels at the
+#: saturated code, the method takes its own largest step towards a shorter exposure (see their docstrings).
+SATURATION_GUARD = 0.10
+
+
+def saturated_fraction(image: np.ndarray, meta: dict[str, Any] | None = None) -> float:
+    """Fraction of the mosaic's pixels at or above the camera's saturated code (``meta["response"]``, else 4094)."""
+    resp = meta.get("response") if meta else None
+    code = int(getattr(resp, "saturated_code", 4094))
+    return float(np.count_nonzero(image >= code)) / float(image.size)
+
+
 class MethodError(ValueError):
     """A method got an input it cannot use (wrong shape, non-positive exposure)."""
 

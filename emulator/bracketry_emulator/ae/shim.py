@@ -21,6 +21,11 @@ Deliberate deviations:
 - Speed: the gray image is area-downscaled to ``work_width`` = 480 columns before the 7 syntheses (the metric is a
   normalised sum, so the argmax is stable; ``work_width=0`` gives the authors' full resolution).
 - The polynomial fit is done on the metric divided by the pixel count (same argmax, better conditioning).
+- Correction (saturation guard): a gamma-mapped image cannot show detail beyond clipping (1^gamma = 1), so on a
+  mostly saturated scene the metric stops asking for a shorter exposure (measured on a static scene 92 % saturated
+  at 4 ms: Shim stopped at 2.56 ms with 61 % of the pixels still saturated). When more than
+  ``base.SATURATION_GUARD`` = 10 % of the pixels are at the saturated code, gamma* is set to the largest gamma
+  (1.9), i.e. Shim's own largest step down (x 0.91 per step). Neither the paper nor the authors' code has it.
 """
 
 from __future__ import annotations
@@ -30,7 +35,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from .base import check_input, work_gray_for
+from .base import SATURATION_GUARD, check_input, saturated_fraction, work_gray_for
 
 SHIM_GAMMAS: tuple[float, ...] = (1 / 1.9, 1 / 1.5, 1 / 1.2, 1.0, 1.2, 1.5, 1.9)
 
@@ -96,6 +101,9 @@ class ShimAE:
 
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         check_input(image, exposure_us)
-        gamma_star = best_gamma(self.scores(image, meta), self.gammas)
+        if saturated_fraction(image, meta) > SATURATION_GUARD:
+            gamma_star = float(max(self.gammas))
+        else:
+            gamma_star = best_gamma(self.scores(image, meta), self.gammas)
         self.last_gamma = gamma_star
         return float(exposure_us) * shim_update_factor(gamma_star, self.kp)
