@@ -9,7 +9,6 @@ that every frame carries the missing-packet count that arrived with it.
 from __future__ import annotations
 
 import contextlib
-import ipaddress
 import logging
 import threading
 import time
@@ -24,6 +23,8 @@ from bracketry.cameras.aravis_gi import CameraError, glib_error_message, load_ar
 from bracketry.cameras.frame_ids import FrameIdUnwrapper
 from bracketry.cameras.pixels import PIXEL_FORMAT_NAMES, payload_to_image
 from bracketry.cameras.profiles import CameraSettings, ConfigReport, apply_writes, probe_features, profile_writes
+from bracketry.errors import BracketryError
+from bracketry.ipv4 import unicast_ipv4
 
 log = logging.getLogger(__name__)
 
@@ -116,10 +117,9 @@ class GigECamera:
                               "give its IP address, or allow discovery inside a private network namespace")
         if address and not allow_discovery:
             try:  # a name would be resolved by Aravis through a discovery broadcast on every interface
-                ipaddress.IPv4Address(address)
-            except ValueError:
-                raise CameraError(f"camera {side}: {address!r} is not an IPv4 address (cameras are opened by IP "
-                                  "only)") from None
+                unicast_ipv4(address)
+            except BracketryError as exc:
+                raise CameraError(f"camera {side}: {exc}") from None
         self.side = side
         self.address = address
         self.device_id = device_id

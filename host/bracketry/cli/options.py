@@ -14,7 +14,6 @@ CONTRIBUTING.md ("CLI") documents the rule and the option vocabulary.
 
 from __future__ import annotations
 
-import ipaddress
 import math
 import os
 import re
@@ -25,6 +24,7 @@ from typing import Any, TypeVar
 import click
 
 from bracketry.errors import BracketryError
+from bracketry.ipv4 import unicast_ipv4
 from bracketry.outputs import Existing, Kind, check_output
 
 #: Exit codes of every command (documented once, in CONTRIBUTING.md and ``bracketry --help``).
@@ -142,21 +142,9 @@ class IPv4(click.ParamType):
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str:
         try:
-            return str(ipv4_address(str(value)))
+            return str(unicast_ipv4(str(value)))
         except BracketryError as exc:
             self.fail(str(exc), param, ctx)
-
-
-def ipv4_address(text: str) -> ipaddress.IPv4Address:
-    """``text`` as an IPv4 address in dotted form; BracketryError otherwise (host names are refused)."""
-    try:
-        addr = ipaddress.IPv4Address(text.strip())
-    except ValueError:
-        raise BracketryError(f"{text!r} is not an IPv4 address (e.g. 192.168.10.11); cameras are opened by IP "
-                             "only") from None
-    if addr.is_multicast or addr.is_unspecified or str(addr).endswith(".255"):
-        raise BracketryError(f"{text!r} is not a unicast IPv4 address")
-    return addr
 
 
 class OutputPath(click.ParamType):

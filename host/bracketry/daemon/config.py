@@ -7,13 +7,13 @@ back to a default in the field).
 
 from __future__ import annotations
 
-import ipaddress
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bracketry.errors import BracketryError
+from bracketry.ipv4 import unicast_ipv4
 from bracketry.wire import bproto
 
 CAMERA_PROFILES = ("basler_ace2", "aravis_fake")
@@ -251,9 +251,10 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
                           "open one)")
         if "address" in cam:
             try:
-                ipaddress.IPv4Address(cam["address"])
-            except ValueError:
-                c.fail(f"{where}.address", f"not an IPv4 address: {cam['address']!r}")
+                unicast_ipv4(cam["address"])
+            except BracketryError as exc:
+                kind = "not a unicast IPv4 address" if "unicast" in str(exc) else "not an IPv4 address"
+                c.fail(f"{where}.address", f"{kind}: {cam['address']!r}")
         act = cam.get("trigger_activation", "FallingEdge")
         if act not in TRIGGER_ACTIVATIONS:
             c.fail(f"{where}.trigger_activation", f"must be one of {', '.join(TRIGGER_ACTIVATIONS)}, got {act!r}")
