@@ -195,6 +195,9 @@ ROWS = [
     Row("recording", "emulate {zero} --out {tmp}/emu", words="not an MCAP file"),
     Row("recording", "emulate {text} --out {tmp}/emu", words="not an MCAP file"),
     Row("recording", "accuracy neighbours {zero} --out {tmp}/acc", words="not an MCAP file"),
+    Row("recording", "verify {tmp}/full", words="no .mcap files"),
+    Row("recording", "export {tmp}/full --out {tmp}/exp", words="no .mcap files"),
+    Row("recording", "verify --repair {zero}", words="not an MCAP file"),
     # ---- network: camera addresses are IPv4 only (a name would be resolved by a discovery broadcast)
     Row("network", "cameras probe --address camera.local", words="not an IPv4 address"),
     Row("network", "cameras configure --address 999.1.1.1", words="not an IPv4 address"),
