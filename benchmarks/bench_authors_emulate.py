@@ -7,7 +7,8 @@ Usage:
 
 ``BRACKETRY_BOREALHDR_CODE`` is a checkout of norlab-ulaval/BorealHDR (branch TFR2024: ``scripts/emulator_threads.py``,
 ``parameters.yaml``, ``calibration_files/``), never committed here and never downloaded by this script;
-``BRACKETRY_BOREALHDR_PYTHON`` an interpreter with its requirements.txt installed (default: this one). Each repeat
+``BRACKETRY_BOREALHDR_PYTHON`` an interpreter with its requirements.txt installed (default: this one); their script
+selects matplotlib's TkAgg backend, so without ``$DISPLAY`` it runs under ``xvfb-run`` (Debian xvfb). Each repeat
 runs, as separate processes, the authors' script (methods classical-30/50/70, fixed-0, shim-0, kim-0, zhang-0, their
 initial 4 ms, saving images) and ``bracketry emulate -m fix,ae30,ae50,ae70,shim,kim,zhang --parity upstream`` (PNGs of
 both cameras, depth 12); it prints the median wall time of each, per (method, stereo step), and the ratio.
@@ -55,6 +56,9 @@ def count_pngs(folder: Path) -> int:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument("--dataset", type=Path, default=None,
+                    help="A BorealHDR recording folder (camera_left/<ms>/..., e.g. from bracketry synth trajectory); "
+                         "default: the real sample's")
     args = ap.parse_args()
     code = os.environ.get(CODE_ENV)
     if not code:
@@ -67,17 +71,20 @@ def main() -> int:
     if not script.is_file():
         raise SystemExit(f"{CODE_ENV}={code}: no scripts/emulator_threads.py there (a BorealHDR TFR2024 checkout?)")
     python = os.environ.get(PYTHON_ENV) or sys.executable
-    seq = paths.sample_sequence_dir()
-    if seq is None:
-        raise SystemExit("BorealHDR sample not found (../shared/data/borealhdr_sample or $BRACKETRY_SAMPLE_DATA)")
+    seq = args.dataset.resolve() if args.dataset is not None else paths.sample_sequence_dir()
+    if seq is None or not (seq / "camera_left").is_dir():
+        raise SystemExit("no dataset: the BorealHDR sample not found (../shared/data/borealhdr_sample or "
+                         "$BRACKETRY_SAMPLE_DATA) or --dataset without camera_left/")
     bracketry = Path(sys.executable).with_name("bracketry")
+    # their script selects matplotlib's TkAgg backend: without a display it runs under a private X server
+    xvfb = ["xvfb-run", "-a"] if not os.environ.get("DISPLAY") and shutil.which("xvfb-run") else []
     authors_s: list[float] = []
     ours_s: list[float] = []
     with tempfile.TemporaryDirectory(prefix="bench-authors-") as tmp:
         t = Path(tmp)
         for r in range(args.repeats):
             a_out, o_out = t / f"authors{r}", t / f"ours{r}"
-            authors_s.append(timed([python, str(script), "--dataset_folder", str(seq.parent), "--experiment",
+            authors_s.append(timed([*xvfb, python, str(script), "--dataset_folder", str(seq.parent), "--experiment",
                                     seq.name, "--save_path", str(a_out), "--exposure_time_init", "4.0",
                                     "--automatic_exposure_techniques", *AUTHORS_METHODS], cwd=script.parent))
             ours_s.append(timed([str(bracketry), "emulate", str(seq), "-m", OUR_METHODS, "--parity", "upstream",
@@ -92,7 +99,7 @@ def main() -> int:
     steps = 7 * n_seq
     ma, mo = statistics.median(authors_s), statistics.median(ours_s)
     print(f"\nworkload: 7 methods x {n_seq} bracket sequences x 2 cameras, 12-bit PNGs, whole processes "
-          f"(sample {seq.name})")
+          f"({seq})")
     print(f"authors' emulator_threads.py (their code, {python}): median {ma:.1f} s = {ma / steps:.3f} s per "
           f"(method, stereo step)")
     print(f"bracketry emulate:                                 median {mo:.1f} s = {mo / steps:.3f} s per "
