@@ -71,6 +71,7 @@ def main() -> int:
     if not script.is_file():
         raise SystemExit(f"{CODE_ENV}={code}: no scripts/emulator_threads.py there (a BorealHDR TFR2024 checkout?)")
     python = os.environ.get(PYTHON_ENV) or sys.executable
+    pcalib = Path(code) / "calibration_files" / "pcalib_inside1.txt"  # the response their script uses
     seq = args.dataset.resolve() if args.dataset is not None else paths.sample_sequence_dir()
     if seq is None or not (seq / "camera_left").is_dir():
         raise SystemExit("no dataset: the BorealHDR sample not found (../shared/data/borealhdr_sample or "
@@ -88,6 +89,7 @@ def main() -> int:
                                     seq.name, "--save_path", str(a_out), "--exposure_time_init", "4.0",
                                     "--automatic_exposure_techniques", *AUTHORS_METHODS], cwd=script.parent))
             ours_s.append(timed([str(bracketry), "emulate", str(seq), "-m", OUR_METHODS, "--parity", "upstream",
+                                 "--crf", str(pcalib),
                                  "--init-exposure-ms", "4", "--depth", "12", "-o", str(o_out), "--overwrite", "-q"]))
             n_seq = json.loads((o_out / "summary.json").read_text())["sequences"]
             print(f"repeat {r + 1}/{args.repeats}: authors' emulator_threads.py {authors_s[-1]:.1f} s "
