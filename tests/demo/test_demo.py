@@ -30,8 +30,8 @@ def test_demo_quick_records_verifies_and_reports_every_method(tmp_path: Path) ->
                          capture_output=True, text=True, timeout=1500, env=env)
     assert res.returncode == 0, (res.stdout[-2000:], res.stderr[-3000:])
     assert "Traceback" not in res.stderr
-    # progress all the way: the rig's render bar and panel screens, the closed loops' bar, VO per method
-    for text in ("[1/3]", "rendering camera frames", "|L:REC R:REC TRIG:REC|", "[2/3]", "[3/3]", "emulate",
+    # progress all the way: the rig's first frame and panel screens, the closed loops' progress, VO per method
+    for text in ("[1/3]", "first frame recorded", "|L:REC R:REC TRIG:REC|", "[2/3]", "[3/3]", "emulate",
                  "SLAM + metrics"):
         assert text in res.stderr, text
     summary = json.loads((out / "demo_summary.json").read_text())
