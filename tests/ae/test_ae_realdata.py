@@ -89,14 +89,14 @@ def test_emulate_cli_end_to_end(borealhdr_sequence: Path, tmp_path: Path) -> Non
     out = tmp_path / "out"
     env = {"PYTHONPATH": str(tmp_path), "PATH": "/usr/bin:/bin", "MPLBACKEND": "Agg"}
     cmd = [*CLI, "emulate", str(borealhdr_sequence), "--method",
-           "all,ae_cli_plugin:Doubler", "--out", str(out), "--camera", "left", "--max-sequences", "2",
+           "all,zhang,ae_cli_plugin:Doubler", "--out", str(out), "--camera", "left", "--max-sequences", "2",
            "--drl-weights", str(weights), "--workers", "2", "--quiet", "--init-exposure-ms", "4"]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=300, cwd=ROOT, env=env)
     assert res.returncode == 0, res.stderr
     expected = ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl", "zhang", "ae_cli_plugin-Doubler"]
     summary = json.loads((out / "summary.json").read_text())
     assert list(summary["methods"]) == [*expected[:-1], "ae_cli_plugin:Doubler"]
-    assert summary["init_exposure_ms"] == 4.0 and summary["bounds_ms"] == [0.02, 64.0]
+    assert summary["init_exposure_ms"] == 4.0 and summary["bounds_ms"] == [0.02, 64.0] and summary["mode"] == "default"
     for m in expected:
         folder = out / m
         assert len(list((folder / "images_left").glob("*.png"))) >= 1, m

@@ -45,11 +45,11 @@ def test_layout_links_and_plot(tmp_path: Path) -> None:
         assert len(list((d / "images_right").glob("*.png"))) == 3
         assert len((d / "times_images_left.txt").read_text().splitlines()) == 3
         assert len((d / "ae.csv").read_text().splitlines()) == 4
-    # fix and ae50 take the same classical-50 steps: identical images are hard links, decoded pixels equal
+    # identical images (same sequence, side and target) are hard links: step 0 is 4 ms for every method
     a = sorted((tmp_path / "out" / "fix" / "images_left").glob("*.png"))
     b = sorted((tmp_path / "out" / "ae50" / "images_left").glob("*.png"))
     assert [p.name for p in a] == [p.name for p in b]
-    assert all(p.stat().st_ino == q.stat().st_ino for p, q in zip(a, b))
+    assert a[0].stat().st_ino == b[0].stat().st_ino
     c = sorted((tmp_path / "out" / "ae70" / "images_left").glob("*.png"))
     assert c[0].stat().st_ino == a[0].stat().st_ino  # step 0: every method at 4 ms
     assert c[1].stat().st_ino != a[1].stat().st_ino
