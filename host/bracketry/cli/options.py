@@ -37,21 +37,20 @@ EXIT_INTERRUPTED = 130  #: Ctrl-C
 F = TypeVar("F", bound=Callable[..., Any])
 
 
-class Number(click.ParamType):
-    """A finite float within [min, max] (either bound optional, each open or closed); nan and inf are refused."""
+class Number(click.FloatRange):
+    """A finite float within [min, max] (either bound optional, each open or closed); nan and inf are refused.
+
+    A click FloatRange (so ``--help`` shows the range) that also refuses non-finite values, which FloatRange accepts
+    (``nan`` compares false with every bound, ``inf`` passes an open upper bound).
+    """
 
     name = "number"
 
     def __init__(self, min: float | None = None, max: float | None = None, *, min_open: bool = False,
                  max_open: bool = False) -> None:
-        self.min, self.max, self.min_open, self.max_open = min, max, min_open, max_open
+        super().__init__(min, max, min_open=min_open, max_open=max_open)
 
-    def _range(self) -> str:
-        lo = "" if self.min is None else (f">{'' if self.min_open else '='} {self.min:g}")
-        hi = "" if self.max is None else (f"<{'' if self.max_open else '='} {self.max:g}")
-        return " and ".join(x for x in (lo, hi) if x)
-
-    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> float:
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
             v = float(value)
         else:
@@ -61,14 +60,10 @@ class Number(click.ParamType):
                 self.fail(f"{value!r} is not a number", param, ctx)
         if not math.isfinite(v):
             self.fail(f"{value!r} is not a finite number", param, ctx)
-        too_low = self.min is not None and (v <= self.min if self.min_open else v < self.min)
-        too_high = self.max is not None and (v >= self.max if self.max_open else v > self.max)
-        if too_low or too_high:
-            self.fail(f"{value!r} is out of range: must be {self._range()}", param, ctx)
-        return v
+        return super().convert(v, param, ctx)
 
     def __repr__(self) -> str:
-        return f"Number({self._range()})"
+        return f"Number({self._describe_range()})"
 
 
 class Integer(click.IntRange):
