@@ -6,6 +6,8 @@ network namespace); the test reads the recordings, the kept frame files and ``gr
 from __future__ import annotations
 
 import json
+import os
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -48,7 +50,14 @@ def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_show
     cmd = [sys.executable, "-m", "bracketry", "simulate", "--seconds", "5", "--out", str(out), "--resolution",
            f"{w}x{h}", "--fps", f"{fps:g}", "--world-seconds", "600", "--keep-frames"]
     with cpu_hogs():
-        res = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                start_new_session=True)
+        try:
+            stdout, stderr = proc.communicate(timeout=300)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)  # the simulation and everything it started (its own session)
+            stdout, stderr = proc.communicate(timeout=30)
+    res = subprocess.CompletedProcess(cmd, proc.returncode, stdout, stderr)
     summary_path = out / "simulation.json"
     assert summary_path.is_file(), res.stdout[-2000:] + res.stderr[-2000:]
     summary = json.loads(summary_path.read_text())
