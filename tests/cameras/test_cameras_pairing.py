@@ -153,3 +153,22 @@ def test_a_late_buffer_is_paired_with_its_own_pulse_or_reported_late() -> None:
     assert p.counters["right"].drops == 1 and p.counters["right"].late == 1
     assert all(s.complete for s in sets if s.trigger_seq != 20 and s.frames.get("right") is not None
                and s.frames.get("left") is not None)
+
+
+def test_a_shift_to_before_pulse_zero_is_never_applied() -> None:
+    """A first checked frame whose timestamp is 3 periods late sets a wrong reference; the frames after it then look
+    shifted by -3 pulses. Moving them to pulses -2..-1 would record invalid trigger_seqs
+    (stored unsigned: 4294967294...)."""
+    sets: list[PairedSet] = []
+    p = Pairer(("left", "right"), sets.append, window=8)
+    for k in range(40):
+        p.add_event(event(k))
+        for side in ("left", "right"):
+            f = frame(side, k, k)
+            if side == "left" and k == 1:  # pulse 0 is never checked (no period yet)
+                f.cam_timestamp_ns += 3 * PERIOD_US * 1000
+            p.add_frame(f)
+    p.flush()
+    seqs = [s.trigger_seq for s in sets]
+    assert seqs and min(seqs) >= 0
+    assert sum(1 for s in sets if s.frames["left"] is not None) == 40  # every left frame recorded once

@@ -254,6 +254,13 @@ class Pairer:
         for seq_between in range(first + 1, max(st.candidate)):
             if seq_between not in st.candidate and side in self._pending.get(seq_between, {}):
                 st.candidate.append(seq_between)
+        if min(st.candidate) + m < 0:
+            # a shift to before the first pulse is no shift (timestamps of frames that came before START)
+            log.info("camera %s: timestamp shift of %+d pulses at trigger_seq %d dropped (before pulse 0)",
+                     side, m, min(st.candidate))
+            st.candidate = []
+            st.candidate_shift = 0
+            return seq
         moved_seq = seq
         first_moved = min(st.candidate)
         first = True

@@ -153,6 +153,28 @@ def _load(files: list[Path], report: VerifyReport) -> tuple[dict[int, Any], dict
     return events, metas, images, metadata, statuses
 
 
+# a trigger_seq at or above this is no pulse number of a recording (a negative index stored as uint32): such records
+# are reported, never iterated over
+MAX_VALID_SEQ = 2**31 - 1
+
+
+def _drop_invalid_seqs(events: dict[int, Any], metas: dict[str, dict[int, Any]], images: dict[str, set[int]],
+                       report: VerifyReport) -> None:
+    """Remove (and report) records whose trigger_seq cannot be a pulse number, so the checks stay bounded."""
+    bad_events = [s for s in events if s > MAX_VALID_SEQ]
+    for seq in bad_events:
+        del events[seq]
+    if bad_events:
+        report.problems.append(f"{len(bad_events)} trigger event(s) with an invalid trigger_seq (e.g. {bad_events[0]})")
+    for side, side_metas in metas.items():
+        bad = [s for s in side_metas if s > MAX_VALID_SEQ]
+        for seq in bad:
+            del side_metas[seq]
+            images.get(side, set()).discard(seq)
+        if bad:
+            report.problems.append(f"camera {side}: {len(bad)} frame(s) with an invalid trigger_seq (e.g. {bad[0]})")
+
+
 def verify_recording(path: str | Path) -> VerifyReport:
     """Check one recording (file or folder of split files)."""
     report = VerifyReport(recording=str(path))
@@ -169,6 +191,7 @@ def verify_recording(path: str | Path) -> VerifyReport:
     if n_brackets is None:
         indices = [int(e.bracket_index) for e in events.values()]
         n_brackets = max(indices) + 1 if indices else 1
+    _drop_invalid_seqs(events, metas, images, report)
     all_seqs = set(events) | {s for m in metas.values() for s in m}
     if not all_seqs:
         report.sides = {s: SideReport() for s in sides}
