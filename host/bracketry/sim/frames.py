@@ -125,6 +125,8 @@ class FrameSchedule:
                                                   shape=(3,))
         self._lock = threading.Lock()
         self._chosen: dict[int, int] = {}
+        #: exposure_us -> (bracket frame m, time.monotonic()) of its latest serving, by either side
+        self._last_by_exposure: dict[int, tuple[int, float]] = {}
         self._proc: Any = None
 
     def frame_path(self, side: str) -> Path:
@@ -226,15 +228,25 @@ class FrameSchedule:
             with self._lock:
                 m = self.served[side]
                 matched = None
-                for step in range(n):
-                    if abs(self.exposure_us(m + step) - exposure_us) <= 1:
-                        if step:
-                            self.mismatches += 1
-                        matched = m + step
-                        break
+                now_s = time.monotonic()
+                recent = self._last_by_exposure.get(int(exposure_us))
+                if recent is not None and now_s - recent[1] < 0.5 * n / self.fps and recent[0] >= m - n:
+                    # this exposure was served less than half a cycle ago (by either side): the same pulse. A
+                    # camera that fills twice for one trigger must not step its count a whole cycle ahead of the
+                    # other side's (a stereo pair of two different world times)
+                    matched = recent[0]
+                else:
+                    for step in range(n):
+                        if abs(self.exposure_us(m + step) - exposure_us) <= 1:
+                            if step:
+                                self.mismatches += 1
+                            matched = m + step
+                            break
+                if matched is not None:
+                    self._last_by_exposure[int(exposure_us)] = (matched, now_s)
                 k = None
                 if matched is not None:
-                    self.served[side] = matched + 1
+                    self.served[side] = max(self.served[side], matched + 1)
                     k = self.choose(matched)
             frame = None
             if matched is not None:

@@ -366,7 +366,8 @@ class SimulatedRig:
     def write_groundtruth(self) -> dict[str, Any] | None:
         """Ground truth of the recorded left frames (image time stamps), next to the recordings: each frame's pose
         is the world's at the rendered frame its pixels carry (never matched by order or timing). Frames that carry
-        no index are left out and counted; ``groundtruth_unknown.txt`` lists their stamps.
+        no index, or whose right partner carries another one, are left out and counted; ``groundtruth_unknown.txt``
+        lists their stamps.
 
         Returns {"path", "frames", "poses", "unknown"} (None without a world)."""
         self.write_world_files()
@@ -375,6 +376,9 @@ class SimulatedRig:
         from bracketry.sim.frames import groundtruth_lines
 
         frames = self.recorded_frame_ids("left")
+        # a stereo pair whose right image shows another rendered frame than its left one has no single pose
+        right = dict(self.recorded_frame_ids("right"))
+        frames = [(t, k if right.get(t, k) == k else None) for t, k in frames]
         lines, unknown = groundtruth_lines(self.world, self.schedule.t_s, frames)
         path = self.out / "groundtruth.txt"
         path.write_text("\n".join(lines) + "\n")
