@@ -197,8 +197,8 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     gt = sim.get("groundtruth")
     unknown = int(gt.get("unknown", 0)) if isinstance(gt, dict) else 0
     if unknown:
-        echo(f"      {unknown} recorded frames carry no rendered-frame identity (no known pose): RTE/RRE will not "
-             "be computed")
+        echo(f"      {unknown} recorded frames have no known pose (no rendered-frame identity, or a stereo pair of two "
+             "rendered frames): left out of RTE/RRE, which are refused when that is more than 5 % of a run's frames")
     t_rec = time.monotonic() - t0
     dataset = export_dataset(p, sim, echo)
     result = benchmark(p, dataset, echo)
