@@ -548,7 +548,7 @@ class RigDaemon:
             self._drain_events(session)
         finally:
             self._pump_paused.clear()
-        return session.stop(drain_s=1.0, expect_frames=self._fired)
+        return session.stop(drain_s=3.0, expect_frames=self._fired)  # the last pulses' buffers, also under load
 
     def _restart_segment(self, reason: str) -> None:
         """Close the open segment cleanly and start a new one with the sensors that work."""
