@@ -13,7 +13,6 @@ import socket
 import subprocess
 import sys
 import time
-import urllib.error
 import urllib.request
 from pathlib import Path
 from typing import Any
@@ -25,6 +24,7 @@ import pytest
 
 from bracketry.cameras.netns import netns_available
 from bracketry.monitor.core import UNDER_RGB
+from bracketry.testing.http import http_json as http
 from bracketry_testkit import missing_component
 from monitor.chromium import Chromium, Page, chromium_path
 
@@ -41,18 +41,6 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return int(s.getsockname()[1])
-
-
-def http(url: str, body: dict[str, Any] | None = None, token: str | None = None) -> tuple[int, dict[str, Any]]:
-    headers = {"Content-Type": "application/json"}
-    if token is not None:
-        headers["X-Bracketry-Token"] = token
-    req = urllib.request.Request(url, data=json.dumps(body).encode() if body is not None else None, headers=headers)
-    try:
-        with urllib.request.urlopen(req, timeout=10) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as exc:
-        return exc.code, json.loads(exc.read())
 
 
 def wait_line(path: Path, pattern: str, proc: subprocess.Popen, timeout_s: float) -> re.Match[str]:

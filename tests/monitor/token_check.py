@@ -5,26 +5,18 @@ from __future__ import annotations
 
 import json
 import sys
-import urllib.error
-import urllib.request
 from pathlib import Path
 from typing import Any
 
 from bracketry.daemon.config import parse_config
 from bracketry.daemon.rig import RigDaemon
+from bracketry.testing.http import http_json
 
 ADDRESS = "10.77.0.1"
 
 
 def probe(url: str, token: str | None = None, body: dict[str, Any] | None = None) -> list[Any]:
-    headers = {"Content-Type": "application/json", **({"X-Bracketry-Token": token} if token is not None else {})}
-    req = urllib.request.Request(url, data=json.dumps(body).encode() if body is not None else None, headers=headers)
-    try:
-        with urllib.request.urlopen(req, timeout=10) as r:
-            raw = r.read()
-            return [r.status, json.loads(raw) if r.headers["Content-Type"].startswith("application/json") else None]
-    except urllib.error.HTTPError as exc:
-        return [exc.code, json.loads(exc.read())]
+    return list(http_json(url, body, token))
 
 
 def main(work: Path) -> None:

@@ -42,6 +42,7 @@ from typing import Any
 
 from bracketry.errors import BracketryError
 from bracketry.sim.rig import CAMERA_ADDRESSES, NETNS_ENV, SimOptions, SimulatedRig
+from bracketry.testing.http import http_json
 
 ALL = ("cam_left", "cam_right", "trigger")
 SCENARIOS = ("e2e", "faults", "disk", "preview")
@@ -343,22 +344,9 @@ def run_disk(s: Session, ballast_mb: int) -> dict[str, Any]:
     return {"daemon_exit_code": rc, "ballast_mb": written, "verify": reports}
 
 
-def _http(url: str, body: dict[str, Any] | None = None, token: str | None = None) -> tuple[int, Any]:
-    import urllib.error
-    import urllib.request
-
-    headers = {"Content-Type": "application/json", **({"X-Bracketry-Token": token} if token else {})}
-    req = urllib.request.Request(url, data=json.dumps(body).encode() if body is not None else None, headers=headers)
-    try:
-        with urllib.request.urlopen(req, timeout=10) as r:
-            return r.status, json.loads(r.read())
-    except urllib.error.HTTPError as exc:
-        return exc.code, json.loads(exc.read())
-
-
 def _previews(base: str) -> dict[str, dict[int, dict[str, Any]]]:
     """side -> bracket index -> the monitor's latest preview entry."""
-    _code, data = _http(f"{base}/api/previews")
+    _code, data = http_json(f"{base}/api/previews")
     return {side: {e["bracket"]: e for e in entries} for side, entries in data["cameras"].items()}
 
 
@@ -397,9 +385,9 @@ def run_preview(s: Session, seconds: float) -> dict[str, Any]:
     rig.press("sensors")
     rig.wait_states({k: "IDLE" for k in ALL}, 60.0)
     idle = _wait_previews(s, base, brackets_us, 60.0)
-    s.step("idle_previews", previews=idle, files=_files_under(rig.rec_dir), status=_http(f"{base}/api/status")[1])
+    s.step("idle_previews", previews=idle, files=_files_under(rig.rec_dir), status=http_json(f"{base}/api/status")[1])
     new_us = [b // 2 for b in brackets_us]
-    applied = _http(f"{base}/api/action", {"action": "apply_brackets", "brackets_us": new_us}, token)
+    applied = http_json(f"{base}/api/action", {"action": "apply_brackets", "brackets_us": new_us}, token)
     applied_previews = _wait_previews(s, base, new_us, 60.0)
     s.step("applied_previews", applied=applied, previews=applied_previews, files=_files_under(rig.rec_dir))
     rig.press("record")
@@ -412,7 +400,7 @@ def run_preview(s: Session, seconds: float) -> dict[str, Any]:
     s.wait_message("SAVED", 20.0)
     s.step("stopped", previews=_previews(base))
     resumed = _wait_previews(s, base, new_us, 60.0, newer_than=s.steps[-1]["previews"])
-    s.step("resumed_previews", previews=resumed, status=_http(f"{base}/api/status")[1])
+    s.step("resumed_previews", previews=resumed, status=http_json(f"{base}/api/status")[1])
     rc = rig.stop_daemon(signal.SIGTERM)
     s.step("sigterm", daemon_exit_code=rc)
     return {"daemon_exit_code": rc, "brackets_us": brackets_us, "applied_us": new_us}
