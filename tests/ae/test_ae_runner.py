@@ -77,7 +77,7 @@ def test_right_camera_drives_and_bounds_clamp(tmp_path: Path, monkeypatch: pytes
     monkeypatch.syspath_prepend(str(tmp_path))
     left = run_methods(rec, ["ae50"], tmp_path / "l", workers=1, progress=False, write_images=False)
     right = run_methods(rec, ["ae50", "ae_runner_plugin:Doubler"], tmp_path / "r", workers=2, progress=False,
-                        camera="right", ae_side="right", max_exposure_us=10_000.0)
+                        camera="right", ae_camera="right", max_exposure_us=10_000.0)
     assert right.sides == ("right",)
     assert not (tmp_path / "r" / "ae50" / "images_left").exists()
     # the right camera is brighter, so AE50 driven by it chooses a shorter exposure

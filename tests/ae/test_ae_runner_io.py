@@ -30,7 +30,7 @@ def test_stored_png_rejects_other_arrays() -> None:
 @pytest.mark.parametrize("selection", ["highernosat", "upstream"])
 def test_needed_brackets_select_like_all_brackets(selection: str) -> None:
     """Decoding on demand: the selection on the needed subset equals the selection on every bracket."""
-    from bracketry_emulator.ae.closedloop import _needed_brackets
+    from bracketry_emulator.ae.emulation_cache import needed_brackets as _needed_brackets
     from bracketry_emulator.emulation.selection import select_highernosat, select_upstream
 
     exps = (1000, 2000, 4000, 8000, 16000, 32000)

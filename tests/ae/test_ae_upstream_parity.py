@@ -94,7 +94,7 @@ def test_closed_loop_equals_the_authors_on_a_synthetic_trajectory(borealhdr_samp
 
 def test_all_is_the_papers_eight_and_the_mode_is_in_the_benchmark_key(tmp_path: Path) -> None:
     from bracketry_emulator.ae import expand_methods
-    from bracketry_emulator.benchmark.closedloop import loop_config
+    from bracketry_emulator.benchmark.emulated_runs import loop_config
     from bracketry_emulator.benchmark.tasks import make_task
     from bracketry_emulator.metrics.manifest import TrajectorySpec
 

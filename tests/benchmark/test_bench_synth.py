@@ -75,16 +75,16 @@ def test_bench_synth_closed_loop_benchmark(world: Path, tmp_path: Path) -> None:
     assert (tmp_path / "report" / "report.html").is_file() and (tmp_path / "report" / "exposure_walk.png").is_file()
     # the closed loops ran once for both methods (one shared-decode pass) with the default settings
     runs_dir = tmp_path / "runs" / res.results[0]["trajectory"]
-    assert json.loads((runs_dir / "closedloop_options.json").read_text())["init_exposure_ms"] == 4.0
+    assert json.loads((runs_dir / "closedloop_options.json").read_text())["init_exposure_us"] == 4000.0
     assert (runs_dir / "closedloop_summary.json").is_file()
     first = json.loads((Path(res.results[0]["run_dir"]) / "summary.json").read_text())
     # other closed-loop settings in the same folder: refused in one line, nothing overwritten
-    with pytest.raises(BracketryError, match=r"other settings .*init_exposure_ms 4\.0 -> 8\.0"):
+    with pytest.raises(BracketryError, match=r"other settings .*init_exposure_us 4000\.0 -> 8000\.0"):
         run_benchmark([world], ["ae50", "fix"], tmp_path, reference="ae50", windows_m=WINDOWS,
-                      loop={"init_exposure_ms": 8.0})
+                      loop={"init_exposure_us": 8000.0})
     assert json.loads((Path(res.results[0]["run_dir"]) / "summary.json").read_text()) == first
     # ... and honoured in a new folder
     res8 = run_benchmark([world], ["ae50"], tmp_path / "b8", reference="ae50", windows_m=WINDOWS,
-                         loop={"init_exposure_ms": 8.0})
+                         loop={"init_exposure_us": 8000.0})
     steps = (Path(res8.results[0]["run_dir"]) / "steps.csv").read_text().splitlines()
     assert steps[1].split(",")[2] == "8.000000", steps[:2]  # target_exposure_ms of the first step

@@ -7,7 +7,11 @@ Python API::
                                              # pkg.module:Class, or an entry point of group bracketry.ae_methods
     m.reset(4000.0)
     t_next_us = m.next_exposure_us(mosaic_uint16, 4000.0, {"step": 0})
-    summary = run_methods("dataset/", ["ae50", "shim"], "out/", workers=2)
+    steps = run_loop(m, sequences, emulate)  # the pure loop: emulate(sequence, target_us) -> Frame
+    summary = run_methods("dataset/", ["ae50", "shim"], "out/", workers=2)   # load, run every loop, save
+
+The closed loop: :mod:`.loop` (pure core), :mod:`.scheduler` (processes, shared decoding, step order),
+:mod:`.writers` (PNG, CSV, JSON, plot), :mod:`.runner` (``run_methods``).
 
 One module per method documents its paper, parameters and deviations: classical (Fix, AE30/50/70, constant), shim,
 wang, kim (+ gp), zhang, drl (torch, optional extra). Plugins: PLUGINS.md.
@@ -17,18 +21,20 @@ from __future__ import annotations
 
 from .base import AEMethod, bayer_gray
 from .classical import ClassicalAE, ConstantExposure, FixAE, classical_step_ms
-from .closedloop import (
+from .loop import (
     DEFAULT_INIT_EXPOSURE_US,
     DEFAULT_MAX_EXPOSURE_US,
     DEFAULT_MIN_EXPOSURE_US,
-    LoopConfig,
+    Frame,
     MethodRun,
-    RunSummary,
-    run_methods,
+    Step,
+    iter_loop,
+    run_loop,
 )
 from .registry import BUILTIN_METHODS, ENTRY_POINT_GROUP, PAPER_METHODS, expand_methods, get_method, load_plugin
+from .runner import LoopConfig, RunSummary, run_methods
 
 __all__ = ["BUILTIN_METHODS", "DEFAULT_INIT_EXPOSURE_US", "DEFAULT_MAX_EXPOSURE_US", "DEFAULT_MIN_EXPOSURE_US",
-           "ENTRY_POINT_GROUP", "PAPER_METHODS", "AEMethod", "ClassicalAE", "ConstantExposure", "FixAE", "LoopConfig",
-           "MethodRun", "RunSummary", "bayer_gray", "classical_step_ms", "expand_methods", "get_method",
-           "load_plugin", "run_methods"]
+           "ENTRY_POINT_GROUP", "PAPER_METHODS", "AEMethod", "ClassicalAE", "ConstantExposure", "FixAE", "Frame",
+           "LoopConfig", "MethodRun", "RunSummary", "Step", "bayer_gray", "classical_step_ms", "expand_methods",
+           "get_method", "iter_loop", "load_plugin", "run_loop", "run_methods"]

@@ -17,6 +17,9 @@ bounds). The return value is the exposure (us) for the next frame; the runner cl
     the image was emulated from), bounds_us ((min_us, max_us), the runner's exposure bounds),
     shared_gray (:class:`SharedGray` of this image: the runner shares gray conversions between the methods that see
     the same image; methods read it through :func:`gray_for` / :func:`work_gray_for`, which compute when absent).
+
+Optional attributes: ``init_exposure_us`` (the method's own first exposure, us), and the scheduling hints
+``step_cost``, ``step_group``, ``created_in_worker`` (see :class:`.registry.MethodTraits` and PLUGINS.md).
 """
 
 from __future__ import annotations

@@ -77,6 +77,9 @@ def classical_step_default_ms(mean_dn: float, t_ms: float, percent: float, gain_
 class ClassicalAE:
     """AE-P: proportional control of the mean gray brightness to P % of 4096 (ids ae30, ae50, ae70)."""
 
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 1
+
     def __init__(self, percent: float = 50.0, gain_ms_per_dn: float = 0.002, deadband_dn: float = 15.0,
                  name: str | None = None, parity: str = "default") -> None:
         if not 0 < percent < 100:
@@ -86,6 +89,8 @@ class ClassicalAE:
         self.deadband_dn = deadband_dn
         self.name = name or f"ae{percent:g}"
         self._step = classical_step_ms if parity == "upstream" else classical_step_default_ms
+        #: methods of the same group take the same steps at the start (see registry.MethodTraits)
+        self.step_group = f"classical-{percent:g}-{'upstream' if parity == 'upstream' else 'default'}"
 
     def reset(self, init_exposure_us: float) -> None:
         """Stateless: nothing to forget."""
@@ -100,6 +105,11 @@ class ClassicalAE:
 class FixAE:
     """Fix: the classical-50 step for the first ``settle_steps`` calls, then a constant exposure (id fix with
     ``--parity upstream``; the authors' rule)."""
+
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 1
+    #: its first steps are the classical-50 steps of the authors' arithmetic (see registry.MethodTraits)
+    step_group = "classical-50-upstream"
 
     def __init__(self, settle_steps: int = 4, percent: float = 50.0, name: str = "fix") -> None:
         self.settle_steps = settle_steps
@@ -122,6 +132,9 @@ class FixAE:
 class ConvergingFixAE:
     """Fix as the paper describes it: converge once to the 50 % brightness target, then hold (id fix; see the
     module docstring for the settling rule)."""
+
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 1
 
     def __init__(self, percent: float = 50.0, tolerance: float = 0.05, max_settle_steps: int = 12,
                  max_ratio: float = 4.0, name: str = "fix") -> None:
@@ -157,6 +170,9 @@ class ConvergingFixAE:
 
 class ConstantExposure:
     """A constant exposure whatever the image (id constant-<ms>, e.g. constant-8 or constant-2.5)."""
+
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 1
 
     def __init__(self, exposure_ms: float, name: str | None = None) -> None:
         if not np.isfinite(exposure_ms) or exposure_ms <= 0:

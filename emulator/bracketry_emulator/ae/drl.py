@@ -147,6 +147,19 @@ def frame_state(image: np.ndarray) -> np.ndarray:
 class DrlAE:
     """The DRL agent in closed loop (see the module docstring). ``weights``: path of the actor's ``.pth``."""
 
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 3
+    #: its first steps are the classical-50 steps (see registry.MethodTraits)
+    step_group = "classical-50-default"
+    #: creating it starts torch's threads: worker processes create it after the fork; the parent only calls
+    #: :meth:`check_options`
+    created_in_worker = True
+
+    @staticmethod
+    def check_options(drl_weights: str | Path | None = None, **_: object) -> None:
+        """Refuse missing weights (one line) without creating the actor."""
+        check_weights_path(drl_weights)
+
     def __init__(self, weights: str | Path | None = None, warmup_steps: int = N_FRAMES, name: str = "drl") -> None:
         self.actor = load_actor(weights)
         self.warmup_steps = warmup_steps

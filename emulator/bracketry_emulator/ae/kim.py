@@ -65,6 +65,9 @@ def kim_metric(gray8: np.ndarray, alpha: float = 16.0, tau: float = 4.0, mask_be
 class KimAE:
     """Kim's entropy-weighted gradient + GP Bayesian optimisation (see the module docstring)."""
 
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 40
+
     def __init__(self, window: int = 5, min_ms: float = 0.5, max_ms: float = 35.0, n_candidates: int = 50,
                  noise_var: float = 0.2, n_restarts: int = 10, sigma_converged: float = 5.0, seed: int = 0,
                  work_width: int = 480, name: str = "kim") -> None:

@@ -8,10 +8,12 @@ returning an object with the :class:`AEMethod` protocol) or the name of an entry
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.metadata
 import re
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 from bracketry.errors import BracketryError
@@ -33,7 +35,8 @@ UPSTREAM_VARIANTS: tuple[str, ...] = ("fix", "shim", "kim", "zhang")
 PARITIES: tuple[str, ...] = ("default", "upstream")
 
 
-def _builtin(name: str, options: dict[str, Any]) -> AEMethod | None:
+def _builtin(name: str, options: dict[str, Any]) -> Callable[[], AEMethod] | None:
+    """The factory of a built-in id (nothing created yet), or None."""
     seed = int(options.get("seed", 0))
     parity = options.get("parity", "default") or "default"
     if parity not in PARITIES:
@@ -42,42 +45,42 @@ def _builtin(name: str, options: dict[str, Any]) -> AEMethod | None:
         from . import upstream
 
         if name == "fix":
-            return FixAE()
+            return FixAE
         if name == "shim":
-            return upstream.UpstreamShimAE()
+            return upstream.UpstreamShimAE
         if name == "kim":
-            return upstream.UpstreamKimAE(seed=seed)
-        return upstream.UpstreamZhangAE()
+            return functools.partial(upstream.UpstreamKimAE, seed=seed)
+        return upstream.UpstreamZhangAE
     if name in ("ae30", "ae50", "ae70"):
-        return ClassicalAE(float(name[2:]), name=name, parity=parity)
+        return functools.partial(ClassicalAE, float(name[2:]), name=name, parity=parity)
     if name == "fix":
-        return FixAE() if parity == "upstream" else ConvergingFixAE()
+        return FixAE if parity == "upstream" else ConvergingFixAE
     if name == "shim":
         from .shim import ShimAE
 
-        return ShimAE()
+        return ShimAE
     if name == "kim":
         from .kim import KimAE
 
-        return KimAE(seed=seed)
+        return functools.partial(KimAE, seed=seed)
     if name == "zhang":
         from .zhang import ZhangAE
 
-        return ZhangAE()
+        return ZhangAE
     if name == "wang":
         from .wang import WangAE
 
-        return WangAE()
+        return WangAE
     if name == "drl":
         from .drl import DrlAE
 
-        return DrlAE(options.get("drl_weights"))
+        return functools.partial(DrlAE, options.get("drl_weights"))
     m = _CONSTANT.match(name)
     if m:
         ms = float(m.group(1))
         if ms <= 0:
             raise BracketryError(f"constant exposure must be positive: {name}")
-        return ConstantExposure(ms, name=name)
+        return functools.partial(ConstantExposure, ms, name=name)
     return None
 
 
@@ -130,9 +133,9 @@ def get_method(spec: str, **options: Any) -> AEMethod:
     Raises BracketryError (one line) for an unknown id or a plugin that cannot be loaded.
     """
     name = spec.strip()
-    method = _builtin(name.lower(), options)
-    if method is not None:
-        return method
+    factory = _builtin(name.lower(), options)
+    if factory is not None:
+        return factory()
     if ":" in name:
         return load_plugin(name, options)
     eps = _entry_points()
@@ -169,3 +172,39 @@ def expand_methods(specs: str | list[str], has_drl_weights: bool = True,
     if not out:
         raise BracketryError("no AE method given (e.g. --method ae50,shim or --method all)")
     return out
+
+
+#: Relative cost of one step of a method that declares no ``step_cost`` (emulating and writing a step: ~20).
+DEFAULT_STEP_COST = 10
+
+
+@dataclass(frozen=True)
+class MethodTraits:
+    """What a method declares for the scheduler (optional attributes of the method or its class).
+
+    Attributes:
+        step_cost: relative cost of one step (``step_cost``; default :data:`DEFAULT_STEP_COST`), for balancing
+            worker processes.
+        step_group: methods with the same ``step_group`` take identical first steps (same images): kept on one
+            worker, whose writer links those images instead of encoding them again (None: no group).
+    """
+
+    step_cost: int = DEFAULT_STEP_COST
+    step_group: str | None = None
+
+
+def method_traits(spec: str, **options: Any) -> MethodTraits:
+    """Check the id ``spec`` as :func:`get_method` does and return what its method declares for scheduling.
+
+    A method class with ``created_in_worker = True`` (creating it starts threads, e.g. torch's) is not created
+    here: its ``check_options(**options)`` is called instead and its class attributes are read. Raises
+    BracketryError (one line) as :func:`get_method`."""
+    factory = _builtin(spec.strip().lower(), options)
+    cls = factory.func if isinstance(factory, functools.partial) else factory
+    source: Any
+    if isinstance(cls, type) and getattr(cls, "created_in_worker", False):
+        cls.check_options(**options)  # type: ignore[attr-defined]
+        source = cls
+    else:
+        source = factory() if factory is not None else get_method(spec, **options)
+    return MethodTraits(int(getattr(source, "step_cost", DEFAULT_STEP_COST)), getattr(source, "step_group", None))

@@ -80,6 +80,9 @@ def shim_update_factor(gamma_star: float, kp: float = 0.2) -> float:
 class ShimAE:
     """Shim's gradient-information AE (see the module docstring)."""
 
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 10
+
     def __init__(self, delta: float = 0.06, lam: float = 1e3, kp: float = 0.2, work_width: int = 480,
                  gammas: tuple[float, ...] = SHIM_GAMMAS, name: str = "shim") -> None:
         self.delta, self.lam, self.kp = delta, lam, kp

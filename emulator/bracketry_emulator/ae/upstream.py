@@ -62,6 +62,9 @@ def upstream_shim_metric(img01: np.ndarray, delta: float = 0.06, lam: float = 1e
 class UpstreamShimAE:
     """Shim as the authors' code runs it (see the module docstring; id ``shim`` with ``--parity upstream``)."""
 
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 10
+
     def __init__(self, delta: float = 0.06, lam: float = 1e3, kp: float = 0.2, name: str = "shim") -> None:
         self.delta, self.lam, self.kp = delta, lam, kp
         self.name = name
@@ -114,6 +117,9 @@ class UpstreamKimAE:
     the GP mean on linspace(0.5, 35, 1000)). Output always in [0.5, 35] ms.
     """
 
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 40
+
     def __init__(self, seed: int = 0, name: str = "kim") -> None:
         self.seed = seed
         self.name = name
@@ -163,6 +169,9 @@ class UpstreamZhangAE:
     The ICRF is the emulator's upstream response (``meta["response"]``, their lifting of pcalib_inside1, which is
     what their Zhang loads); another response is used through its per-code table.
     """
+
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 10
 
     _SCHARR_X = np.array([[3, 0, -3], [10, 0, -10], [3, 0, -3]], dtype=np.float32)
     _SCHARR_Y = np.array([[3, 10, 3], [0, 0, 0], [-3, -10, -3]], dtype=np.float32)

@@ -84,6 +84,9 @@ def wang_refinement(i8: np.ndarray, t_ms: float, slope_per_code8: np.ndarray, a:
 class WangAE:
     """Wang 2022 search + refinement AE (see the module docstring)."""
 
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 20
+
     def __init__(self, alpha: float = 0.5, beta: float = 2.0, iterations: int = 3, accept_ratio: float = 1.1,
                  k: float = 0.5, zeta_ms: float = 0.001, a: float = 0.25, b: float = 0.2, work_width: int = 480,
                  name: str = "wang") -> None:

@@ -94,6 +94,9 @@ def zhang_metric_and_derivative(gray12: np.ndarray, t_us: float, slope_per_code:
 class ZhangAE:
     """Zhang 2017 soft-percentile gradient AE (see the module docstring)."""
 
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
+    step_cost = 10
+
     def __init__(self, p: float = 0.8, k: float = 5.0, gain: float = 0.5, max_stops: float = 1.0,
                  low_dn: float = 1120.0, high_dn: float = 3040.0, work_width: int = 480, name: str = "zhang") -> None:
         self.p, self.k, self.gain, self.max_stops = p, k, gain, max_stops

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.benchmark.closedloop import all_methods, loop_config
+from bracketry_emulator.benchmark.emulated_runs import all_methods, loop_config
 from bracketry_emulator.benchmark.tasks import make_task, run_task
 from bracketry_emulator.metrics.manifest import TrajectorySpec, expand_datasets
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
@@ -49,7 +49,7 @@ def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> lis
 def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[dict], out: Path, drl_weights: str | None,
                          workers: int, progress: bool, loop: dict | None) -> None:
     """Per trajectory, the closed loops of every method whose task still needs one, in one shared-decode pass."""
-    from bracketry_emulator.benchmark.closedloop import emulate_runs
+    from bracketry_emulator.benchmark.emulated_runs import emulate_runs
     from bracketry_emulator.benchmark.tasks import load_cached
 
     for spec in specs:
@@ -116,8 +116,8 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     the closed loops of all methods still to run on a trajectory run first in one pass (each bracket sequence
     decoded once for all methods, ``progress`` shows a bar); with a scheduler each task runs its own closed loop
     on the cluster. ``drl_weights``: the DRL actor (``all`` leaves DRL out without it). ``loop``: closed-loop
-    settings (selection, crf, init_exposure_ms, seed, ae_camera; see
-    :data:`~bracketry_emulator.benchmark.closedloop.LOOP_DEFAULTS`), part of every cache key.
+    settings (selection, crf, init_exposure_us, seed, ae_camera; see
+    :data:`~bracketry_emulator.benchmark.emulated_runs.LOOP_DEFAULTS`), part of every cache key.
     ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO); with
     ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and spread

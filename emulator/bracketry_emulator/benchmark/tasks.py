@@ -22,7 +22,7 @@ import json
 import os
 from pathlib import Path
 
-from bracketry_emulator.benchmark.closedloop import loop_options
+from bracketry_emulator.benchmark.emulated_runs import loop_options
 from bracketry_emulator.benchmark.slam import key_options
 from bracketry_emulator.metrics.evaluate import evaluate_run
 from bracketry_emulator.metrics.manifest import TrajectorySpec
@@ -42,7 +42,7 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
     ``groundtruth``: a TUM left-camera reference replacing the spec's (e.g. made from its ``reference.yaml``).
 
     ``drl_weights``: the DRL actor's .pth (used by the ``drl`` method's closed loop; part of its cache key).
-    ``loop``: closed-loop settings (:data:`~bracketry_emulator.benchmark.closedloop.LOOP_DEFAULTS`; part of the key).
+    ``loop``: closed-loop settings (:data:`~bracketry_emulator.benchmark.emulated_runs.LOOP_DEFAULTS`; part of the key).
 
     ``export_orbslam``: also write the run in ORB-SLAM's stereo-example layout to
     ``out/orbslam/<trajectory>/<method>/``. ``slam_dir``: evaluate external SLAM trajectories
@@ -135,7 +135,7 @@ def run_task(task: dict) -> dict:
     cv2.setNumThreads(1)  # one core per task: deterministic, and workers do not fight over cores
     _tune_malloc()
     from bracketry.errors import BracketryError
-    from bracketry_emulator.benchmark.closedloop import emulate_run
+    from bracketry_emulator.benchmark.emulated_runs import emulate_run
     from bracketry_emulator.benchmark.slam import run_slam
 
     out = Path(task["out"])

@@ -134,7 +134,7 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
                            export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
                            progress=not quiet, on_done=done, slam=slam, slam_echo=click.echo,
                            stats_methods=stats_methods,
-                           loop={"selection": selection, "crf": crf, "init_exposure_ms": init_exposure_ms,
+                           loop={"selection": selection, "crf": crf, "init_exposure_us": init_exposure_ms * 1000.0,
                                  "seed": seed, "ae_camera": ae_camera, "parity": parity})
     click.echo(f"report: {result.report_files.get('report.html')}")
     return EXIT_OK

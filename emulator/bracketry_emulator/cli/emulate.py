@@ -132,7 +132,7 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
     emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db, noise, fusion_brackets, motion,
                            deghost_sigma)
-    cfg = LoopConfig(emulator=emu, camera=camera, ae_side=ae_camera,  # type: ignore[arg-type]
+    cfg = LoopConfig(emulator=emu, camera=camera, ae_camera=ae_camera,  # type: ignore[arg-type]
                      init_exposure_us=init_exposure_ms * 1000.0, min_exposure_us=min_exposure_ms * 1000.0,
                      max_exposure_us=max_exposure_ms * 1000.0, seed=seed,
                      drl_weights=str(drl_weights) if drl_weights else None, write_images=not no_images,
@@ -173,6 +173,8 @@ def remove_earlier_run(out_dir: Path) -> None:
     import json
     import shutil
 
+    from bracketry_emulator.ae.writers import method_folder
+
     summary = out_dir / "summary.json"
     if not summary.is_file():
         return
@@ -181,7 +183,7 @@ def remove_earlier_run(out_dir: Path) -> None:
     except (OSError, ValueError):
         methods = {}
     for spec in methods:
-        folder = out_dir / spec.replace(":", "-").replace("/", "_")  # as closedloop names the method folders
+        folder = out_dir / method_folder(spec)
         if folder.is_dir() and folder.resolve().parent == out_dir.resolve():
             shutil.rmtree(folder)
     for name in ("summary.json", "exposures.csv", "exposure_times.png"):

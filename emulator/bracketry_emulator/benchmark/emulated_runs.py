@@ -1,4 +1,4 @@
-"""Produce the emulated runs of AE methods on one trajectory (one closed loop per method).
+"""The benchmark's emulated runs of AE methods on one trajectory (one closed loop per method), made once and reused.
 
 Both entry points call :func:`bracketry_emulator.ae.run_methods` and write into a temporary sibling folder that is
 renamed when complete, so an interrupted benchmark never leaves a half-written run that looks finished:
@@ -18,9 +18,11 @@ from typing import Any
 from bracketry.errors import BracketryError
 
 #: closed-loop settings a benchmark may change (JSON-able; see :func:`loop_config`), with their defaults
-LOOP_DEFAULTS: dict[str, Any] = {"selection": "highernosat", "crf": "srgb", "init_exposure_ms": 4.0, "seed": 0,
+LOOP_DEFAULTS: dict[str, Any] = {"selection": "highernosat", "crf": "srgb", "init_exposure_us": 4000.0, "seed": 0,
                                  "ae_camera": "left", "parity": "default"}
 _OPTIONS_FILE = "closedloop_options.json"
+#: option names of earlier versions -> (current name, factor to its unit), read from existing options files
+_RENAMED = {"init_exposure_ms": ("init_exposure_us", 1000.0)}
 
 
 def loop_options(**given: Any) -> dict[str, Any]:
@@ -45,8 +47,7 @@ def loop_config(options: dict[str, Any] | None, drl_weights: str | None) -> Any:
         raise BracketryError(f"--parity must be default or upstream, got {parity}")
     selection = "upstream" if parity == "upstream" and o["selection"] == "highernosat" else o["selection"]
     cfg = LoopConfig(emulator=EmulatorConfig(selection=selection, crf=crf, parity=parity),  # type: ignore[arg-type]
-                     ae_side=o["ae_camera"],
-                     init_exposure_us=float(o["init_exposure_ms"]) * 1000.0, seed=int(o["seed"]),
+                     ae_camera=o["ae_camera"], init_exposure_us=float(o["init_exposure_us"]), seed=int(o["seed"]),
                      drl_weights=drl_weights)
     cfg.validate()
     return cfg
@@ -57,6 +58,9 @@ def _check_options(runs_dir: Path, options: dict[str, Any]) -> None:
     path = runs_dir / _OPTIONS_FILE
     if path.is_file():
         before = json.loads(path.read_text())
+        for old, (new, factor) in _RENAMED.items():
+            if old in before and new not in before:
+                before[new] = before.pop(old) * factor
         if before != options:
             changed = ", ".join(f"{k} {before.get(k)!r} -> {options.get(k)!r}" for k in sorted(options)
                                 if before.get(k) != options.get(k))

@@ -1,0 +1,103 @@
+"""The emulator of a closed-loop worker: each result computed once per sequence, shared by every method.
+
+Many methods (and, after convergence, many steps) ask for the same target from the same sequence: the step's source
+bracket, each side's emulated image and its gray conversions are computed once per (sequence, side, target); each
+bracket's saturated fraction once per decoded bracket. Same rules and results as
+:meth:`~..emulation.Emulator.select_stereo` and :meth:`~..emulation.Emulator.emulate`.
+"""
+
+from __future__ import annotations
+
+from bisect import bisect_left
+
+import numpy as np
+
+from ..emulation import EmulatedImage, Emulator, EmulatorConfig
+from ..emulation.selection import SatCount, saturation_fraction
+from .base import SharedGray
+
+
+class _SaturationCachingEmulator(Emulator):
+    """:class:`Emulator` whose bracket selection reuses each bracket's saturated fraction (keyed by array identity:
+    call :meth:`clear` before the arrays are refilled)."""
+
+    def __init__(self, config: EmulatorConfig) -> None:
+        super().__init__(config)
+        self._sat: dict[tuple[int, str], float] = {}
+
+    def clear(self) -> None:
+        self._sat.clear()
+
+    def _saturation(self, image: np.ndarray, count: SatCount) -> float:
+        key = (id(image), count)
+        val = self._sat.get(key)
+        if val is None:
+            val = saturation_fraction(image, self.response.saturated_code, count)
+            self._sat[key] = val
+        return val
+
+
+class EmulationCache:
+    """The emulator plus per-sequence caches: source selection, emulated images and their gray conversions.
+
+    Cache keys use the sequence's position (``seq_index``) and array identity: call :meth:`clear` before the frame
+    arrays of another sequence are filled in."""
+
+    def __init__(self, config: EmulatorConfig) -> None:
+        self.emulator = _SaturationCachingEmulator(config)
+        self._cache: dict[tuple[int, str, float], EmulatedImage] = {}
+        self._gray: dict[tuple[int, str, float], SharedGray] = {}
+        self._source: dict[tuple[int, float], int] = {}
+
+    def clear(self) -> None:
+        """Forget the sequence."""
+        self._cache.clear()
+        self._source.clear()
+        self._gray.clear()
+        self.emulator.clear()
+
+    def source(self, seq_index: int, images: dict[str, dict[int, np.ndarray]], target_us: float,
+               decide: tuple[str, ...] | None) -> int:
+        """The step's ONE source bracket (us) for every camera (:meth:`Emulator.select_stereo`), cached per target.
+
+        ``images``: {side: {exposure_us: uint16 HxW}}."""
+        key = (seq_index, float(target_us))
+        hit = self._source.get(key)
+        if hit is None:
+            hit = self._source[key] = self.emulator.select_stereo(images, target_us, decide)
+        return hit
+
+    def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float,
+                source_us: int | None = None) -> EmulatedImage:
+        """:meth:`Emulator.emulate` of one side's brackets ``{exposure_us: uint16 HxW}``, cached per target."""
+        key = (seq_index, side, float(target_us))
+        hit = self._cache.get(key)
+        if hit is None:
+            hit = self.emulator.emulate(images, target_us, source_us)
+            self._cache[key] = hit
+        return hit
+
+    def shared_gray(self, seq_index: int, side: str, target_us: float) -> SharedGray:
+        """The gray-conversion memo of an image emulated by :meth:`emulate` (shared by the methods that see it)."""
+        key = (seq_index, side, float(target_us))
+        shared = self._gray.get(key)
+        if shared is None:
+            shared = self._gray[key] = SharedGray(self._cache[key].image)
+        return shared
+
+
+def needed_brackets(exposures_us: tuple[int, ...], target_us: float, selection: str) -> tuple[int, ...]:
+    """The brackets (us) that the emulation of ``target_us`` can use: all for fusion; for the single-bracket
+    selections the nearest one outside the range, the exact match (highernosat), else the bracketing pair. The
+    selection rules give the same source on this subset as on every bracket (see :mod:`..emulation.selection`)."""
+    exps = sorted(exposures_us)
+    if selection not in ("highernosat", "upstream"):
+        return tuple(exps)
+    i = bisect_left(exps, target_us)
+    if i >= len(exps):
+        return (exps[-1],)
+    if i == 0:
+        return (exps[0],)
+    if selection == "highernosat" and (exps[i] == target_us or target_us >= exps[-1]):
+        return (exps[i],)
+    return exps[i - 1], exps[i]

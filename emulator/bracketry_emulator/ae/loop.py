@@ -1,0 +1,155 @@
+"""The closed loop of one AE method, as a pure function: arrays in, steps out (no files, no processes, no plots).
+
+Python API::
+
+    from bracketry_emulator.ae.loop import Frame, run_loop
+    steps = run_loop(method, sequences, lambda seq, target_us: Frame(emulated_uint16, seq.ts_ns, source_us))
+
+At step k the method's current target exposure is emulated from ``sequences[k]`` (``emulate``), the method sees
+that image and returns the next target, which is clamped to ``[min_exposure_us, max_exposure_us]``. The first
+target is ``init_exposure_us``, or the method's own ``init_exposure_us`` attribute when it declares one
+(``constant-<ms>``). How images are decoded, cached, shared between methods or written is the caller's business
+(:mod:`.scheduler`, :mod:`.writers`); :func:`iter_loop` yields each step as soon as it is taken, so a caller can
+interleave many methods over the same sequence.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+import numpy as np
+
+from bracketry.errors import BracketryError
+
+from .base import AEMethod
+
+#: The first target exposure (us) of a method that declares none (the authors: 4 ms).
+DEFAULT_INIT_EXPOSURE_US = 4000.0
+#: Lower bound (us) of every target: the authors' only floor (Zhang's 0.02 ms).
+DEFAULT_MIN_EXPOSURE_US = 20.0
+#: Upper bound (us): 2x the sample's longest bracket (beyond it the emulation extrapolates more than one stop).
+DEFAULT_MAX_EXPOSURE_US = 64000.0
+
+S = TypeVar("S")
+
+
+@dataclass(frozen=True)
+class Frame:
+    """The image the AE camera delivers at one step (what ``emulate`` returns).
+
+    Attributes:
+        image: np.ndarray uint16 HxW, raw RGGB Bayer codes 0..4095, emulated at the requested target exposure.
+        timestamp_ns: int, timestamp of the frame (ns; that of its source bracket frame).
+        source_exposure_us: int, the recorded bracket (us) the image was emulated from.
+        sequence_index: int, the dataset's index of the bracket sequence (-1 when unknown).
+        meta: further entries of the method's ``meta`` (e.g. ``response``, ``side``, ``shared_gray``; see
+            :mod:`.base`).
+    """
+
+    image: np.ndarray
+    timestamp_ns: int
+    source_exposure_us: int
+    sequence_index: int = -1
+    meta: Mapping[str, Any] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class Step:
+    """One closed-loop step of one method.
+
+    Attributes:
+        step: int, 0-based position of the sequence in the run.
+        sequence_index: int, the dataset's index of the sequence.
+        timestamp_ns: int, timestamp of the frame the method saw (ns).
+        exposure_us: float, the target exposure of this step (us), the one the image was emulated at.
+        next_exposure_us: float, the method's answer after clamping to the bounds (us): the next step's target.
+        source_exposure_us: int, the bracket the image was emulated from (us).
+        ae_s: float, wall time of the method's ``next_exposure_us`` call (s; the only non-deterministic field).
+    """
+
+    step: int
+    sequence_index: int
+    timestamp_ns: int
+    exposure_us: float
+    next_exposure_us: float
+    source_exposure_us: int
+    ae_s: float
+
+
+def initial_exposure_us(method: AEMethod, default_us: float = DEFAULT_INIT_EXPOSURE_US) -> float:
+    """The first target (us) of ``method``: its own ``init_exposure_us`` attribute when set, else ``default_us``."""
+    return float(getattr(method, "init_exposure_us", None) or default_us)
+
+
+def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, float], Frame], *,
+              init_exposure_us: float = DEFAULT_INIT_EXPOSURE_US,
+              min_exposure_us: float = DEFAULT_MIN_EXPOSURE_US, max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US,
+              name: str | None = None, start: int = 0) -> Iterator[Step]:
+    """The closed loop of ``method`` over ``sequences``, one :class:`Step` per sequence, lazily.
+
+    ``emulate(sequence, target_us) -> Frame`` gives the image the camera would deliver at ``target_us``; it is
+    called once per step, before the method. The method is ``reset`` to its first target (see
+    :func:`initial_exposure_us`). Its ``meta`` holds ``step``, ``timestamp_ns``, ``sequence_index``,
+    ``source_exposure_us``, ``bounds_us`` and the frame's own ``meta`` entries. ``name`` (default: the method's
+    ``name``) is used in error messages; ``start`` numbers the first step.
+
+    Raises BracketryError (one line) when the method raises or returns a non-finite exposure.
+    """
+    label = name or getattr(method, "name", "?")
+    target = initial_exposure_us(method, init_exposure_us)
+    method.reset(target)
+    bounds = (min_exposure_us, max_exposure_us)
+    for k, seq in enumerate(sequences, start):
+        frame = emulate(seq, target)
+        meta = {"step": k, "timestamp_ns": frame.timestamp_ns, "sequence_index": frame.sequence_index,
+                "source_exposure_us": frame.source_exposure_us, "bounds_us": bounds, **frame.meta}
+        t0 = time.perf_counter()
+        try:
+            nxt = float(method.next_exposure_us(frame.image, target, meta))
+        except BracketryError:
+            raise
+        except Exception as exc:
+            raise BracketryError(f"AE method {label} failed at step {k}: {type(exc).__name__}: {exc}") from exc
+        ae_s = time.perf_counter() - t0
+        if not np.isfinite(nxt):
+            raise BracketryError(f"AE method {label} returned a non-finite exposure at step {k}")
+        nxt = float(np.clip(nxt, min_exposure_us, max_exposure_us))
+        yield Step(k, frame.sequence_index, frame.timestamp_ns, target, nxt, frame.source_exposure_us, ae_s)
+        target = nxt
+
+
+def run_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, float], Frame], *,
+             init_exposure_us: float = DEFAULT_INIT_EXPOSURE_US, min_exposure_us: float = DEFAULT_MIN_EXPOSURE_US,
+             max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US, name: str | None = None) -> list[Step]:
+    """Every :class:`Step` of ``method`` over ``sequences`` (see :func:`iter_loop`)."""
+    return list(iter_loop(method, sequences, emulate, init_exposure_us=init_exposure_us,
+                          min_exposure_us=min_exposure_us, max_exposure_us=max_exposure_us, name=name))
+
+
+@dataclass
+class MethodRun:
+    """The result of one method: its steps, and their summary."""
+
+    method: str
+    steps: list[Step] = field(default_factory=list)
+
+    @property
+    def exposures_ms(self) -> list[float]:
+        """The target exposure of every step (ms)."""
+        return [s.exposure_us / 1000.0 for s in self.steps]
+
+    def summary(self) -> dict[str, Any]:
+        """Step count, exposure (ms: first, last, mean, min, max) and AE cost per step (ms: median, mean)."""
+        exp = np.array(self.exposures_ms) if self.steps else np.zeros(0)
+        cost = np.array([s.ae_s for s in self.steps]) * 1000.0 if self.steps else np.zeros(0)
+        return {"method": self.method, "steps": len(self.steps),
+                "exposure_ms": {"first": float(exp[0]) if exp.size else None,
+                                "last": float(exp[-1]) if exp.size else None,
+                                "mean": float(exp.mean()) if exp.size else None,
+                                "min": float(exp.min()) if exp.size else None,
+                                "max": float(exp.max()) if exp.size else None},
+                "ae_ms_per_step": {"median": float(np.median(cost)) if cost.size else None,
+                                   "mean": float(cost.mean()) if cost.size else None}}

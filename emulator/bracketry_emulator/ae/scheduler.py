@@ -1,0 +1,380 @@
+"""Runs many methods' closed loops over one dataset: worker processes, shared decoding, step order.
+
+The methods are split over ``workers`` forked processes, balanced by the cost each method declares
+(:func:`~.registry.method_traits`: ``step_cost``; methods of one ``step_group`` take identical first steps and stay
+on one worker, whose writer then links images instead of encoding them again). The sequences are processed in
+chunks that fit the memory budget: each chunk's frames are decoded ONCE (split over the workers) into one shared
+:class:`~.decode.FrameBuffer`, then every worker advances its methods through the chunk, sequence by sequence
+(all methods of a worker take step k before any takes step k+1). One worker runs in this process instead; it
+decodes a sequence's frames on demand on threads, only the brackets the methods' current targets can select
+(:func:`~.emulation_cache.needed_brackets`), the next sequence's as soon as a method's next target is known.
+
+Each method's loop is :func:`~.loop.iter_loop`; images are emulated once per (sequence, side, target) for all the
+methods of a worker (:class:`~.emulation_cache.EmulationCache`) and written by :mod:`.writers`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import itertools
+import multiprocessing as mp
+import os
+import threading
+import traceback
+from collections.abc import Callable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bracketry.errors import BracketryError
+
+from ..dataset import BracketSequence
+from ..emulation import EmulatedImage, EmulatorConfig, RunWriter
+from .decode import DecodeTask, FrameBuffer, decode_tasks, frame_shape
+from .emulation_cache import EmulationCache, needed_brackets
+from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
+from .registry import MethodTraits, get_method
+from .writers import ImageSink, LinkingRunWriter, method_folder
+
+#: Estimated cost of emulating and writing one step, in the unit of the methods' ``step_cost``.
+EMULATION_COST = 20
+
+
+@dataclass(frozen=True)
+class LoopSettings:
+    """What every worker needs to know of a run (picklable; see :class:`~.runner.LoopConfig`).
+
+    Exposures in us; ``ae_camera`` the side whose image the methods see; ``write_sides`` the sides written;
+    ``emulate_sides`` every side emulated (write sides + AE camera)."""
+
+    emulator: EmulatorConfig
+    ae_camera: str
+    write_sides: tuple[str, ...]
+    emulate_sides: tuple[str, ...]
+    init_exposure_us: float
+    min_exposure_us: float
+    max_exposure_us: float
+    seed: int
+    drl_weights: str | None
+    write_images: bool
+    stored_png: bool
+    overwrite: bool
+
+
+def partition(traits: dict[str, MethodTraits], n: int) -> list[list[str]]:
+    """Longest-processing-time-first split of the methods (in ``traits`` order) over ``n`` workers; the methods of
+    one ``step_group`` stay together; the order is kept within a worker."""
+    specs = list(traits)
+    grouped: dict[str, list[str]] = {}
+    singles: list[list[str]] = []
+    for spec in specs:
+        group = traits[spec].step_group
+        if group:
+            grouped.setdefault(group, []).append(spec)
+        else:
+            singles.append([spec])
+    units = [*grouped.values(), *singles]
+
+    def cost(unit: list[str]) -> int:
+        return sum(EMULATION_COST + traits[s].step_cost for s in unit)
+
+    loads = [0] * n
+    groups: list[list[str]] = [[] for _ in range(n)]
+    for unit in sorted(units, key=cost, reverse=True):
+        i = int(np.argmin(loads))
+        groups[i].extend(unit)
+        loads[i] += cost(unit)
+    order = {s: k for k, s in enumerate(specs)}
+    return [sorted(g, key=order.__getitem__) for g in groups if g]
+
+
+class Worker:
+    """Advances a group of methods through the sequences; the same object serves in-process and forked modes."""
+
+    def __init__(self, specs: list[str], settings: LoopSettings, sequences: list[BracketSequence], out_dir: Path,
+                 frames: FrameBuffer, write_threads: int = 1) -> None:
+        self.settings = s = settings
+        #: set: decode on demand (only the brackets the methods' targets need) on this pool's threads
+        self.decode_pool: ThreadPoolExecutor | None = None
+        self._decoded: dict[tuple[int, int, int], Future[None]] = {}  # (slot, side, exposure index)
+        self.sequences = sequences
+        self.frames = frames
+        self.emu = EmulationCache(s.emulator)
+        self.sink = ImageSink(write_threads if s.write_images else 0)
+        self.targets: dict[str, float] = {}
+        self.runs: dict[str, MethodRun] = {}
+        self.writers: dict[str, RunWriter] = {}
+        self._loops: dict[str, Iterator[Step]] = {}
+        self._brackets: dict[str, dict[int, np.ndarray]] = {}  # the current sequence's {side: {exposure_us: frame}}
+        self._seq_i = -1
+        for spec in specs:
+            method = get_method(spec, seed=s.seed, drl_weights=s.drl_weights, parity=s.emulator.parity)
+            self.targets[spec] = initial_exposure_us(method, s.init_exposure_us)
+            self.runs[spec] = MethodRun(spec)
+            self._loops[spec] = iter_loop(method, itertools.count(), functools.partial(self._emulate, spec), name=spec,
+                                          init_exposure_us=s.init_exposure_us, min_exposure_us=s.min_exposure_us,
+                                          max_exposure_us=s.max_exposure_us)
+            self.writers[spec] = LinkingRunWriter(out_dir, method_folder(spec), s.write_sides, s.emulator.depth,
+                                                  s.overwrite, self.sink, s.stored_png, s.emulator.parity)
+
+    def decode(self, tasks: list[DecodeTask]) -> None:
+        """Decode frames (slot, seq index, side index, exposure index) into the shared buffer."""
+        self.frames.decode(tasks)
+
+    def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
+        """Advance every method of this worker through the given sequences (slot = position in the list).
+
+        Without :attr:`decode_pool` the frames must already be decoded (:meth:`decode`); with it, frames are decoded
+        on demand, only the brackets that the methods' targets can select: a method's next target is known as soon
+        as its step is done, so the next sequence's frames decode while the other methods run."""
+        self.emu.clear()
+        self._decoded.clear()
+        try:
+            for slot, seq_i in enumerate(seq_indices):
+                seq = self.sequences[seq_i]
+                self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
+                if self.decode_pool is not None:
+                    for t in self.targets.values():
+                        self._prefetch(slot, seq_i, t)
+                    for key in self._needed_keys(seq, list(self.targets.values())):
+                        self._decoded[(slot, *key)].result()
+                self._seq_i = seq_i
+                self._brackets = {side: {e: self.frames.view(slot, si, ei) for ei, e in enumerate(seq.exposures_us)}
+                                  for si, side in enumerate(self.settings.emulate_sides)}
+                nxt = seq_indices[slot + 1] if slot + 1 < len(seq_indices) else None
+                for spec, loop in self._loops.items():
+                    step = next(loop)
+                    self.runs[spec].steps.append(step)
+                    self.targets[spec] = step.next_exposure_us
+                    if self.decode_pool is not None and nxt is not None:
+                        self._prefetch(slot + 1, nxt, self.targets[spec])
+                    progress(1)
+        finally:
+            self._brackets = {}
+            for f in self._decoded.values():
+                f.cancel()
+            for f in self._decoded.values():
+                if not f.cancelled():
+                    f.exception()  # wait: no decode may write into the buffer after this chunk
+        self.emu.clear()
+
+    def _images(self, seq_i: int, target_us: float) -> dict[str, EmulatedImage]:
+        """Every emulated side of the current sequence at ``target_us``, all from one source bracket."""
+        s = self.settings
+        seq = self.sequences[seq_i]
+        needed = needed_brackets(seq.exposures_us, target_us, s.emulator.selection)
+        subsets = {side: {e: self._brackets[side][e] for e in needed} for side in s.emulate_sides}
+        # one source bracket for every camera of the step; --parity upstream: the AE camera decides alone, as the
+        # authors' left emulator (their right emulator decides on its own, which the joint decision corrects)
+        decide = (s.ae_camera,) if s.emulator.parity == "upstream" else None
+        source = self.emu.source(seq_i, subsets, target_us, decide)
+        return {side: self.emu.emulate(seq_i, side, subsets[side], target_us, source) for side in s.emulate_sides}
+
+    def _emulate(self, spec: str, seq_i: int, target_us: float) -> Frame:
+        """The ``emulate`` of method ``spec``'s loop: the AE camera's image of the current sequence at ``target_us``.
+        Every side is emulated and, before the method sees the image, written to the method's run (one step =
+        one stereo capture)."""
+        if seq_i != self._seq_i:
+            raise RuntimeError(f"a method's loop asked for sequence {seq_i} while {self._seq_i} is loaded")
+        s = self.settings
+        seq = self.sequences[seq_i]
+        images = self._images(seq_i, target_us)
+        if s.write_images:
+            self.writers[spec].write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
+        ae_img = images[s.ae_camera]
+        return Frame(ae_img.image, seq.timestamps_ns[s.ae_camera][ae_img.source_exposure_us],
+                     ae_img.source_exposure_us, seq.index,
+                     {"side": s.ae_camera, "response": self.emu.emulator.response,
+                      "shared_gray": self.emu.shared_gray(seq_i, s.ae_camera, target_us)})
+
+    def _needed_keys(self, seq: BracketSequence, targets: list[float]) -> list[tuple[int, int]]:
+        """(side index, exposure index) of the frames that emulating ``targets`` from ``seq`` can use."""
+        exps = {e for t in targets for e in needed_brackets(seq.exposures_us, t, self.settings.emulator.selection)}
+        return [(si, ei) for si in range(len(self.settings.emulate_sides)) for ei, e in enumerate(seq.exposures_us)
+                if e in exps]
+
+    def _prefetch(self, slot: int, seq_i: int, target_us: float) -> None:
+        """Start decoding (on the pool's threads) the frames of ``seq_i`` that ``target_us`` needs, once each."""
+        assert self.decode_pool is not None
+        tasks = [(slot, seq_i, si, ei) for si, ei in self._needed_keys(self.sequences[seq_i], [target_us])
+                 if (slot, si, ei) not in self._decoded]
+        futures = self.frames.decode(tasks, self.decode_pool)
+        for (_, _, si, ei), f in zip(tasks, futures, strict=True):
+            self._decoded[(slot, si, ei)] = f
+
+    def close(self) -> dict[str, MethodRun]:
+        try:
+            for w in self.writers.values():
+                w.close()
+        finally:
+            self.sink.close()
+        return self.runs
+
+
+#: ``workers=0`` (auto) forks worker processes only from this many sequences on; shorter runs are faster in one
+#: process (forking, per-worker method start-up and result pickling cost more than they save; decoding and PNG
+#: encoding use threads in-process anyway).
+AUTO_FORK_MIN_SEQUENCES = 8
+
+
+def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, sequences: list[BracketSequence],
+                  out_dir: Path, *, workers: int, memory_budget_bytes: int,
+                  progress: Callable[[int], None]) -> dict[str, MethodRun]:
+    """Every method's closed loop over ``sequences`` (at least one), its images written under ``out_dir``.
+
+    ``traits``: {method id: what it declares}, in run order. ``workers``: processes (0 = min(methods, CPUs, 4)
+    from :data:`AUTO_FORK_MIN_SEQUENCES` sequences on, else 1; 1 = in this process). ``progress(n)`` is called
+    after every n method steps. Returns {method id: run} in ``traits`` order. Raises BracketryError (one line) on
+    a failing method or worker."""
+    specs = list(traits)
+    n_seq = len(sequences)
+    first = sequences[0]
+    shape, first_img = frame_shape(first, settings.emulate_sides[0])
+    preloaded = {} if first_img is None else {(0, 0, 0): first_img}  # decoded for the shape: reused
+    n_exp = len(first.exposures_us)
+    seq_bytes = FrameBuffer.sequence_bytes(len(settings.emulate_sides), n_exp, shape)
+    chunk = max(1, min(n_seq, memory_budget_bytes // max(seq_bytes, 1)))
+    frames = FrameBuffer(sequences, settings.emulate_sides, shape, n_exp, chunk, preloaded)
+    n_cpu = os.cpu_count() or 1
+    if workers > 0:
+        n_workers = workers
+    else:  # auto: forking (and each worker's start-up) only pays off on long runs
+        n_workers = min(len(specs), n_cpu, 4) if n_seq >= AUTO_FORK_MIN_SEQUENCES else 1
+    can_fork = "fork" in mp.get_all_start_methods()
+    n_workers = max(1, min(n_workers, len(specs))) if can_fork else 1
+    groups = partition(traits, n_workers)
+
+    def make(group: list[str], write_threads: int = 1) -> Callable[[], Worker]:
+        return lambda: Worker(group, settings, sequences, out_dir, frames, write_threads)
+
+    runs: dict[str, MethodRun] = {}
+    try:
+        if len(groups) == 1:
+            runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), n_seq, chunk, progress))
+        else:
+            runs.update(_run_forked(groups, make, n_seq, chunk, len(settings.emulate_sides), n_exp, progress))
+    finally:
+        frames.close()  # on an error path the traceback may still hold views of the buffer: freed with them
+    return {s: runs[s] for s in specs}
+
+
+def _run_in_process(make: Callable[[], Worker], n_seq: int, chunk: int,
+                    progress: Callable[[int], None]) -> dict[str, MethodRun]:
+    """One worker in this process, decoding on demand on threads (cv2.imread releases the GIL); matplotlib is
+    imported for the final plot on a thread meanwhile."""
+    preload = threading.Thread(target=preload_plotting, name="bracketry-mpl-import", daemon=True)
+    preload.start()
+    try:
+        with ThreadPoolExecutor(min(2, os.cpu_count() or 1), thread_name_prefix="bracketry-decode") as pool:
+            w = make()
+            w.decode_pool = pool
+            try:
+                for c0 in range(0, n_seq, chunk):
+                    w.run(list(range(c0, min(n_seq, c0 + chunk))), progress)
+            except BaseException:
+                with contextlib.suppress(Exception):
+                    w.sink.close()  # finish the images already submitted; the first error is the one raised
+                raise
+            return w.close()
+    finally:
+        preload.join()
+
+
+def _worker_loop(conn: Connection, worker: Callable[[], Worker]) -> None:
+    """A forked worker: answers the parent's commands (decode, run, close) until closed; reports one error."""
+    try:
+        w = worker()
+        conn.send(("ready", None))
+        while True:
+            cmd, arg = conn.recv()
+            if cmd == "decode":
+                w.decode(arg)
+                conn.send(("decoded", None))
+            elif cmd == "run":
+                w.run(arg, lambda n: conn.send(("progress", n)))
+                conn.send(("ran", None))
+            elif cmd == "close":
+                conn.send(("closed", w.close()))
+                return
+    except BaseException as exc:  # report to the parent, which raises one clear line
+        msg = str(exc) if isinstance(exc, BracketryError) else f"{type(exc).__name__}: {exc}"
+        with contextlib.suppress(Exception):
+            conn.send(("error", (msg, traceback.format_exc())))
+    finally:
+        conn.close()
+
+
+def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[], Worker]], n_seq: int,
+                chunk: int, n_sides: int, n_exp: int, progress: Callable[[int], None]) -> dict[str, MethodRun]:
+    ctx = mp.get_context("fork")
+    procs: list[Any] = []
+    conns: list[Connection] = []
+    runs: dict[str, MethodRun] = {}
+    try:
+        for group in groups:
+            parent, child = ctx.Pipe()
+            p = ctx.Process(target=_worker_loop, args=(child, make(group)), daemon=True)
+            p.start()
+            child.close()
+            procs.append(p)
+            conns.append(parent)
+        preload_plotting()  # the parent is idle while the workers start: import matplotlib now
+        _collect(conns, "ready", progress)
+        for c0 in range(0, n_seq, chunk):
+            idx = list(range(c0, min(n_seq, c0 + chunk)))
+            tasks = decode_tasks(idx, n_sides, n_exp)
+            for k, conn in enumerate(conns):
+                conn.send(("decode", tasks[k::len(conns)]))
+            _collect(conns, "decoded", progress)
+            for conn in conns:
+                conn.send(("run", idx))
+            _collect(conns, "ran", progress)
+        for conn in conns:
+            conn.send(("close", None))
+        for res in _collect(conns, "closed", progress):
+            runs.update(res)
+    finally:
+        for conn in conns:
+            conn.close()
+        for p in procs:
+            p.join(timeout=10)
+            if p.is_alive():
+                p.terminate()
+                p.join(timeout=5)
+    return runs
+
+
+def preload_plotting() -> None:
+    """Import matplotlib's figure module (when installed) while this process would otherwise wait."""
+    import importlib.util
+
+    if importlib.util.find_spec("matplotlib") is not None:
+        import matplotlib.figure  # noqa: F401
+
+
+def _collect(conns: list[Connection], expected: str, progress: Callable[[int], None]) -> list[Any]:
+    """Wait until every worker answered ``expected`` (forwarding progress); raise on a worker error."""
+    pending = {id(c): c for c in conns}
+    results: dict[int, Any] = {}
+    while pending:
+        for c in wait(list(pending.values())):
+            assert isinstance(c, Connection)
+            try:
+                kind, payload = c.recv()
+            except EOFError as exc:
+                raise BracketryError("an emulation worker process died (out of memory?)") from exc
+            if kind == "progress":
+                progress(payload)
+            elif kind == "error":
+                if os.environ.get("BRACKETRY_DEBUG") == "1":
+                    print(payload[1])
+                raise BracketryError(payload[0])
+            elif kind == expected:
+                results[id(c)] = payload
+                del pending[id(c)]
+    return [results[id(c)] for c in conns]

@@ -1,0 +1,96 @@
+"""The closed loop's pure core (ae/loop.py) on arrays: no dataset, no files, no processes."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.ae import ConstantExposure, Frame, run_loop
+from bracketry_emulator.ae.registry import MethodTraits, method_traits
+
+
+def _world(scenes: list[float]) -> tuple[list[tuple[int, float]], Any, list[tuple[int, float]]]:
+    """Sequences (index, scene brightness in DN per us), an ``emulate`` and the log of its calls."""
+    calls: list[tuple[int, float]] = []
+
+    def emulate(seq: tuple[int, float], target_us: float) -> Frame:
+        index, dn_per_us = seq
+        calls.append((index, target_us))
+        image = np.full((4, 6), min(4095, round(dn_per_us * target_us)), np.uint16)
+        return Frame(image, 1_000_000 * index, 2000, index, {"side": "left"})
+
+    return [(k, s) for k, s in enumerate(scenes)], emulate, calls
+
+
+def test_constant_method_keeps_its_own_exposure() -> None:
+    seqs, emulate, calls = _world([0.5, 0.1, 0.9])
+    steps = run_loop(ConstantExposure(8.0, name="constant-8"), seqs, emulate)
+    # the method's own init_exposure_us (8 ms) wins over the loop's 4 ms default; every step emulates it
+    assert calls == [(0, 8000.0), (1, 8000.0), (2, 8000.0)]
+    assert [(s.step, s.sequence_index, s.timestamp_ns, s.exposure_us, s.next_exposure_us, s.source_exposure_us)
+            for s in steps] == [(k, k, 1_000_000 * k, 8000.0, 8000.0, 2000) for k in range(3)]
+    assert all(s.ae_s >= 0 for s in steps)
+
+
+class _HalfScale:
+    """Asks for the exposure that brings the mean to 2048 DN; records what it saw."""
+
+    name = "half"
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[float, float, dict]] = []
+
+    def reset(self, init_exposure_us: float) -> None:
+        self.seen.clear()
+        self.init = init_exposure_us
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+        self.seen.append((float(image.mean()), exposure_us, dict(meta)))
+        return exposure_us * 2048.0 / max(float(image.mean()), 1.0)
+
+
+def test_method_sees_the_image_emulated_at_the_exposure_it_asked_for() -> None:
+    seqs, emulate, calls = _world([0.5, 0.5, 0.25, 1.0])
+    method = _HalfScale()
+    steps = run_loop(method, seqs, emulate, init_exposure_us=1000.0, min_exposure_us=100.0, max_exposure_us=6000.0)
+    assert method.init == 1000.0
+    # step k's target is step k-1's answer, and the image the method saw was emulated at that target
+    assert [t for _, t in calls] == [s.exposure_us for s in steps] == [1000.0, 4096.0, 4096.0, 6000.0]
+    assert [m for m, _, _ in method.seen] == [500.0, 2048.0, 1024.0, 4095.0]
+    assert [s.next_exposure_us for s in steps] == [4096.0, 4096.0, 6000.0, 6000.0 * 2048.0 / 4095.0]
+    # the answer 8192 us at step 2 was clamped to the upper bound before it became the next target
+    meta = method.seen[2][2]
+    assert meta == {"step": 2, "timestamp_ns": 2_000_000, "sequence_index": 2, "source_exposure_us": 2000,
+                    "bounds_us": (100.0, 6000.0), "side": "left"}
+
+
+@pytest.mark.parametrize("answer,words", [(float("nan"), "returned a non-finite exposure at step 0"),
+                                          (ValueError("boom"), "failed at step 0: ValueError: boom")])
+def test_a_failing_method_is_one_line_naming_it(answer: Any, words: str) -> None:
+    class Bad:
+        name = "bad"
+
+        def reset(self, init_exposure_us: float) -> None:
+            pass
+
+        def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+            if isinstance(answer, Exception):
+                raise answer
+            return answer
+
+    seqs, emulate, _ = _world([0.5])
+    with pytest.raises(BracketryError, match=f"AE method my-bad {words}"):
+        run_loop(Bad(), seqs, emulate, name="my-bad")
+
+
+def test_methods_declare_their_scheduling_traits() -> None:
+    assert method_traits("kim") == MethodTraits(40, None)
+    assert method_traits("ae50") == method_traits("ae50") == MethodTraits(1, "classical-50-default")
+    assert method_traits("fix", parity="upstream") == MethodTraits(1, "classical-50-upstream")
+    assert method_traits("constant-3") == MethodTraits(1, None)
+    # drl is not created in the parent (torch threads): its class is checked instead
+    with pytest.raises(BracketryError, match="drl method needs its weights"):
+        method_traits("drl")
