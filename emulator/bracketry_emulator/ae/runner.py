@@ -57,16 +57,18 @@ class LoopConfig:
     memory_budget_bytes: int = 1 << 30
 
     def validate(self) -> None:
-        """Raise BracketryError (one line) on a bad setting."""
+        """Raise BracketryError (one line, naming the ``bracketry emulate`` option) on a bad setting: the one
+        place these settings are checked."""
         if self.camera not in ("left", "right", "both"):
             raise BracketryError(f"--camera must be left, right or both, got {self.camera}")
         if self.ae_camera not in ("left", "right"):
             raise BracketryError(f"--ae-camera must be left or right, got {self.ae_camera}")
-        if not 0 < self.min_exposure_us < self.max_exposure_us:
-            raise BracketryError(f"bad exposure bounds [{self.min_exposure_us}, {self.max_exposure_us}] us")
-        if not self.min_exposure_us <= self.init_exposure_us <= self.max_exposure_us:
-            raise BracketryError(f"initial exposure {self.init_exposure_us / 1000:g} ms is outside the bounds "
-                                 f"[{self.min_exposure_us / 1000:g}, {self.max_exposure_us / 1000:g}] ms")
+        lo_ms, hi_ms, init_ms = self.min_exposure_us / 1000, self.max_exposure_us / 1000, self.init_exposure_us / 1000
+        if not 0 < lo_ms < hi_ms:
+            raise BracketryError(f"--min-exposure-ms {lo_ms:g} must be > 0 and below --max-exposure-ms {hi_ms:g}")
+        if not lo_ms <= init_ms <= hi_ms:
+            raise BracketryError(f"--init-exposure-ms {init_ms:g} is outside the bounds [--min-exposure-ms "
+                                 f"{lo_ms:g}, --max-exposure-ms {hi_ms:g}]")
         self.emulator.validate()
 
 

@@ -36,17 +36,10 @@ def loop_options(**given: Any) -> dict[str, Any]:
 def loop_config(options: dict[str, Any] | None, drl_weights: str | None) -> Any:
     """The :class:`~bracketry_emulator.ae.LoopConfig` of benchmark closed-loop ``options`` (validated)."""
     from bracketry_emulator.ae import LoopConfig
-    from bracketry_emulator.emulation import EmulatorConfig
+    from bracketry_emulator.emulation.settings import emulator_config
 
     o = loop_options(**(options or {}))
-    crf = str(o["crf"])
-    if crf.lower() != "srgb" and not Path(crf).is_file():
-        raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf}")
-    parity = str(o["parity"])
-    if parity not in ("default", "upstream"):
-        raise BracketryError(f"--parity must be default or upstream, got {parity}")
-    selection = "upstream" if parity == "upstream" and o["selection"] == "highernosat" else o["selection"]
-    cfg = LoopConfig(emulator=EmulatorConfig(selection=selection, crf=crf, parity=parity),  # type: ignore[arg-type]
+    cfg = LoopConfig(emulator=emulator_config(o["selection"], str(o["crf"]), str(o["parity"])),
                      ae_camera=o["ae_camera"], init_exposure_us=float(o["init_exposure_us"]), seed=int(o["seed"]),
                      drl_weights=drl_weights)
     cfg.validate()

@@ -28,8 +28,8 @@ MAX_EXPOSURE_MS = 1000.0
 def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str, depth: int,
                      gain_db: float, noise: Path | None = None, fusion_brackets: str = "bounding",
                      motion: str = "none", deghost_sigma: float | None = None) -> object:
-    from bracketry_emulator.emulation import EmulatorConfig
     from bracketry_emulator.emulation.noise import resolve_noise_model
+    from bracketry_emulator.emulation.settings import emulator_config
 
     if crf is None:
         crf = "srgb"
@@ -40,24 +40,13 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
             if found is None:
                 raise BracketryError("--parity upstream needs the authors' pcalib: pass --crf PATH/pcalib_inside1.txt")
             crf = str(found)
-    if crf.lower() != "srgb":
-        if not Path(crf).is_file():
-            raise BracketryError(f"--crf must be 'srgb' or a pcalib.txt file, got {crf}")
-        from bracketry_emulator.crf import load_pcalib
-
-        load_pcalib(crf)  # a broken curve is refused before any work
-    if parity == "upstream" and selection == "highernosat":
-        selection = "upstream"  # the authors' closer_least_sat goes with their arithmetic
     if selection != "fusion" and (fusion_brackets != "bounding" or motion != "none" or deghost_sigma is not None):
         raise BracketryError("--fusion-brackets, --motion and --deghost-sigma need --selection fusion")
     if deghost_sigma is not None and deghost_sigma <= 0:
         raise BracketryError(f"--deghost-sigma must be > 0, got {deghost_sigma}")
     model, _source = resolve_noise_model(noise, dataset if dataset.is_dir() else None)
-    cfg = EmulatorConfig(selection=selection, crf=crf, parity=parity, depth=depth, gain_db=gain_db,  # type: ignore[arg-type]
-                         fusion_brackets=fusion_brackets, motion=motion, deghost_sigma=deghost_sigma,  # type: ignore[arg-type]
-                         noise=model)
-    cfg.validate()
-    return cfg
+    return emulator_config(selection, crf, parity, depth=depth, gain_db=gain_db, fusion_brackets=fusion_brackets,
+                           motion=motion, deghost_sigma=deghost_sigma, noise=model)
 
 
 @click.command("emulate")
@@ -124,11 +113,6 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     """
     from bracketry_emulator.ae import LoopConfig, expand_methods, run_methods
 
-    if min_exposure_ms > max_exposure_ms:
-        raise BracketryError(f"--min-exposure-ms {min_exposure_ms:g} exceeds --max-exposure-ms {max_exposure_ms:g}")
-    if not min_exposure_ms <= init_exposure_ms <= max_exposure_ms:
-        raise BracketryError(f"--init-exposure-ms {init_exposure_ms:g} is outside the bounds [--min-exposure-ms "
-                             f"{min_exposure_ms:g}, --max-exposure-ms {max_exposure_ms:g}]")
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
     emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db, noise, fusion_brackets, motion,
                            deghost_sigma)
@@ -137,6 +121,7 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
                      max_exposure_us=max_exposure_ms * 1000.0, seed=seed,
                      drl_weights=str(drl_weights) if drl_weights else None, write_images=not no_images,
                      overwrite=overwrite, max_sequences=max_sequences)
+    cfg.validate()  # before --overwrite removes anything
     if drl_weights is not None and "drl" in specs:
         _check_pth(drl_weights)
     if overwrite:
