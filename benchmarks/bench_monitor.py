@@ -39,7 +39,7 @@ from bracketry.monitor.hub import PreviewHub
 from bracketry.monitor.server import advisor_report
 
 ROOT = paths.repo_root()
-sys.path.insert(0, str(ROOT / "tests"))
+sys.path.insert(0, str(ROOT / "tests" / "bracketry" / "monitor"))
 WIDTH, HEIGHT = 1920, 1200
 BRACKETS_US = (1000, 2000, 4000, 8000, 16000, 32000)
 
@@ -133,7 +133,7 @@ def run_rig(work: Path, seconds: float, world: bool, page: bool, screenshot: Pat
             if not rec_t and "L:REC R:REC TRIG:REC" in text:
                 rec_t.append(time.monotonic())
                 if page and url:
-                    from monitor.chromium import Chromium
+                    from monitor_chromium import Chromium
 
                     chromium = Chromium(work / "chromium")
                     page_thread = threading.Thread(target=asyncio.run,
@@ -164,8 +164,7 @@ def run_rig(work: Path, seconds: float, world: bool, page: bool, screenshot: Pat
 
 async def _hold_page(chromium: Any, url: str, seconds: float, screenshot: Path | None) -> None:
     import aiohttp
-
-    from monitor.chromium import Page
+    from monitor_chromium import Page
 
     async with aiohttp.ClientSession() as session, session.ws_connect(chromium.page_ws_url(), max_msg_size=0) as ws:
         page = Page(ws)

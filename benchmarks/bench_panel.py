@@ -22,7 +22,7 @@ from bracketry import paths
 ROOT = paths.repo_root()
 FIRMWARE = ROOT / "firmware" / "esp32_panel"
 BPROTO = ROOT / "host" / "bracketry" / "wire" / "bproto.py"
-RUNNER = ROOT / "tests" / "panel" / "panel_mpy_run.mjs"
+RUNNER = ROOT / "tests" / "firmware" / "esp32_panel" / "panel_mpy_run.mjs"
 
 SCRIPT = """
 import time

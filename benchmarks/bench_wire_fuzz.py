@@ -31,7 +31,7 @@ from pathlib import Path
 from bracketry import paths
 from bracketry.wire import bproto
 
-sys.path.insert(0, str(paths.repo_root() / "tests" / "wire"))
+sys.path.insert(0, str(paths.repo_root() / "tests" / "firmware" / "protocol"))
 # the per-record digest the C fuzz harness prints, shared with the tests
 from wire_corpus import frames_fnv1a
 
@@ -201,7 +201,7 @@ def micropython_rate(stream: bytes, tmp: Path) -> tuple[int, float] | None:
     """(frames, seconds) of the real MicroPython WebAssembly runtime decoding ``stream`` in 256-byte reads."""
     node = shutil.which("node")
     mjs = paths.micropython_module_path()
-    runner = Path(__file__).resolve().parents[1] / "tests" / "wire" / "wire_mpy_run.mjs"
+    runner = Path(__file__).resolve().parents[1] / "tests" / "firmware" / "protocol" / "wire_mpy_run.mjs"
     if node is None or not mjs.exists() or not runner.exists():
         return None
     (tmp / "stream.bin").write_bytes(stream)

@@ -15,7 +15,8 @@ Everything outside the markers (framing, CRC, COBS, the streaming decoder, the S
 by hand. Usage::
 
     python firmware/protocol/generate.py          # rewrite the generated parts (make protocol)
-    python firmware/protocol/generate.py --check  # exit 1 naming every stale file (tests/wire/test_wire_generated.py)
+    python firmware/protocol/generate.py --check  # exit 1 naming every stale file
+                                                   # (tests/firmware/protocol/test_wire_generated.py)
 
 Standard library only: it runs before any virtual environment exists.
 """

@@ -2,9 +2,9 @@
 
 Written from the description of norlab-ulaval/BorealHDR (branch TFR2024, ``class_auto_exposure_methods.py``); no
 code of theirs is copied. Trace-identical to their ``emulator_threads.py`` (test vectors in
-``tests/ae/data/upstream_traces/``, with the command that made them). Classical (ae30/50/70) and Fix are the same
-in both modes (:mod:`.classical` is already their rule); Wang and DRL are not in their public code and have no
-upstream variant (the default implementations run in both modes).
+``tests/bracketry_emulator/ae/data/upstream_traces/``, with the command that made them). Classical (ae30/50/70) and
+Fix are the same in both modes (:mod:`.classical` is already their rule); Wang and DRL are not in their public code
+and have no upstream variant (the default implementations run in both modes).
 
 Every method works on the full-resolution gray image ``cvtColor(mosaic, COLOR_BAYER_RG2GRAY)`` (uint16 12-bit
 codes; see :func:`.base.bayer_gray`) and takes and returns exposures in us (the authors: ms).

@@ -3,7 +3,7 @@
  * struct with pack/unpack functions for every message payload).
  *
  * The single specification is firmware/protocol/PROTOCOL.md; firmware/protocol/protocol_vectors.json holds the
- * shared test vectors (tests/wire runs them against this file compiled for the host).
+ * shared test vectors (tests/firmware/protocol runs them against this file compiled for the host).
  * C99, no malloc, fixed buffers, no dependencies beyond <stdint.h>/<stddef.h>/<string.h>.
  * The parts between BEGIN/END GENERATED markers (here and in bproto.c) are written by firmware/protocol/generate.py
  * from firmware/protocol/messages.json (make protocol); edit the table, not them.
