@@ -38,10 +38,13 @@ PY=${PYTHON:-python3}
 
 step "Python packages (editable install with all extras)"
 stamp=.venv/.bracketry-installed
-# (re)install when pyproject.toml or the C extension's source changed, or the built extension is missing
+# (re)install when pyproject.toml or a C extension's source changed, or a built extension is missing
 lut12_src=emulator/bracketry_emulator/emulation/_lut12.c
+zhang_src=emulator/bracketry_emulator/ae/_zhang_terms.c
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$lut12_src" -nt "$stamp" ] \
-   || ! ls emulator/bracketry_emulator/emulation/_lut12*.so >/dev/null 2>&1; then
+   || [ "$zhang_src" -nt "$stamp" ] \
+   || ! ls emulator/bracketry_emulator/emulation/_lut12*.so >/dev/null 2>&1 \
+   || ! ls emulator/bracketry_emulator/ae/_zhang_terms*.so >/dev/null 2>&1; then
   .venv/bin/python -m pip install -q -e '.[all]'
   touch "$stamp"
 else
