@@ -30,7 +30,7 @@ def test_stored_png_rejects_other_arrays() -> None:
 @pytest.mark.parametrize("selection", ["highernosat", "upstream"])
 def test_needed_brackets_select_like_all_brackets(selection: str) -> None:
     """Decoding on demand: the selection on the needed subset equals the selection on every bracket."""
-    from bracketry_emulator.ae.emulation_cache import needed_brackets as _needed_brackets
+    from bracketry_emulator.ae.emulation_cache import needed_brackets
     from bracketry_emulator.emulation.selection import select_highernosat, select_upstream
 
     exps = (1000, 2000, 4000, 8000, 16000, 32000)
@@ -41,7 +41,7 @@ def test_needed_brackets_select_like_all_brackets(selection: str) -> None:
         sat = {e: float(v) for e, v in zip(exps, np.sort(rng.uniform(0, 0.05, 6)) if k % 2 else rng.uniform(0, 0.05, 6),
                                            strict=True)}
         for t in targets:
-            sub = _needed_brackets(exps, float(t), selection)
+            sub = needed_brackets(exps, float(t), selection)
             assert set(sub) <= set(exps) and 1 <= len(sub) <= 2
             if selection == "highernosat":
                 full = select_highernosat(exps, t, sat)
@@ -50,7 +50,7 @@ def test_needed_brackets_select_like_all_brackets(selection: str) -> None:
                 full = select_upstream(exps, t, sat)
                 part = select_upstream(sub, t, sat) if len(sub) > 1 else sub[0]
             assert part == full, (t, sub)
-    assert _needed_brackets(exps, 5000.0, "fusion") == exps
+    assert needed_brackets(exps, 5000.0, "fusion") == exps
 
 
 def test_shared_gray_equals_the_direct_conversions() -> None:
