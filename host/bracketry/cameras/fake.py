@@ -11,7 +11,7 @@ crashes). Mono16 carries 12-bit codes unchanged (the fake has no BayerRG12 pixel
 Each served frame's exposure is recorded in ``served_exposures_us`` (in serving order) so tests can read it.
 
 Quirks of the Aravis 0.8.26 fake, handled by its users: the first TriggerSoftware after AcquisitionStart is often
-lost (``RecordingSession``'s ``SoftwareTrigger.prime`` fires a marked priming trigger first); it polls one trigger
+lost (``bracketry.cameras.triggering.SoftwareTrigger.arm`` fires a marked priming trigger first); it polls one trigger
 flag, so on a heavily loaded machine two triggers can merge into one frame (rendered with the later exposure);
 its timestamps are host time (``Pairer(initial_alignment="host_time")``).
 """

@@ -55,18 +55,51 @@ class CameraSettings:
     fake_max_frame_rate_hz: float = 500.0
 
 
-def settings_from_config(camera: Any, *, width: int | None = None, height: int | None = None) -> CameraSettings:
+@dataclass(frozen=True)
+class ProfileKind:
+    """How a camera of one profile works with the rig, beyond its feature writes.
+
+    ``trigger``: ``line`` (the trigger device's pulse reaches a GPIO line) or ``software`` (no trigger line: the host
+    fires TriggerSoftware at each TRIGGER event, see ``bracketry.cameras.triggering``); ``transport``: whether the
+    rig config's packet size and delay apply (the fake camera serves on loopback at its own packet size).
+    """
+
+    trigger: str
+    transport: bool
+
+
+PROFILE_KINDS: dict[str, ProfileKind] = {
+    "basler_ace2": ProfileKind(trigger="line", transport=True),
+    "aravis_fake": ProfileKind(trigger="software", transport=False),
+}
+
+
+def profile_kind(profile: str) -> ProfileKind:
+    """The :class:`ProfileKind` of ``profile``; CameraError for an unknown one."""
+    try:
+        return PROFILE_KINDS[profile]
+    except KeyError:
+        raise CameraError(f"unknown camera profile {profile!r} (known: {', '.join(PROFILES)})") from None
+
+
+def settings_from_config(camera: Any, *, width: int | None = None, height: int | None = None,
+                         exposure_us: float = 1000.0) -> CameraSettings:
     """CameraSettings from a rig config camera entry (``bracketry.daemon.config.CameraConfig`` or alike: profile,
-    pixel_format, trigger_line, trigger_activation, packet_size_bytes, packet_delay_ticks)."""
+    pixel_format, trigger_line, trigger_activation, packet_size_bytes, packet_delay_ticks); ``exposure_us`` is the
+    initial exposure of cameras that time it themselves. The profile decides what applies: a software-triggered
+    camera gets TriggerSource ``Software``, a camera without ``transport`` keeps its packet settings."""
     profile = getattr(camera, "profile", "basler_ace2")
+    kind = profile_kind(profile)
     pixel_format = getattr(camera, "pixel_format", "BayerRG12p")
     if profile == "aravis_fake" and pixel_format in ("BayerRG12p", "BayerRG12"):
         pixel_format = "Mono16"  # the fake has no 12-bit Bayer pixels: Mono16 carries the 12-bit codes
     return CameraSettings(profile=profile, pixel_format=pixel_format, width=width, height=height,
-                          trigger_source=getattr(camera, "trigger_line", "Line3"),
+                          trigger_source="Software" if kind.trigger == "software" else
+                          getattr(camera, "trigger_line", "Line3"),
                           trigger_activation=getattr(camera, "trigger_activation", "FallingEdge"),
-                          packet_size_bytes=getattr(camera, "packet_size_bytes", None),
-                          packet_delay_ticks=getattr(camera, "packet_delay_ticks", None))
+                          packet_size_bytes=getattr(camera, "packet_size_bytes", None) if kind.transport else None,
+                          packet_delay_ticks=getattr(camera, "packet_delay_ticks", None) if kind.transport else None,
+                          exposure_us=float(exposure_us))
 
 
 @dataclass(frozen=True)

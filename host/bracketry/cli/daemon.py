@@ -21,7 +21,8 @@ from bracketry.outputs import check_output
               help="Lowest level of the log lines written.")
 @click.option("--plain-logs", is_flag=True, help="Human-readable log lines instead of JSON lines.")
 @click.option("--software-trigger", is_flag=True, hidden=True,
-              help="Fire TriggerSoftware on every TRIGGER event (simulated rig with fake cameras).")
+              help="No effect (kept for old command lines): cameras whose profile has no trigger line, such as "
+                   "aravis_fake, are fired in software at every TRIGGER event.")
 @click.option("--roi", default=None, hidden=True, help="WIDTHxHEIGHT region of interest (simulation).")
 def command(config_path: Path, check: bool, log_level: str, plain_logs: bool, software_trigger: bool,
             roi: str | None) -> int:
@@ -40,7 +41,7 @@ def command(config_path: Path, check: bool, log_level: str, plain_logs: bool, so
     if roi:
         w, _, h = roi.partition("x")
         width, height = int(w), int(h)
-    daemon = RigDaemon(config, DaemonOptions(software_trigger=software_trigger, width=width, height=height))
+    daemon = RigDaemon(config, DaemonOptions(width=width, height=height))
     restore = install_signal_handlers(daemon)
     try:
         daemon.start()

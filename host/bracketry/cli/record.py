@@ -18,7 +18,9 @@ from bracketry.outputs import check_output
               help="Rig configuration (TOML, as for the daemon); the recording goes to its output_dir.")
 @option("--duration-s", "duration_s", aliases=("--duration",), required=True, type=Duration(),
         help="How long to record: seconds, or with a unit: 30s, 2m, 1h, 1m30s (at most a week).")
-@click.option("--software-trigger", is_flag=True, hidden=True)
+@click.option("--software-trigger", is_flag=True, hidden=True,
+              help="No effect (kept for old command lines): cameras whose profile has no trigger line, such as "
+                   "aravis_fake, are fired in software at every TRIGGER event.")
 @click.option("--roi", default=None, hidden=True, help="WIDTHxHEIGHT region of interest (simulation).")
 def command(config_path: Path, duration_s: float, software_trigger: bool, roi: str | None) -> int:
     """Bring the sensors up, record for --duration-s, stop cleanly and verify the files (exit 1 if problems)."""
@@ -33,7 +35,7 @@ def command(config_path: Path, duration_s: float, software_trigger: bool, roi: s
     if roi:
         w, _, h = roi.partition("x")
         width, height = int(w), int(h)
-    daemon = RigDaemon(config, DaemonOptions(software_trigger=software_trigger, width=width, height=height))
+    daemon = RigDaemon(config, DaemonOptions(width=width, height=height))
     daemon.config = config.__class__(**{**config.__dict__, "panel": config.panel.__class__(enabled=False)})
     restore = install_signal_handlers(daemon)
     try:

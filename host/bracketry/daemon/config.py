@@ -12,11 +12,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bracketry.cameras.profiles import PROFILES, profile_kind
 from bracketry.errors import BracketryError
 from bracketry.ipv4 import unicast_ipv4
 from bracketry.wire import bproto
 
-CAMERA_PROFILES = ("basler_ace2", "aravis_fake")
+CAMERA_PROFILES = PROFILES
 SIDES = ("left", "right")
 TRIGGER_KINDS = ("serial", "simulator", "qemu")
 PIXEL_FORMATS = ("BayerRG12p", "BayerRG12", "Mono16", "BayerRG8", "Mono8")
@@ -275,6 +276,8 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
         ids = [getattr(cam, key) for cam in cameras if getattr(cam, key)]
         if len(set(ids)) != len(ids):
             c.fail("cameras", f"left and right use the same {key} {ids[0]!r}")
+    if len({profile_kind(cam.profile).trigger for cam in cameras if cam.profile in CAMERA_PROFILES}) > 1:
+        c.fail("cameras", "one camera is triggered on a line and the other in software: use profiles of one kind")
 
     trig = c.table(data.get("trigger", {}), "trigger", _TRIGGER_KEYS)
     if trig.get("kind", "serial") not in TRIGGER_KINDS:

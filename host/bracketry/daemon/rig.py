@@ -30,6 +30,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from bracketry.cameras.triggering import CameraTrigger, LineTrigger, camera_trigger
 from bracketry.daemon.config import RigConfig
 from bracketry.daemon.disk import free_mb
 from bracketry.daemon.sdnotify import Notifier
@@ -51,13 +52,11 @@ GEV_VERSION_REGISTER = 0x0000
 class DaemonOptions:
     """Run-time options that are not part of the rig config.
 
-    ``software_trigger``: fire each camera's TriggerSoftware at every TRIGGER event (fake cameras have no trigger
-    line); ``width``/``height``: region of interest (None keeps the camera's); ``camera_stall_s``: a recording camera
+    ``width``/``height``: region of interest (None keeps the camera's); ``camera_stall_s``: a recording camera
     with no frame for this long is in ERR; ``idle_check_s``: period of the GVCP check of idle cameras;
     ``backoff_s``: first and maximum reconnection delays.
     """
 
-    software_trigger: bool = False
     width: int | None = None
     height: int | None = None
     camera_stall_s: float = 2.0
@@ -119,10 +118,8 @@ class RigDaemon:
         self._pulses: dict[str, int] = {}  # side -> pulses delivered to it in this segment
         self._trigger_reboots_seen = 0
         self._deliver_lock = threading.Lock()
-        self._soft_failed: set[str] = set()
+        self._camera_trigger: CameraTrigger = LineTrigger(())
         self._pump_paused = threading.Event()
-        self._last_soft_trigger = 0.0
-        self._fired = 0
         self.monitor_hub: Any = None  # the browser monitor (config [monitor]), see bracketry.daemon.monitor_link
         self.monitor_server: Any = None
         self.previewing = False  # the open session is a preview session (monitor on, sensors up, not recording)
@@ -302,7 +299,7 @@ class RigDaemon:
         if side in self.cameras:
             return True
         from bracketry.cameras.camera import GigECamera
-        from bracketry.cameras.profiles import CameraSettings
+        from bracketry.cameras.profiles import settings_from_config
 
         cc = self.config.camera(side)
         sensor = CAM_SENSOR[side]
@@ -311,15 +308,8 @@ class RigDaemon:
             cam = GigECamera(cc.address, side=side)
             if cc.device_id:
                 cam.check_identity(cc.device_id)
-            fake = cc.profile == "aravis_fake"
-            settings = CameraSettings(profile=cc.profile, pixel_format=cc.pixel_format, width=self.options.width,
-                                      height=self.options.height,
-                                      trigger_source="Software" if fake else cc.trigger_line,
-                                      trigger_activation=cc.trigger_activation,
-                                      packet_size_bytes=None if fake else cc.packet_size_bytes,
-                                      packet_delay_ticks=None if fake else cc.packet_delay_ticks,
-                                      exposure_us=float(self.config.brackets_us[0]))
-            cam.configure(settings).raise_if_mismatch()
+            cam.configure(settings_from_config(cc, width=self.options.width, height=self.options.height,
+                                               exposure_us=self.config.brackets_us[0])).raise_if_mismatch()
         except Exception as exc:
             if cam is not None:
                 with contextlib.suppress(Exception):
@@ -417,23 +407,19 @@ class RigDaemon:
         if (self.monitor_hub is None or self._closing or self.recording or not self.sensors_on
                 or self._session is not None or self.trigger is None or not self.cameras):
             return False
-        soft = self.options.software_trigger
+        camera_trigger = self._new_camera_trigger()
         try:
             session = RecordingSession(dict(self.cameras), DiscardSink(self.config.output_dir),
                                        disk_path=self.config.output_dir,
-                                       initial_alignment="host_time" if soft else "count",
+                                       initial_alignment=camera_trigger.initial_alignment,
                                        tap=self.monitor_hub.offer).start()
         except SessionStartError as exc:
             log.error("preview start: %s", exc)
             self._camera_down(exc.side, SensorState.ERR, str(exc))
             self._backoff[exc.side].failed()
             return self._preview_start()
-        if soft:
-            from bracketry.recording.session import SoftwareTrigger
-
-            SoftwareTrigger(dict(self.cameras)).prime()
-        self._fired = 0
-        self._soft_failed = set()
+        camera_trigger.arm()
+        self._camera_trigger = camera_trigger
         self._session_id = (self._session_id + 1) & 0xFFFFFFFF or 1
         self._recorder, self._session = None, session
         self.previewing = True
@@ -476,10 +462,10 @@ class RigDaemon:
                     "sides": ",".join(cfg.sides), **self.options.metadata}
         recorder = Recorder(seg_dir, name, cfg, metadata=metadata,
                             calibration=self.options.calibration).start()
-        soft = self.options.software_trigger
+        camera_trigger = self._new_camera_trigger()
         try:
             session = RecordingSession(dict(self.cameras), recorder, disk_path=self.config.output_dir,
-                                       initial_alignment="host_time" if soft else "count",
+                                       initial_alignment=camera_trigger.initial_alignment,
                                        tap=self.monitor_hub.offer if self.monitor_hub is not None else None).start()
         except SessionStartError as exc:
             # this camera cannot stream: ERR (reconnected by the supervisor); the empty segment is closed and the
@@ -492,12 +478,8 @@ class RigDaemon:
             self._camera_down(exc.side, SensorState.ERR, str(exc))
             self._backoff[exc.side].failed()
             return self._segment_start()
-        if soft:
-            from bracketry.recording.session import SoftwareTrigger
-
-            SoftwareTrigger(dict(self.cameras)).prime()  # the fake loses the first trigger after AcquisitionStart
-        self._fired = 0
-        self._soft_failed = set()
+        camera_trigger.arm()  # e.g. the fake camera loses the first software trigger after AcquisitionStart
+        self._camera_trigger = camera_trigger
         self._session_id = (self._session_id + 1) & 0xFFFFFFFF or 1
         self._recorder, self._session = recorder, session
         self._last_frames = {}
@@ -516,6 +498,10 @@ class RigDaemon:
         self.state.set_message(f"REC: {missing[0].upper()} CAM ERR" if missing else "RECORDING")
         log.info("segment %s started: sides=%s session_id=%d", name, cfg.sides, self._session_id)
         return True
+
+    def _new_camera_trigger(self) -> CameraTrigger:
+        """The host's side of the pulses for the cameras up now (software triggering when their profile says so)."""
+        return camera_trigger(self.cameras, {cc.side: cc.profile for cc in self.config.cameras})
 
     def _segment_stop(self) -> dict[str, Any] | None:
         recorder = self._recorder
@@ -548,7 +534,8 @@ class RigDaemon:
             self._drain_events(session)
         finally:
             self._pump_paused.clear()
-        return session.stop(drain_s=3.0, expect_frames=self._fired)  # the last pulses' buffers, also under load
+        # the last pulses' buffers, also under load
+        return session.stop(drain_s=3.0, expect_frames=self._camera_trigger.frames_expected)
 
     def _restart_segment(self, reason: str) -> None:
         """Close the open segment cleanly and start a new one with the sensors that work."""
@@ -576,31 +563,10 @@ class RigDaemon:
     def _deliver(self, ev: TriggerEvent, session: Any) -> None:
         if ev.session_id != self._session_id:
             return
-        for side in session.cameras:
-            if side not in self._soft_failed:
-                self._pulses[side] = self._pulses.get(side, 0) + 1
-        if self.options.software_trigger:
-            # the fake camera polls its trigger register (~1 kHz): two triggers closer than that would merge
-            wait_s = self._last_soft_trigger + 0.004 - time.monotonic()
-            if wait_s > 0:
-                time.sleep(wait_s)
-            self._last_soft_trigger = time.monotonic()
-            # a camera that fails a GVCP write is gone (each further write would wait for GVCP timeouts and hold
-            # up the other camera): it is skipped until the next segment; the stall check takes it down
-            cams = {side: cam for side, cam in session.cameras.items() if side not in self._soft_failed}
-            for step in ("set_exposure_us", "software_trigger"):
-                for side, cam in cams.items():
-                    if side in self._soft_failed:
-                        continue
-                    try:
-                        if step == "set_exposure_us":
-                            cam.set_exposure_us(ev.exposure_us)
-                        else:
-                            cam.software_trigger()
-                    except Exception as exc:
-                        self._soft_failed.add(side)
-                        log.warning("camera %s: software trigger failed: %s", side, exc)
-            self._fired += 1
+        # the pulse reaches the cameras (a camera that failed a software trigger is skipped until the next segment;
+        # the stall check takes it down)
+        for side in self._camera_trigger.fire(ev, session.cameras):
+            self._pulses[side] = self._pulses.get(side, 0) + 1
         session.on_trigger_event(ev)
         self.state.count("trigger_events")
 
@@ -685,7 +651,7 @@ class RigDaemon:
             t_last, _, pulses_then = self._last_frames[side]
             # stalled: no frame for camera_stall_s although pulses reached it (a camera nobody triggered, e.g.
             # while the trigger pump waited on the other camera, is not blamed), or it failed a GVCP write
-            if now - t_last > self.options.camera_stall_s and (side in self._soft_failed or
+            if now - t_last > self.options.camera_stall_s and (side in self._camera_trigger.failed or
                                                               pulses - pulses_then >= STALL_PULSES):
                 log.error("camera %s: no frame for %.1f s (%d pulses)", side, now - t_last, pulses - pulses_then)
                 self._camera_lost(side, session)
@@ -718,6 +684,7 @@ class RigDaemon:
         background once the segment is closed (its stream thread no longer used by the pairing thread)."""
         cam = self.cameras.pop(side, None)
         session.cameras = {s: c for s, c in session.cameras.items() if s != side}  # rebind: readers keep the old
+        self._camera_trigger.remove(side)
         self.state.set_state(CAM_SENSOR[side], SensorState.ERR, "no frames")
         self.state.set_fps(side, 0.0)
         self._backoff[side].failed()

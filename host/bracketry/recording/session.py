@@ -2,8 +2,8 @@
 
 Threads: each camera's popping thread hands frames to a bounded inbox (overflow counted); one pairing thread feeds
 the ``Pairer`` (frames and TRIGGER events) and queues complete or timed-out sets to the ``Recorder``. Trigger events
-come from the trigger link's listener (``on_trigger_event``), or from a simulator that also fires the cameras
-(``SoftwareTrigger``).
+come from the trigger link's listener (``on_trigger_event``) once the host's side of the pulse
+(``bracketry.cameras.triggering.CameraTrigger``) reached the cameras.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from bracketry.cameras.triggering import PRIMING_EXPOSURE_US
 from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet, Pairer
@@ -27,31 +28,7 @@ from bracketry.recording.recorder import Recorder
 
 log = logging.getLogger(__name__)
 
-
-#: exposure (us) of the priming trigger fired after AcquisitionStart: marks a frame that is not a bracket
-PRIMING_EXPOSURE_US = 77
-
-
-class SoftwareTrigger:
-    """Stands for the STM32 with fake cameras: per event, set each camera's exposure then fire TriggerSoftware."""
-
-    def __init__(self, cameras: dict[str, Any]) -> None:
-        self.cameras = cameras
-
-    def prime(self, settle_s: float = 0.2, exposure_us: int = PRIMING_EXPOSURE_US) -> None:
-        """Fire one trigger per camera right after AcquisitionStart: the Aravis 0.8 fake camera loses the first
-        software trigger of each acquisition. A frame it may still give precedes every TRIGGER event, and the
-        pairer (``initial_alignment="host_time"``) ignores it. ``exposure_us`` marks such a frame (not a bracket)."""
-        for cam in self.cameras.values():
-            cam.set_exposure_us(exposure_us)
-            cam.software_trigger()
-        time.sleep(settle_s)
-
-    def fire(self, event: TriggerEvent) -> None:
-        for cam in self.cameras.values():
-            cam.set_exposure_us(event.exposure_us)
-        for cam in self.cameras.values():
-            cam.software_trigger()
+__all__ = ["PRIMING_EXPOSURE_US", "DiscardSink", "RecordingSession", "SessionStartError"]
 
 
 class SessionStartError(BracketryError):

@@ -8,8 +8,9 @@ or server speaking the real protocols.
 - Trigger: ``bracketry trigger simulate`` on a pty (or the real firmware in QEMU with ``trigger="qemu"``).
 - Panel: ``bracketry panel simulate`` running the actual MicroPython firmware files, on one end of a socat pty
   pair; buttons are pressed through its standard input and its screen is read from its screen file.
-- Daemon: ``bracketry daemon --config sim.toml --software-trigger`` (the fake cameras have no trigger line: the
-  daemon fires TriggerSoftware at each TRIGGER event).
+- Daemon: ``bracketry daemon --config sim.toml``; the cameras' ``aravis_fake`` profile has no trigger line, so the
+  daemon's camera trigger is the software one (``bracketry.cameras.triggering.SoftwareTrigger``: TriggerSoftware at
+  each TRIGGER event), chosen by the profile layer, never by a "simulated" switch.
 """
 
 from __future__ import annotations
@@ -209,7 +210,7 @@ class SimulatedRig:
         w, h = self.o.resolution
         log = open(self.out / "daemon.log", "ab")  # noqa: SIM115
         self.procs["daemon"] = subprocess.Popen(
-            _bracketry_cmd("daemon", "--config", str(self.config_path), "--software-trigger", "--roi", f"{w}x{h}"),
+            _bracketry_cmd("daemon", "--config", str(self.config_path), "--roi", f"{w}x{h}"),
             stdin=subprocess.DEVNULL, stdout=log, stderr=log)
         _wait_for(lambda: self._status_or_none() is not None, 30.0, "the daemon's status socket",
                   alive=self.procs["daemon"])

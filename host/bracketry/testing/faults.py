@@ -227,7 +227,7 @@ def run_e2e(s: Session, seconds: float, record_s: float) -> dict[str, Any]:
     if record_s > 0:
         w, h = rig.o.resolution
         cmd = [sys.executable, "-m", "bracketry", "record", "--config", str(rig.config_path), "--duration-s",
-               f"{record_s:g}s", "--software-trigger", "--roi", f"{w}x{h}"]
+               f"{record_s:g}s", "--roi", f"{w}x{h}"]
         res = subprocess.run(cmd, capture_output=True, text=True, timeout=120 + record_s)
         s.step("record_oneshot", exit_code=res.returncode)
         out["record"] = {"exit_code": res.returncode, "stdout": res.stdout[-4000:], "stderr": res.stderr[-4000:]}

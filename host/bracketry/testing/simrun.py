@@ -3,9 +3,10 @@
 Run as ``python -m bracketry.testing.simrun --out DIR ...`` (inside ``bracketry.cameras.netns.netns_argv`` when
 the cameras need 127.0.0.2/.3). It starts one ``FakeCameraServer`` per side serving ``sim_pixels`` (pixels are a
 known function of side and exposure, so tests can check every exported image exactly), opens them by IP with the
-``aravis_fake`` profile, generates TRIGGER events at ``fps`` cycling the brackets, fires the cameras at each event,
-records, and writes a JSON summary (``--summary``) with what was fired, dropped and served. ``--progress FILE`` gets
-one line ``<trigger_seq> <host_ns>`` per fired trigger (flushed), for kill -9 tests.
+``aravis_fake`` profile, generates TRIGGER events at ``fps`` cycling the brackets, fires the cameras at each event
+(``bracketry.cameras.triggering.SoftwareTrigger``, as the daemon does), records, and writes a JSON summary
+(``--summary``) with what was fired, dropped and served. ``--progress FILE`` gets one line
+``<trigger_seq> <host_ns>`` per fired trigger (flushed), for kill -9 tests.
 """
 
 from __future__ import annotations
@@ -24,11 +25,13 @@ import numpy as np
 from bracketry.cameras.camera import GigECamera
 from bracketry.cameras.fake import FakeCameraServer
 from bracketry.cameras.profiles import CameraSettings
+from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, CameraTrigger, camera_trigger
 from bracketry.events import TriggerEvent
 from bracketry.recording.recorder import Recorder, RecorderConfig
-from bracketry.recording.session import PRIMING_EXPOSURE_US, RecordingSession, SoftwareTrigger
+from bracketry.recording.session import RecordingSession
 
 SIDE_OFFSET = {"left": 0, "right": 1000}
+SIDES = ("left", "right")
 
 
 def sim_pixels(side: str, exposure_us: int, width: int, height: int) -> np.ndarray:
@@ -38,8 +41,8 @@ def sim_pixels(side: str, exposure_us: int, width: int, height: int) -> np.ndarr
     return value.astype(np.uint16)
 
 
-def run_internal(cams: dict[str, GigECamera], session: RecordingSession, brackets: list[int], period_ns: int,
-                 n: int, lead_s: float, drop_events: set[int], skip: set[tuple[str, int]], progress: Any) -> list[int]:
+def run_internal(trigger: CameraTrigger, session: RecordingSession, brackets: list[int], period_ns: int, n: int,
+                 lead_s: float, drop_events: set[int], skip: set[tuple[str, int]], progress: Any) -> list[int]:
     """Generate ``n`` pulses here (the simulated device stamps each when it fires the cameras)."""
     t0_ns = time.time_ns() + int(lead_s * 1e9)
     fired = []
@@ -47,15 +50,11 @@ def run_internal(cams: dict[str, GigECamera], session: RecordingSession, bracket
         t_ns = t0_ns + k * period_ns
         while (now := time.time_ns()) < t_ns:
             time.sleep(min(0.005, (t_ns - now) / 1e9))
-        exposure = brackets[k % len(brackets)]
-        for cam in cams.values():
-            cam.set_exposure_us(exposure)
         fire_ns = time.time_ns()  # the simulated trigger device stamps the pulse when it fires it
-        for s, cam in cams.items():
-            if (s, k) not in skip:
-                cam.software_trigger()
-        ev = TriggerEvent(session_id=1, trigger_seq=k, bracket_index=k % len(brackets), exposure_us=exposure,
+        ev = TriggerEvent(session_id=1, trigger_seq=k, bracket_index=k % len(brackets),
+                          exposure_us=brackets[k % len(brackets)],
                           t_start_device_us=(fire_ns - t0_ns) // 1000 + 5_000_000, t_start_host_ns=fire_ns)
+        _fire(trigger, ev, skip)
         if k not in drop_events:
             session.on_trigger_event(ev)
         fired.append(k)
@@ -64,7 +63,13 @@ def run_internal(cams: dict[str, GigECamera], session: RecordingSession, bracket
     return fired
 
 
-def run_with_trigger_simulator(cams: dict[str, GigECamera], session: RecordingSession, brackets: list[int],
+def _fire(trigger: CameraTrigger, ev: TriggerEvent, skip: set[tuple[str, int]]) -> None:
+    """The pulse of ``ev`` reaches every camera but the ones ``skip`` says miss it (side, trigger_seq)."""
+    missed = {side for side, seq in skip if seq == ev.trigger_seq}
+    trigger.fire(ev, None if not missed else [s for s in SIDES if s not in missed])
+
+
+def run_with_trigger_simulator(trigger: CameraTrigger, session: RecordingSession, brackets: list[int],
                                period_us: int, n: int, drop_events: set[int], skip: set[tuple[str, int]],
                                progress: Any) -> list[int]:
     """Drive the STM32 trigger simulator through ``TriggerClient``; fire the cameras at each TRIGGER event."""
@@ -82,11 +87,7 @@ def run_with_trigger_simulator(cams: dict[str, GigECamera], session: RecordingSe
             for ev in client.events(timeout_s=10.0):  # generous: a loaded machine may stall the pty
                 if ev.trigger_seq >= n:
                     break
-                for cam in cams.values():
-                    cam.set_exposure_us(ev.exposure_us)
-                for side, cam in cams.items():
-                    if (side, ev.trigger_seq) not in skip:
-                        cam.software_trigger()
+                _fire(trigger, ev, skip)
                 session.on_trigger_event(ev)
                 fired.append(ev.trigger_seq)
                 if progress:
@@ -123,32 +124,32 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
 
-    sides = ("left", "right")
-    addresses = dict(zip(sides, args.addresses.split(","), strict=True))
+    addresses = dict(zip(SIDES, args.addresses.split(","), strict=True))
     brackets = [int(b) for b in args.brackets_us.split(",")]
     drop_events = {int(s) for s in args.drop_events.split(",") if s}
     skip = {(p.split(":")[0], int(p.split(":")[1])) for p in args.skip_trigger.split(",") if p}
     period_ns = int(1e9 / args.fps)
 
     servers = {s: FakeCameraServer(addresses[s], f"SIM-{s.upper()}", image_source=functools.partial(sim_pixels, s),
-                                   lost_packet_ratio=args.lost_ratio).start() for s in sides}
-    cams = {s: GigECamera(addresses[s], side=s) for s in sides}
+                                   lost_packet_ratio=args.lost_ratio).start() for s in SIDES}
+    cams = {s: GigECamera(addresses[s], side=s) for s in SIDES}
     for cam in cams.values():
         cam.configure(CameraSettings(profile="aravis_fake", pixel_format="Mono16", width=args.width,
                                      height=args.height, packet_size_bytes=args.packet_size)).raise_if_mismatch()
     cfg = RecorderConfig(chunk_max_age_s=args.chunk_max_age_s, split_s=args.split_s)
     recorder = Recorder(args.out, args.name, cfg, metadata={"brackets_us": ",".join(map(str, brackets)),
                                                              "fps": str(args.fps), "source": "simrun"}).start()
-    session = RecordingSession(cams, recorder, initial_alignment="host_time",
+    trigger = camera_trigger(cams, dict.fromkeys(cams, "aravis_fake"))  # the one software-trigger adapter
+    session = RecordingSession(cams, recorder, initial_alignment=trigger.initial_alignment,
                                window=max(3, round(0.35 * args.fps))).start()
-    SoftwareTrigger(cams).prime()  # the fake loses the first software trigger after AcquisitionStart
-    SoftwareTrigger(cams)
+    trigger.arm()  # the fake loses the first software trigger after AcquisitionStart
     progress = open(args.progress, "w", buffering=1) if args.progress else None  # noqa: SIM115
     n = round(args.seconds * args.fps)
     if args.trigger == "simulator":
-        fired = run_with_trigger_simulator(cams, session, brackets, period_ns // 1000, n, drop_events, skip, progress)
+        fired = run_with_trigger_simulator(trigger, session, brackets, period_ns // 1000, n, drop_events, skip,
+                                           progress)
     else:
-        fired = run_internal(cams, session, brackets, period_ns, n, args.lead_s, drop_events, skip, progress)
+        fired = run_internal(trigger, session, brackets, period_ns, n, args.lead_s, drop_events, skip, progress)
     # every buffer a fake served reaches us (the priming frame too, when the fake gave one): wait for all of them
     primed = {s: sum(1 for e in srv.exposures() if e == PRIMING_EXPOSURE_US) for s, srv in servers.items()}
     result = session.stop(drain_s=2.0, expect_frames={s: len(fired) + primed.get(s, 0) for s in cams})

@@ -29,7 +29,7 @@ def test_a_camera_that_cannot_stream_at_record_goes_err_and_leaves_no_segment(tm
     data["trigger"]["port"] = port
     data["cameras"][0]["address"] = "127.0.0.1"  # left: the fake camera; right: nobody there (ERR at SENSORS)
     server = FakeCameraServer("127.0.0.1", "STREAMFAIL1").start()
-    daemon = RigDaemon(parse_config(data, "test"), DaemonOptions(software_trigger=True, width=160, height=100))
+    daemon = RigDaemon(parse_config(data, "test"), DaemonOptions(width=160, height=100))
     try:
         daemon.on_button("sensors")
         states = daemon.state.snapshot().states
