@@ -114,6 +114,8 @@ class SoftwareTrigger:
         self._fired = 0
         self._last_fire_s = 0.0
         self.min_interval_s = min_interval_s
+        #: host time (``time.time_ns()``) right before the last pulse's first TriggerSoftware
+        self.fired_at_ns: int | None = None
 
     def arm(self, settle_s: float = 0.2, exposure_us: int = PRIMING_EXPOSURE_US) -> None:
         """Fire one priming trigger per camera right after AcquisitionStart: the Aravis 0.8 fake camera loses the
@@ -137,6 +139,8 @@ class SoftwareTrigger:
         self._last_fire_s = time.monotonic()
         cams = self._live(sides)
         for step in ("set_exposure_us", "software_trigger"):
+            if step == "software_trigger":
+                self.fired_at_ns = time.time_ns()
             for side, cam in cams.items():
                 if side in self._failed:
                     continue

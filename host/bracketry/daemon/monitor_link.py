@@ -2,7 +2,8 @@
 
 The monitor never touches the acquisition path: the recording session hands each paired set (after the recorder
 took it) to :meth:`bracketry.monitor.hub.PreviewHub.offer` (while the sensors are up and not recording, the daemon's
-preview session does the same and writes nothing); everything else reads the daemon's state.
+preview session does the same and writes nothing); everything else reads the daemon's state through
+:class:`MonitorRig`. Its HTTP threads call the rig's actions, which take the daemon's action lock.
 """
 
 from __future__ import annotations
@@ -11,20 +12,62 @@ import collections
 import logging
 import math
 import time
-from typing import Any
+from collections.abc import Sequence
+from typing import TYPE_CHECKING, Any, Protocol
 
-from bracketry.daemon.state import SensorState
+from bracketry.daemon.config import MonitorConfig, RigConfig
+from bracketry.daemon.state import RigState, SensorState
 from bracketry.errors import BracketryError
 from bracketry.monitor.core import disk_time_left_s
 from bracketry.wire import bproto
 
+if TYPE_CHECKING:
+    from bracketry.monitor.hub import PreviewHub
+    from bracketry.monitor.server import MonitorServer
+
 log = logging.getLogger("bracketry.daemon")
 
 
-class DaemonBackend:
-    """Implements :class:`bracketry.monitor.server.Backend` for a :class:`bracketry.daemon.rig.RigDaemon`."""
+class MonitorRig(Protocol):
+    """What the monitor reads of the rig and the actions it may take (``bracketry.daemon.rig.RigDaemon``)."""
 
-    def __init__(self, daemon: Any) -> None:
+    @property
+    def config(self) -> RigConfig: ...
+
+    @property
+    def state(self) -> RigState: ...
+
+    @property
+    def recording(self) -> bool: ...
+
+    @property
+    def rec_name(self) -> str | None: ...
+
+    @property
+    def segment_index(self) -> int: ...
+
+    @property
+    def sensors_on(self) -> bool: ...
+
+    def pairing_counters(self) -> dict[str, Any]: ...
+
+    def last_status(self) -> dict[str, Any]: ...
+
+    def sensors_up(self) -> bool: ...
+
+    def sensors_down(self) -> None: ...
+
+    def start_recording(self) -> bool: ...
+
+    def stop_recording(self) -> dict[str, Any] | None: ...
+
+    def set_brackets_us(self, brackets_us: Sequence[int]) -> None: ...
+
+
+class DaemonBackend:
+    """Implements :class:`bracketry.monitor.server.Backend` for a :class:`MonitorRig`."""
+
+    def __init__(self, daemon: MonitorRig) -> None:
         self.daemon = daemon
         self._disk: collections.deque[tuple[float, float]] = collections.deque(maxlen=120)
 
@@ -35,13 +78,12 @@ class DaemonBackend:
     def monitor_status(self) -> dict[str, Any]:
         d = self.daemon
         snap = d.state.snapshot()
-        session = d._session
-        counters = session.pairer.counters if session is not None else {}
-        last = getattr(session, "last_status", None) or {}
+        counters = d.pairing_counters()
+        last = d.last_status()
         cameras: dict[str, Any] = {}
         for cam in d.config.cameras:
             side = cam.side
-            c = counters.get(side) if hasattr(counters, "get") else None
+            c = counters.get(side)
             temp = last.get(f"temperature_{side}_c")
             cameras[side] = {"state": SensorState(snap.states[f"cam_{side}"]).name,
                              "fps": round(snap.fps.get(side, 0.0), 2),
@@ -102,11 +144,8 @@ class DaemonBackend:
         raise ActionError(f"unknown action {action!r}", status=400)
 
 
-def start_monitor(daemon: Any) -> None:
-    """Start the preview hub and the HTTP server of ``daemon.config.monitor``; failures are logged, never fatal."""
-    mc = daemon.config.monitor
-    if mc is None:
-        return
+def start_monitor(mc: MonitorConfig, rig: MonitorRig) -> tuple[PreviewHub, MonitorServer] | None:
+    """Start the preview hub and the HTTP server of ``mc``; failures are logged, never fatal (None)."""
     from bracketry.monitor.address import is_loopback, parse_listen
     from bracketry.monitor.hub import PreviewHub
     from bracketry.monitor.server import MonitorServer
@@ -114,21 +153,12 @@ def start_monitor(daemon: Any) -> None:
     host, port = parse_listen(mc.listen)
     hub = PreviewHub(bayer=mc.bayer, white_dn=mc.white_dn, rate_hz=mc.preview_hz).start()
     try:
-        server = MonitorServer(DaemonBackend(daemon), hub, host, port).start()
+        server = MonitorServer(DaemonBackend(rig), hub, host, port).start()
     except BracketryError as exc:
         hub.close()
         log.error("%s", exc)
-        return
-    daemon.monitor_hub, daemon.monitor_server = hub, server
+        return None
     log.info("monitor: %s", server.url)
     if not is_loopback(host):
-        daemon.state.set_message(f"WEB KEY {server.token}")
-
-
-def stop_monitor(daemon: Any) -> None:
-    server, hub = daemon.monitor_server, daemon.monitor_hub
-    daemon.monitor_server = daemon.monitor_hub = None
-    if server is not None:
-        server.close()
-    if hub is not None:
-        hub.close()
+        rig.state.set_message(f"WEB KEY {server.token}")
+    return hub, server

@@ -12,6 +12,7 @@ known function of side and exposure, so tests can check every exported image exa
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import functools
 import json
 import logging
@@ -25,7 +26,7 @@ import numpy as np
 from bracketry.cameras.camera import GigECamera
 from bracketry.cameras.fake import FakeCameraServer
 from bracketry.cameras.profiles import CameraSettings
-from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, CameraTrigger, camera_trigger
+from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, SoftwareTrigger
 from bracketry.events import TriggerEvent
 from bracketry.recording.recorder import Recorder, RecorderConfig
 from bracketry.recording.session import RecordingSession
@@ -41,7 +42,7 @@ def sim_pixels(side: str, exposure_us: int, width: int, height: int) -> np.ndarr
     return value.astype(np.uint16)
 
 
-def run_internal(trigger: CameraTrigger, session: RecordingSession, brackets: list[int], period_ns: int, n: int,
+def run_internal(trigger: SoftwareTrigger, session: RecordingSession, brackets: list[int], period_ns: int, n: int,
                  lead_s: float, drop_events: set[int], skip: set[tuple[str, int]], progress: Any) -> list[int]:
     """Generate ``n`` pulses here (the simulated device stamps each when it fires the cameras)."""
     t0_ns = time.time_ns() + int(lead_s * 1e9)
@@ -50,11 +51,11 @@ def run_internal(trigger: CameraTrigger, session: RecordingSession, brackets: li
         t_ns = t0_ns + k * period_ns
         while (now := time.time_ns()) < t_ns:
             time.sleep(min(0.005, (t_ns - now) / 1e9))
-        fire_ns = time.time_ns()  # the simulated trigger device stamps the pulse when it fires it
         ev = TriggerEvent(session_id=1, trigger_seq=k, bracket_index=k % len(brackets),
-                          exposure_us=brackets[k % len(brackets)],
-                          t_start_device_us=(fire_ns - t0_ns) // 1000 + 5_000_000, t_start_host_ns=fire_ns)
+                          exposure_us=brackets[k % len(brackets)], t_start_device_us=0)
         _fire(trigger, ev, skip)
+        fire_ns = trigger.fired_at_ns or time.time_ns()  # the simulated device stamps the pulse when it fires it
+        ev = dataclasses.replace(ev, t_start_device_us=(fire_ns - t0_ns) // 1000 + 5_000_000, t_start_host_ns=fire_ns)
         if k not in drop_events:
             session.on_trigger_event(ev)
         fired.append(k)
@@ -63,13 +64,13 @@ def run_internal(trigger: CameraTrigger, session: RecordingSession, brackets: li
     return fired
 
 
-def _fire(trigger: CameraTrigger, ev: TriggerEvent, skip: set[tuple[str, int]]) -> None:
+def _fire(trigger: SoftwareTrigger, ev: TriggerEvent, skip: set[tuple[str, int]]) -> None:
     """The pulse of ``ev`` reaches every camera but the ones ``skip`` says miss it (side, trigger_seq)."""
     missed = {side for side, seq in skip if seq == ev.trigger_seq}
     trigger.fire(ev, None if not missed else [s for s in SIDES if s not in missed])
 
 
-def run_with_trigger_simulator(trigger: CameraTrigger, session: RecordingSession, brackets: list[int],
+def run_with_trigger_simulator(trigger: SoftwareTrigger, session: RecordingSession, brackets: list[int],
                                period_us: int, n: int, drop_events: set[int], skip: set[tuple[str, int]],
                                progress: Any) -> list[int]:
     """Drive the STM32 trigger simulator through ``TriggerClient``; fire the cameras at each TRIGGER event."""
@@ -139,7 +140,7 @@ def main(argv: list[str] | None = None) -> int:
     cfg = RecorderConfig(chunk_max_age_s=args.chunk_max_age_s, split_s=args.split_s)
     recorder = Recorder(args.out, args.name, cfg, metadata={"brackets_us": ",".join(map(str, brackets)),
                                                              "fps": str(args.fps), "source": "simrun"}).start()
-    trigger = camera_trigger(cams, dict.fromkeys(cams, "aravis_fake"))  # the one software-trigger adapter
+    trigger = SoftwareTrigger(cams)  # the one software-trigger adapter, as the daemon's for these cameras
     session = RecordingSession(cams, recorder, initial_alignment=trigger.initial_alignment,
                                window=max(3, round(0.35 * args.fps))).start()
     trigger.arm()  # the fake loses the first software trigger after AcquisitionStart

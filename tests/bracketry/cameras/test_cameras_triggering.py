@@ -9,7 +9,7 @@ import time
 import pytest
 
 from bracketry.cameras.profiles import profile_kind, settings_from_config
-from bracketry.cameras.triggering import (PRIMING_EXPOSURE_US, LineTrigger, SoftwareTrigger, camera_trigger)
+from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, LineTrigger, SoftwareTrigger, camera_trigger
 from bracketry.daemon.config import CameraConfig, ConfigError, parse_config
 from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
