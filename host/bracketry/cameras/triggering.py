@@ -80,8 +80,9 @@ class LineTrigger:
         return None
 
     def fire(self, event: TriggerEvent, sides: Iterable[str] | None = None) -> tuple[str, ...]:
+        wanted = None if sides is None else set(sides)
         with self._lock:
-            return tuple(self._sides if sides is None else (s for s in self._sides if s in set(sides)))
+            return tuple(s for s in self._sides if wanted is None or s in wanted)
 
     def remove(self, side: str) -> None:
         with self._lock:

@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from bracketry.cameras.triggering import CameraTrigger, camera_trigger
 from bracketry.daemon.config import RigConfig, check_brackets_ms
@@ -52,6 +52,9 @@ from bracketry.daemon.state import RigState
 from bracketry.daemon.view import RigView
 from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
+
+if TYPE_CHECKING:
+    from bracketry.monitor.server import MonitorServer
 
 log = logging.getLogger("bracketry.daemon")
 
@@ -136,7 +139,7 @@ class RigDaemon:
         return self.sensors.cameras()
 
     @property
-    def monitor_server(self) -> Any:
+    def monitor_server(self) -> MonitorServer | None:
         return self.view.monitor_server
 
     def pairing_counters(self) -> dict[str, Any]:

@@ -21,13 +21,16 @@ import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from bracketry.cameras.camera import Frame
 from bracketry.cameras.profiles import CameraSettings, settings_from_config
 from bracketry.daemon.config import CameraConfig, RigConfig, TriggerConfig
 from bracketry.daemon.state import RigState, SensorState
 from bracketry.events import TriggerEvent
+
+if TYPE_CHECKING:
+    from bracketry.trigger.client import TriggerClient
 
 log = logging.getLogger("bracketry.daemon")
 
@@ -88,7 +91,7 @@ OpenTrigger = Callable[[TriggerConfig, Callable[[TriggerEvent], None], int, Sequ
 class ClientTrigger:
     """:class:`TriggerDevice` over a ``bracketry.trigger.client.TriggerClient``."""
 
-    def __init__(self, client: Any) -> None:
+    def __init__(self, client: TriggerClient) -> None:
         self.client = client
 
     def configure(self, period_us: int, exposures_us: Sequence[int]) -> None:
@@ -105,7 +108,7 @@ class ClientTrigger:
 
     @property
     def reboots(self) -> int:
-        return int(self.client.counters.reboots)
+        return self.client.counters.reboots
 
     @property
     def peer_lost(self) -> bool:
