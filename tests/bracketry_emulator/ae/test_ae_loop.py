@@ -94,3 +94,14 @@ def test_methods_declare_their_scheduling_traits() -> None:
     # drl is not created in the parent (torch threads): its class is checked instead
     with pytest.raises(BracketryError, match="drl method needs its weights"):
         method_traits("drl")
+
+
+def test_scheduler_balances_declared_costs_and_keeps_a_step_group_together() -> None:
+    from bracketry_emulator.ae.scheduler import partition
+
+    traits = {"fix": MethodTraits(1, "g"), "kim": MethodTraits(40), "ae50": MethodTraits(1, "g"),
+              "wang": MethodTraits(20), "shim": MethodTraits(10)}
+    # costs with emulation (20 per step): kim 60, fix+ae50 42, wang 40, shim 30 -> longest first onto the lighter
+    assert partition(traits, 2) == [["kim", "shim"], ["fix", "ae50", "wang"]]
+    assert partition(traits, 1) == [list(traits)]
+    assert sorted(map(len, partition(traits, 8))) == [1, 1, 1, 2]  # never an empty worker; the group stays whole
