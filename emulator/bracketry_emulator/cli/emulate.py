@@ -95,7 +95,8 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
               help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of stochastic methods (Kim's GP).")
 @click.option("--workers", "-j", type=WORKERS, default=0, show_default=True,
-              help="Worker processes (0 = one per CPU, 1 = in this process).")
+              help="Worker processes (0 = automatic: up to min(methods, CPUs, 4) from 8 sequences on, else this "
+                   "process; 1 = in this process).")
 @click.option("--max-sequences", type=count(1), default=None, help="Stop after this many bracket sequences.")
 @click.option("--no-images", is_flag=True, help="Do not write images (exposure trajectories and summaries only).")
 @overwrite_option("Replace an earlier run in the same --out (its method folders and summaries are removed first).")
