@@ -16,7 +16,8 @@ sensor starts when it is back.
 
 Threads and locks: every action (panel buttons, each on a thread of its own; the status socket's thread; the
 monitor's HTTP threads) and every supervisor step holds the daemon's action lock ``_lock``, so actions never
-interleave; inside it, the parts take their own locks (order: action lock -> sensors -> event pump's hold). The event
+interleave; inside it, the parts take their own locks (order: action lock -> segment recorder -> sensor supervisor
+-> event pump's hold; the view's and ``RigState``'s locks are leaves, held around their own fields only). The event
 pump's thread delivers events without the action lock (see ``segments``); the trigger client's listener thread only
 queues them. Readers of the state (the panel's refresh, status requests, the monitor's status) use ``RigState``
 snapshots and never wait for an action.

@@ -9,20 +9,24 @@ Seams: the sensors (:class:`Sensors`, the ``SensorSupervisor``) give the cameras
 failures; the event pump (:class:`EventHold`) is held while an acquisition closes; ``new_camera_trigger`` makes the
 host's side of the pulses for a set of cameras (``bracketry.cameras.triggering.camera_trigger``).
 
-Threads: every method but ``deliver`` and the read-only ones runs under the daemon's action lock. ``deliver`` runs on
-the event pump's thread, without any lock of this object: it reads ``_open`` once, and ``_open`` only changes while
-the pump is held (so an event is delivered to the acquisition that was open, or handed over by the closer).
+Threads: the methods that open, close or change the recording run under the daemon's action lock and hold the
+recorder's own lock (order: the action lock, this lock, the sensors' lock, the pump's hold). ``deliver`` runs on the
+event pump's thread, without this lock: it reads ``_open`` once, and ``_open`` only changes while the pump is held
+(so an event is delivered to the acquisition that was open, or handed over by the closer). The read-only methods
+(``progress``, ``counters``, ``last_status``: supervisor and monitor threads) read ``_open`` once, lock-free.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import logging
 import shutil
+import threading
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Concatenate, ParamSpec, Protocol, TypeVar
 
 from bracketry.cameras.triggering import CameraTrigger
 from bracketry.daemon.config import RigConfig
@@ -63,6 +67,19 @@ class EventHold(Protocol):
 
 
 NewCameraTrigger = Callable[[Mapping[str, Camera]], CameraTrigger]
+P = ParamSpec("P")
+R = TypeVar("R")
+
+
+def _locked(method: Callable[Concatenate[SegmentRecorder, P], R]) -> Callable[Concatenate[SegmentRecorder, P], R]:
+    """Run a method of the segment recorder holding its lock."""
+
+    @functools.wraps(method)
+    def wrapper(self: SegmentRecorder, *args: P.args, **kwargs: P.kwargs) -> R:
+        with self._lock:
+            return method(self, *args, **kwargs)
+
+    return wrapper
 
 
 @dataclass
@@ -118,6 +135,7 @@ class SegmentRecorder:
         self.closing = False  # no preview session between the recording's end and the sensors' shutdown
         self._open: Acquisition | None = None
         self._session_id = 0
+        self._lock = threading.RLock()  # held by every method that opens, closes or changes the recording
 
     # ------------------------------------------------------------------------------------------------ reading
     @property
@@ -165,6 +183,7 @@ class SegmentRecorder:
         log.error("recording refused: %d MB free < min_free_mb %d", free, cfg.min_free_mb)
         return free
 
+    @_locked
     def begin(self) -> bool:
         """A new recording; its first segment starts when the sensors allow (True when it did)."""
         cfg = self._config()
@@ -178,6 +197,7 @@ class SegmentRecorder:
             self.state.set_message("REC WAITING")
         return started
 
+    @_locked
     def end(self) -> dict[str, Any] | None:
         """Close the open segment cleanly and end the recording; returns the segment's summary."""
         summary = self.segment_stop()
@@ -188,6 +208,7 @@ class SegmentRecorder:
         log.info("recording %s stopped after %d segment(s)", self.rec_name, len(self.segments))
         return summary
 
+    @_locked
     def segment_start(self) -> bool:
         """Open the next segment with the cameras that stream; a camera that cannot goes ERR (the sensors reconnect
         it) and the segment starts without it. True when a segment started."""
@@ -231,6 +252,7 @@ class SegmentRecorder:
         self.segment_index = index
         return acquisition
 
+    @_locked
     def segment_stop(self) -> dict[str, Any] | None:
         """Close the open segment cleanly (the cameras stay open and configured); returns its summary."""
         o = self._open
@@ -245,6 +267,7 @@ class SegmentRecorder:
         log.info("segment closed: files=%s frames=%s", rsum.files, rsum.frames_written)
         return summary
 
+    @_locked
     def restart_segment(self, reason: str) -> None:
         """Close the open segment cleanly and start a new one with the sensors that work."""
         log.warning("restarting recording segment: %s", reason)
@@ -253,6 +276,7 @@ class SegmentRecorder:
             self.state.set_message("REC WAITING")
 
     # ------------------------------------------------------------------------------------------------ previews
+    @_locked
     def preview_start(self) -> bool:
         """Open the preview session (a tap, sensors up, not recording): the cameras stream on the trigger's pulses,
         paired sets go only to the tap, nothing is written. True when it started."""
@@ -273,6 +297,7 @@ class SegmentRecorder:
                  acquisition.session_id)
         return True
 
+    @_locked
     def preview_stop(self) -> bool:
         """Close the preview session (the cameras stop, stay open and configured); True when one was open."""
         if not self.previewing:
@@ -283,6 +308,7 @@ class SegmentRecorder:
         log.info("previews stopped")
         return True
 
+    @_locked
     def previews_again(self) -> None:
         """Restart the previews (a camera came back or left, a new bracket table)."""
         self.preview_stop()
@@ -334,6 +360,7 @@ class SegmentRecorder:
         # the last pulses' buffers, also under load
         return o.session.stop(drain_s=3.0, expect_frames=o.camera_trigger.frames_expected)
 
+    @_locked
     def drop_camera(self, side: str) -> None:
         """A camera of the open acquisition is lost: it leaves the acquisition at once."""
         o = self._open
