@@ -64,7 +64,7 @@ class CameraTrigger(Protocol):
 
     @property
     def frames_expected(self) -> int:
-        """Frames each camera will deliver for the pulses fired so far, as far as the host knows (0: unknown)."""
+        """Frames each camera will deliver for the pulses fired so far (one per pulse; priming frames not counted)."""
 
 
 class LineTrigger:
@@ -75,6 +75,7 @@ class LineTrigger:
     def __init__(self, sides: Iterable[str]) -> None:
         self._lock = threading.Lock()
         self._sides = list(sides)
+        self._fired = 0
 
     def arm(self) -> None:
         return None
@@ -82,6 +83,7 @@ class LineTrigger:
     def fire(self, event: TriggerEvent, sides: Iterable[str] | None = None) -> tuple[str, ...]:
         wanted = None if sides is None else set(sides)
         with self._lock:
+            self._fired += 1
             return tuple(s for s in self._sides if wanted is None or s in wanted)
 
     def remove(self, side: str) -> None:
@@ -94,7 +96,8 @@ class LineTrigger:
 
     @property
     def frames_expected(self) -> int:
-        return 0  # the host does not count the pulses the cameras saw
+        with self._lock:
+            return self._fired  # every reported pulse reached every camera's line: one frame each
 
 
 class SoftwareTrigger:

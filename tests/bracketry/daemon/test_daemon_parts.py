@@ -231,8 +231,8 @@ def test_segment_recorder_goes_on_without_a_camera_that_cannot_stream(tmp_path: 
 
 def test_daemon_closes_a_segment_whose_camera_stalled_and_records_on_without_it(tmp_path: Path) -> None:
     dev = MemDevices()
-    daemon = RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera,
-                                                           open_trigger=dev.open_trigger, camera_stall_s=2.0))
+    daemon = RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger,
+                                                           camera_stall_s=2.0, backoff_s=(60.0, 60.0)))
     daemon.pump.start()
     try:
         daemon.on_button("sensors")
@@ -242,6 +242,8 @@ def test_daemon_closes_a_segment_whose_camera_stalled_and_records_on_without_it(
         for seq in range(3):
             dev.on_event(event(1, seq))  # the trigger's listener thread -> the pump -> the segment
         daemon.pump.settle(2.0)
+        with daemon.pump.hold():
+            pass  # the last event taken is delivered too
         daemon.supervise_once(now_s=102.5)  # 3 pulses, 2.5 s, no frame: the left camera stalled
         snap = daemon.state.snapshot()
         assert snap.states["cam_left"] == SensorState.ERR and snap.errors["cam_left"] == "no frames"
