@@ -2,14 +2,23 @@
 
 Layout: ``slot`` (position of the sequence in the chunk) x ``side`` x ``exposure`` frames of uint16 HxW raw Bayer
 codes, C order. A decode task is ``(slot, sequence index, side index, exposure index)``.
+
+Decode once per chunk, shared by every process: :meth:`FrameBuffer.ensure` claims a frame in a shared state table
+(one byte per frame, under a lock inherited by the forked workers); the first process that needs a frame decodes
+it, every other one waits for it, so each bracket is decoded at most once per trajectory and only when a method's
+target needs it.
 """
 
 from __future__ import annotations
 
 import contextlib
+import functools
 import mmap
+import multiprocessing as mp
+import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -19,6 +28,47 @@ from ..dataset import BracketSequence
 
 #: (slot, sequence index, side index, exposure index) of one frame to decode
 DecodeTask = tuple[int, int, int, int]
+
+#: states of a frame in the shared table
+_FREE, _CLAIMED, _DONE, _FAILED = 0, 1, 2, 3
+
+
+class _Elsewhere:
+    """A frame that another process (or an earlier call) decodes: :meth:`result` waits until it is in the buffer.
+    Future-like (``result``, ``exception``, ``cancel``, ``cancelled``) for the scheduler."""
+
+    def __init__(self, frames: FrameBuffer, task: DecodeTask) -> None:
+        self.frames, self.task = frames, task
+
+    def result(self, timeout: float | None = None) -> None:
+        fb = self.frames
+        i = fb.state_index(self.task)
+        delay = 0.0002
+        while True:
+            state = fb.state[i]
+            if state == _DONE:
+                return
+            if state == _FAILED:
+                raise BracketryError(f"decoding a frame of sequence {fb.sequences[self.task[1]].index} failed "
+                                     "in another worker")
+            if state == _FREE and fb.claim(self.task):  # released unfinished (cancelled): decode it here
+                fb.run_claimed(self.task)
+                return
+            time.sleep(delay)
+            delay = min(delay * 2, 0.005)
+
+    def exception(self, timeout: float | None = None) -> BaseException | None:
+        try:
+            self.result()
+        except BaseException as exc:
+            return exc
+        return None
+
+    def cancel(self) -> bool:
+        return False
+
+    def cancelled(self) -> bool:
+        return False
 
 
 class FrameBuffer:
@@ -33,6 +83,9 @@ class FrameBuffer:
         self.sequences, self.sides, self.shape, self.n_exp = sequences, sides, shape, n_exp
         self.preloaded = preloaded or {}
         self.mmap = mmap.mmap(-1, slots * self.sequence_bytes(len(sides), n_exp, shape))
+        #: one byte per frame (free, claimed, done, failed), shared with forked workers; guarded by ``lock``
+        self.state = mmap.mmap(-1, max(1, slots * len(sides) * n_exp))
+        self.lock = mp.get_context("fork").Lock() if "fork" in mp.get_all_start_methods() else mp.Lock()
 
     @staticmethod
     def sequence_bytes(n_sides: int, n_exp: int, shape: tuple[int, int]) -> int:
@@ -46,36 +99,80 @@ class FrameBuffer:
         off = ((slot * len(self.sides) + side_i) * self.n_exp + exp_i) * n * 2
         return np.frombuffer(self.mmap, dtype=np.uint16, count=n, offset=off).reshape(h, w)
 
+    def _decode_one(self, task: DecodeTask) -> None:
+        slot, seq_i, side_i, exp_i = task
+        seq = self.sequences[seq_i]
+        img = self.preloaded.get((seq_i, side_i, exp_i))
+        if img is None:
+            img = seq.frames[self.sides[side_i]][seq.exposures_us[exp_i]].load()
+        if img.shape != self.shape:
+            raise BracketryError(f"sequence {seq.index}: frame shape {img.shape} differs from {self.shape}")
+        self.view(slot, side_i, exp_i)[...] = img
+
     def decode(self, tasks: list[DecodeTask], pool: ThreadPoolExecutor | None = None) -> list[Future[None]]:
-        """Decode frames into the buffer: with ``pool`` on its threads (cv2.imread releases the GIL; the futures
-        are returned: wait on them before reading), else inline."""
-
-        def one(task: DecodeTask) -> None:
-            slot, seq_i, side_i, exp_i = task
-            seq = self.sequences[seq_i]
-            img = self.preloaded.get((seq_i, side_i, exp_i))
-            if img is None:
-                img = seq.frames[self.sides[side_i]][seq.exposures_us[exp_i]].load()
-            if img.shape != self.shape:
-                raise BracketryError(f"sequence {seq.index}: frame shape {img.shape} differs from {self.shape}")
-            self.view(slot, side_i, exp_i)[...] = img
-
+        """Decode frames into the buffer (unconditionally, without the state table): with ``pool`` on its threads
+        (cv2.imread releases the GIL; the futures are returned: wait on them before reading), else inline."""
         if pool is None:
             for task in tasks:
-                one(task)
+                self._decode_one(task)
             return []
-        return [pool.submit(one, task) for task in tasks]
+        return [pool.submit(self._decode_one, task) for task in tasks]
+
+    def state_index(self, task: DecodeTask) -> int:
+        slot, _, side_i, exp_i = task
+        return (slot * len(self.sides) + side_i) * self.n_exp + exp_i
+
+    def claim(self, task: DecodeTask) -> bool:
+        """Mark a free frame as being decoded by the caller; False when it is claimed, decoded or failed."""
+        i = self.state_index(task)
+        with self.lock:
+            if self.state[i] != _FREE:
+                return False
+            self.state[i] = _CLAIMED
+            return True
+
+    def run_claimed(self, task: DecodeTask) -> None:
+        """Decode a frame the caller claimed; its state becomes done (or failed, then the error is raised)."""
+        i = self.state_index(task)
+        try:
+            self._decode_one(task)
+        except BaseException:
+            self.state[i] = _FAILED
+            raise
+        self.state[i] = _DONE
+
+    def ensure(self, tasks: list[DecodeTask], pool: ThreadPoolExecutor) -> list[Any]:
+        """Each frame decoded once for every process: the frames nobody has claimed are decoded on ``pool``'s
+        threads, the others are waited for. Returns one future-like handle per task (``result()`` waits; a
+        cancelled decode releases its claim)."""
+        out: list[Any] = []
+        for task in tasks:
+            if self.claim(task):
+                fut = pool.submit(self.run_claimed, task)
+                fut.add_done_callback(functools.partial(self._release_if_cancelled, task))
+                out.append(fut)
+            else:
+                out.append(_Elsewhere(self, task))
+        return out
+
+    def _release_if_cancelled(self, task: DecodeTask, fut: Future[None]) -> None:
+        if fut.cancelled():
+            i = self.state_index(task)
+            with self.lock:
+                if self.state[i] == _CLAIMED:
+                    self.state[i] = _FREE
+
+    def reset(self) -> None:
+        """Forget which frames are decoded (before the buffer is reused for the next chunk; nobody may be
+        decoding)."""
+        self.state[:] = bytes(len(self.state))
 
     def close(self) -> None:
         """Free the map (a BufferError while numpy views of it are alive: then it is freed with them)."""
         with contextlib.suppress(BufferError):
             self.mmap.close()
-
-
-def decode_tasks(seq_indices: list[int], n_sides: int, n_exp: int) -> list[DecodeTask]:
-    """Every frame of ``seq_indices`` (slot = position in the list)."""
-    return [(slot, seq_i, si, ei) for slot, seq_i in enumerate(seq_indices) for si in range(n_sides)
-            for ei in range(n_exp)]
+        with contextlib.suppress(BufferError):
+            self.state.close()
 
 
 def frame_shape(seq: BracketSequence, side: str) -> tuple[tuple[int, int], np.ndarray | None]:

@@ -16,8 +16,9 @@ emulation extrapolates more than one stop above any recorded frame). The first t
 (4 ms, as the authors) unless a method carries its own ``init_exposure_us`` attribute (constant-<ms>).
 
 With ``write_images=False`` only the exposure trajectories (ae.csv, summaries, plot) are written. Images are
-lossless PNGs written stored (``stored_png``, default: ~4x faster to encode, ~20% larger; see
-:mod:`..emulation.writer`) on background threads. Output layout: :mod:`.writers`.
+lossless PNGs (``png_compression``: ``stored`` by default, the fastest; ``fast``, ``small``, ``opencv``: see
+:mod:`..emulation.writer` and emulator/DATASET.md for what each costs) written on background threads. Output
+layout: :mod:`.writers`.
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ class LoopConfig:
     seed: int = 0
     drl_weights: str | None = None
     write_images: bool = True
-    stored_png: bool = True
+    png_compression: str = "stored"
     overwrite: bool = False
     max_sequences: int | None = None
     memory_budget_bytes: int = 1 << 30
@@ -69,6 +70,11 @@ class LoopConfig:
         if not lo_ms <= init_ms <= hi_ms:
             raise BracketryError(f"--init-exposure-ms {init_ms:g} is outside the bounds [--min-exposure-ms "
                                  f"{lo_ms:g}, --max-exposure-ms {hi_ms:g}]")
+        from ..emulation.writer import PNG_COMPRESSIONS
+
+        if self.png_compression not in PNG_COMPRESSIONS:
+            raise BracketryError(f"--png-compression must be one of {', '.join(PNG_COMPRESSIONS)}, got "
+                                 f"{self.png_compression}")
         self.emulator.validate()
 
 
@@ -121,7 +127,7 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
     out.mkdir(parents=True, exist_ok=True)
     settings = LoopSettings(cfg.emulator, cfg.ae_camera, write_sides, tuple(dict.fromkeys([*write_sides,
                             cfg.ae_camera])), cfg.init_exposure_us, cfg.min_exposure_us, cfg.max_exposure_us,
-                            cfg.seed, cfg.drl_weights, cfg.write_images, cfg.stored_png, cfg.overwrite)
+                            cfg.seed, cfg.drl_weights, cfg.write_images, cfg.png_compression, cfg.overwrite)
     bar = _progress_bar(progress, len(specs) * len(sequences))
     try:
         runs = run_scheduled(traits, settings, sequences, out, workers=workers,

@@ -3,11 +3,12 @@
 The methods are split over ``workers`` forked processes, balanced by the cost each method declares
 (:func:`~.registry.method_traits`: ``step_cost``; methods of one ``step_group`` take identical first steps and stay
 on one worker, whose writer then links images instead of encoding them again). The sequences are processed in
-chunks that fit the memory budget: each chunk's frames are decoded ONCE (split over the workers) into one shared
-:class:`~.decode.FrameBuffer`, then every worker advances its methods through the chunk, sequence by sequence
-(all methods of a worker take step k before any takes step k+1). One worker runs in this process instead; it
-decodes a sequence's frames on demand on threads, only the brackets the methods' current targets can select
-(:func:`~.emulation_cache.needed_brackets`), the next sequence's as soon as a method's next target is known.
+chunks that fit the memory budget, in one shared :class:`~.decode.FrameBuffer`; every worker advances its methods
+through the chunk, sequence by sequence (all methods of a worker take step k before any takes step k+1). Frames are
+decoded on demand on a decode thread of each worker, only the brackets the methods' current targets can select
+(:func:`~.emulation_cache.needed_brackets`), the next sequence's as soon as a method's next target is known, and
+ONCE for all workers (the buffer's shared state table: a frame another worker decodes is waited for, not decoded
+again). One worker runs in this process instead, the same way (two decode threads).
 
 Each method's loop is :func:`~.loop.iter_loop`; images are emulated once per (sequence, side, target) for all the
 methods of a worker (:class:`~.emulation_cache.EmulationCache`) and written by :mod:`.writers`.
@@ -23,7 +24,7 @@ import os
 import threading
 import traceback
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -35,7 +36,7 @@ from bracketry.errors import BracketryError
 
 from ..dataset import BracketSequence
 from ..emulation import EmulatedImage, EmulatorConfig, RunWriter
-from .decode import DecodeTask, FrameBuffer, decode_tasks, frame_shape
+from .decode import FrameBuffer, frame_shape
 from .emulation_cache import EmulationCache, needed_brackets
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
 from .registry import MethodTraits, get_method
@@ -62,7 +63,7 @@ class LoopSettings:
     seed: int
     drl_weights: str | None
     write_images: bool
-    stored_png: bool
+    png_compression: str
     overwrite: bool
 
 
@@ -101,7 +102,7 @@ class Worker:
         self.settings = s = settings
         #: set: decode on demand (only the brackets the methods' targets need) on this pool's threads
         self.decode_pool: ThreadPoolExecutor | None = None
-        self._decoded: dict[tuple[int, int, int], Future[None]] = {}  # (slot, side, exposure index)
+        self._decoded: dict[tuple[int, int, int], Any] = {}  # (slot, side, exposure index): future-like
         self.sequences = sequences
         self.frames = frames
         self.emu = EmulationCache(s.emulator)
@@ -120,18 +121,16 @@ class Worker:
                                           init_exposure_us=s.init_exposure_us, min_exposure_us=s.min_exposure_us,
                                           max_exposure_us=s.max_exposure_us)
             self.writers[spec] = LinkingRunWriter(out_dir, method_folder(spec), s.write_sides, s.emulator.depth,
-                                                  s.overwrite, self.sink, s.stored_png, s.emulator.parity)
-
-    def decode(self, tasks: list[DecodeTask]) -> None:
-        """Decode frames (slot, seq index, side index, exposure index) into the shared buffer."""
-        self.frames.decode(tasks)
+                                                  s.overwrite, self.sink, s.png_compression,
+                                                  s.emulator.parity)
 
     def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
         """Advance every method of this worker through the given sequences (slot = position in the list).
 
-        Without :attr:`decode_pool` the frames must already be decoded (:meth:`decode`); with it, frames are decoded
-        on demand, only the brackets that the methods' targets can select: a method's next target is known as soon
-        as its step is done, so the next sequence's frames decode while the other methods run."""
+        Without :attr:`decode_pool` the frames must already be decoded (:meth:`FrameBuffer.decode`); with it,
+        frames are decoded on demand, only the brackets that the methods' targets can select, once for every
+        worker (:meth:`FrameBuffer.ensure`): a method's next target is known as soon as its step is done, so the
+        next sequence's frames decode while the other methods run."""
         self.emu.clear()
         self._decoded.clear()
         try:
@@ -203,7 +202,7 @@ class Worker:
         assert self.decode_pool is not None
         tasks = [(slot, seq_i, si, ei) for si, ei in self._needed_keys(self.sequences[seq_i], [target_us])
                  if (slot, si, ei) not in self._decoded]
-        futures = self.frames.decode(tasks, self.decode_pool)
+        futures = self.frames.ensure(tasks, self.decode_pool)
         for (_, _, si, ei), f in zip(tasks, futures, strict=True):
             self._decoded[(slot, si, ei)] = f
 
@@ -257,7 +256,7 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
         if len(groups) == 1:
             runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), n_seq, chunk, progress))
         else:
-            runs.update(_run_forked(groups, make, n_seq, chunk, len(settings.emulate_sides), n_exp, progress))
+            runs.update(_run_forked(groups, make, n_seq, chunk, frames, progress))
     finally:
         frames.close()  # on an error path the traceback may still hold views of the buffer: freed with them
     return {s: runs[s] for s in specs}
@@ -275,6 +274,7 @@ def _run_in_process(make: Callable[[], Worker], n_seq: int, chunk: int,
             w.decode_pool = pool
             try:
                 for c0 in range(0, n_seq, chunk):
+                    w.frames.reset()
                     w.run(list(range(c0, min(n_seq, c0 + chunk))), progress)
             except BaseException:
                 with contextlib.suppress(Exception):
@@ -287,15 +287,15 @@ def _run_in_process(make: Callable[[], Worker], n_seq: int, chunk: int,
 
 def _worker_loop(conn: Connection, worker: Callable[[], Worker]) -> None:
     """A forked worker: answers the parent's commands (decode, run, close) until closed; reports one error."""
+    pool: ThreadPoolExecutor | None = None
     try:
         w = worker()
+        # one decode thread per worker: the frames its methods need next decode while its methods run
+        pool = w.decode_pool = ThreadPoolExecutor(1, thread_name_prefix="bracketry-decode")
         conn.send(("ready", None))
         while True:
             cmd, arg = conn.recv()
-            if cmd == "decode":
-                w.decode(arg)
-                conn.send(("decoded", None))
-            elif cmd == "run":
+            if cmd == "run":
                 w.run(arg, lambda n: conn.send(("progress", n)))
                 conn.send(("ran", None))
             elif cmd == "close":
@@ -306,11 +306,13 @@ def _worker_loop(conn: Connection, worker: Callable[[], Worker]) -> None:
         with contextlib.suppress(Exception):
             conn.send(("error", (msg, traceback.format_exc())))
     finally:
+        if pool is not None:
+            pool.shutdown(wait=True, cancel_futures=True)
         conn.close()
 
 
 def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[], Worker]], n_seq: int,
-                chunk: int, n_sides: int, n_exp: int, progress: Callable[[int], None]) -> dict[str, MethodRun]:
+                chunk: int, frames: FrameBuffer, progress: Callable[[int], None]) -> dict[str, MethodRun]:
     ctx = mp.get_context("fork")
     procs: list[Any] = []
     conns: list[Connection] = []
@@ -327,10 +329,7 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
         _collect(conns, "ready", progress)
         for c0 in range(0, n_seq, chunk):
             idx = list(range(c0, min(n_seq, c0 + chunk)))
-            tasks = decode_tasks(idx, n_sides, n_exp)
-            for k, conn in enumerate(conns):
-                conn.send(("decode", tasks[k::len(conns)]))
-            _collect(conns, "decoded", progress)
+            frames.reset()  # every worker is idle between chunks
             for conn in conns:
                 conn.send(("run", idx))
             _collect(conns, "ran", progress)

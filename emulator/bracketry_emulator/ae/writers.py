@@ -70,8 +70,9 @@ class LinkingRunWriter(RunWriter):
     """
 
     def __init__(self, out_dir: Path, method: str, sides: tuple[str, ...], depth: int, overwrite: bool,
-                 sink: ImageSink, stored_png: bool, mode: str = "default") -> None:
-        super().__init__(out_dir, method, sides, depth=depth, overwrite=overwrite, stored_png=stored_png, mode=mode)
+                 sink: ImageSink, png_compression: str, mode: str = "default") -> None:
+        super().__init__(out_dir, method, sides, depth=depth, overwrite=overwrite, png_compression=png_compression,
+                         mode=mode)
         self._sink = sink
 
     def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:

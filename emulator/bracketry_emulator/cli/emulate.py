@@ -99,13 +99,18 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
                    "process; 1 = in this process).")
 @click.option("--max-sequences", type=count(1), default=None, help="Stop after this many bracket sequences.")
 @click.option("--no-images", is_flag=True, help="Do not write images (exposure trajectories and summaries only).")
+@click.option("--png-compression", type=click.Choice(["stored", "fast", "small", "opencv"]), default="stored",
+              show_default=True,
+              help="Lossless PNG encoding of the images: stored (no compression, fastest, 2 bytes a pixel), fast "
+                   "(Huffman only), small (zlib level 1, smallest), opencv (cv2.imwrite defaults, as the authors); "
+                   "time and size of each: emulator/DATASET.md.")
 @overwrite_option("Replace an earlier run in the same --out (its method folders and summaries are removed first).")
 @quiet_option()
 def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
             ae_camera: str, depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
             deghost_sigma: float | None, init_exposure_ms: float, min_exposure_ms: float,
             max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
-            no_images: bool, overwrite: bool, quiet: bool) -> int:
+            no_images: bool, png_compression: str, overwrite: bool, quiet: bool) -> int:
     """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world or MCAP).
 
     Every method starts at --init-exposure-ms; at each bracket sequence its current target is emulated for the
@@ -121,12 +126,15 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
                      init_exposure_us=init_exposure_ms * 1000.0, min_exposure_us=min_exposure_ms * 1000.0,
                      max_exposure_us=max_exposure_ms * 1000.0, seed=seed,
                      drl_weights=str(drl_weights) if drl_weights else None, write_images=not no_images,
-                     overwrite=overwrite, max_sequences=max_sequences)
+                     png_compression=png_compression, overwrite=overwrite, max_sequences=max_sequences)
     cfg.validate()  # before --overwrite removes anything
     if drl_weights is not None and "drl" in specs:
         _check_pth(drl_weights)
     if overwrite:
         remove_earlier_run(out_dir)
+    from bracketry_emulator.ae.memory import reuse_freed_memory
+
+    reuse_freed_memory()  # a batch process: full-frame temporaries reuse memory instead of faulting pages in
     summary = run_methods(dataset, specs, out_dir, workers=workers, config=cfg, progress=not quiet)
     click.echo(f"{len(summary.runs)} method(s) x {summary.n_sequences} sequence(s), cameras "
                f"{','.join(summary.sides)}, in {summary.wall_s:.1f} s -> {summary.out_dir}")

@@ -9,9 +9,15 @@ One stereo step = one capture: every side's image of a step must come from the s
 :meth:`~.emulator.Emulator.select_stereo`), and all sides carry the same name and timestamp, those of the first
 side's source frame (the authors' SLAM entry program pairs left and right by identical file names).
 
-PNG encoding: OpenCV's default compression, or with ``stored_png=True`` a stored (uncompressed deflate) PNG written
-by :func:`write_png_stored`: the same decoded pixels, ~4x faster to write, ~20% larger files (the noisy 12-bit raw
-mosaic compresses poorly anyway: 3.9 MB instead of 4.6 MB for 1920x1200).
+PNG encoding (``png_compression``, every choice a lossless gray PNG that any reader, OpenCV and the authors' tools
+included, decodes to exactly the same codes; time and size of each on this project's machine: emulator/DATASET.md):
+
+- ``stored``: deflate without compression (:func:`encode_png`, level 0): the fastest, the largest (2 bytes a pixel;
+  the noisy 12-bit raw mosaic compresses poorly anyway);
+- ``fast``: deflate with Huffman coding only (zlib level 1, ``Z_HUFFMAN_ONLY``);
+- ``small``: deflate with string matching (zlib level 1): the smallest of the four, the slowest;
+- ``opencv``: ``cv2.imwrite``'s defaults, as the authors' script writes its images (the default of
+  :class:`RunWriter`).
 """
 
 from __future__ import annotations
@@ -40,24 +46,54 @@ def _png_chunk(tag: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(tag)))
 
 
-def encode_png_stored(image: np.ndarray) -> bytes:
-    """A lossless gray PNG of ``image`` (uint16 HxW -> 16-bit, uint8 HxW -> 8-bit), deflate level 0 (stored), no
-    row filter. Any PNG reader returns exactly ``image``. Raises ValueError for another dtype or shape."""
+#: the ``png_compression`` choices (module docstring)
+PNG_COMPRESSIONS: tuple[str, ...] = ("stored", "fast", "small", "opencv")
+#: our encoder's choices: (zlib level, zlib strategy)
+_DEFLATE = {"stored": (0, zlib.Z_DEFAULT_STRATEGY), "fast": (1, zlib.Z_HUFFMAN_ONLY),
+            "small": (1, zlib.Z_DEFAULT_STRATEGY)}
+
+
+def encode_png(image: np.ndarray, compression: str = "stored") -> bytes:
+    """A lossless gray PNG of ``image`` (uint16 HxW -> 16-bit, uint8 HxW -> 8-bit), no row filter, deflated as
+    ``compression`` says (``stored``, ``fast`` or ``small``, see the module docstring). Any PNG reader returns
+    exactly ``image``. Raises ValueError for another dtype, shape or compression."""
     if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"encode_png_stored needs uint8 or uint16 HxW, got {image.dtype} {image.shape}")
+        raise ValueError(f"encode_png needs uint8 or uint16 HxW, got {image.dtype} {image.shape}")
+    if compression not in _DEFLATE:
+        raise ValueError(f"unknown PNG compression {compression!r} (use {', '.join(_DEFLATE)})")
+    level, strategy = _DEFLATE[compression]
     h, w = image.shape
     nbytes = image.dtype.itemsize
     raw = np.empty((h, 1 + nbytes * w), np.uint8)
     raw[:, 0] = 0  # filter type None
     raw[:, 1:].view(">u2" if nbytes == 2 else np.uint8)[...] = image  # PNG samples are big-endian
     ihdr = struct.pack(">IIBBBBB", w, h, 8 * nbytes, 0, 0, 0, 0)  # gray, deflate, no filter, no interlace
-    return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", ihdr), _png_chunk(b"IDAT", zlib.compress(raw.data, 0)),
-                     _png_chunk(b"IEND", b"")))
+    if level == 0:
+        data = zlib.compress(raw.data, 0)
+    else:
+        z = zlib.compressobj(level, zlib.DEFLATED, 15, 9, strategy)
+        data = z.compress(raw.data) + z.flush()
+    return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", ihdr), _png_chunk(b"IDAT", data), _png_chunk(b"IEND", b"")))
+
+
+def encode_png_stored(image: np.ndarray) -> bytes:
+    """:func:`encode_png` with ``stored`` (deflate level 0)."""
+    return encode_png(image, "stored")
+
+
+def write_png(path: Path, image: np.ndarray, compression: str = "stored") -> None:
+    """Write ``image`` as a lossless PNG (``compression``: one of :data:`PNG_COMPRESSIONS`). Raises OSError when the
+    file cannot be written (BracketryError for OpenCV's encoder, which gives no reason)."""
+    if compression == "opencv":
+        if not cv2.imwrite(str(path), image):
+            raise BracketryError(f"cannot write {path}")
+        return
+    path.write_bytes(encode_png(image, compression))
 
 
 def write_png_stored(path: Path, image: np.ndarray) -> None:
     """Write :func:`encode_png_stored` of ``image`` to ``path``."""
-    path.write_bytes(encode_png_stored(image))
+    write_png(path, image, "stored")
 
 
 class RunWriter:
@@ -68,15 +104,18 @@ class RunWriter:
     """
 
     def __init__(self, out_dir: str | Path, method: str, sides: tuple[str, ...] | list[str] = ("left", "right"),
-                 depth: int = 12, overwrite: bool = False, stored_png: bool = False, mode: str = "default") -> None:
+                 depth: int = 12, overwrite: bool = False, png_compression: str = "opencv", mode: str = "default"
+                 ) -> None:
         if depth not in (8, 12):
             raise BracketryError(f"depth must be 12 or 8, got {depth}")
+        if png_compression not in PNG_COMPRESSIONS:
+            raise BracketryError(f"unknown PNG compression {png_compression!r} (use {', '.join(PNG_COMPRESSIONS)})")
         if not method or "/" in method or method in (".", ".."):
             raise BracketryError(f"bad method name for a folder: {method!r}")
         self.root = Path(out_dir) / method
         self.sides = tuple(sides)
         self.depth = depth
-        self.stored_png = stored_png
+        self.png_compression = png_compression
         self.mode = mode
         if self.root.exists() and any(self.root.iterdir()) and not overwrite:
             raise BracketryError(f"output folder already holds a run: {self.root} (choose another --out)")
@@ -95,21 +134,17 @@ class RunWriter:
         return self.root / f"images_{side}" / f"{timestamp_ns}.png"
 
     def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:
-        """Write one emulated image as a lossless PNG (OpenCV's default compression: faster here than level 1; or
-        stored, see the module docstring).
+        """Write one emulated image as a lossless PNG (``png_compression``, see the module docstring).
 
         ``key`` = (sequence index, side, target exposure us) identifies the image's content, for subclasses that
         share identical images between runs (hard links) instead of writing them again. A file already at ``path``
         is replaced, never written through (it may be a hard link of an earlier run)."""
         if path.is_file():
             path.unlink()
-        if self.stored_png:
-            try:
-                write_png_stored(path, em.to_depth(self.depth))
-            except OSError as exc:
-                raise BracketryError(f"cannot write {path}: {exc.strerror or exc}") from exc
-        elif not cv2.imwrite(str(path), em.to_depth(self.depth)):
-            raise BracketryError(f"cannot write {path}")
+        try:
+            write_png(path, em.to_depth(self.depth), self.png_compression)
+        except OSError as exc:
+            raise BracketryError(f"cannot write {path}: {exc.strerror or exc}") from exc
 
     def write_step(self, step: int, seq: BracketSequence, side_images: dict[str, EmulatedImage],
                    target_us: float) -> None:

@@ -64,3 +64,25 @@ def test_shared_gray_equals_the_direct_conversions() -> None:
     assert not gray_for(img, meta).flags.writeable
     other = img.copy()  # a memo of another array is never used
     assert gray_for(other, meta) is not gray_for(img, meta) and gray_for(other, meta).flags.writeable
+
+
+@pytest.mark.parametrize("compression", ["stored", "fast", "small", "opencv"])
+def test_every_png_compression_is_lossless(tmp_path: Path, compression: str) -> None:
+    from bracketry_emulator.emulation.writer import write_png
+
+    rng = np.random.default_rng(11)
+    img = (rng.normal(1500, 300, (48, 64)).clip(0, 4095)).astype(np.uint16)
+    path = tmp_path / f"{compression}.png"
+    write_png(path, img, compression)
+    back = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert back.dtype == np.uint16 and np.array_equal(back, img)
+    if compression != "stored":
+        assert path.stat().st_size < img.nbytes  # compressed
+
+
+def test_png_compression_is_checked() -> None:
+    from bracketry.errors import BracketryError
+    from bracketry_emulator.ae import LoopConfig
+
+    with pytest.raises(BracketryError, match="--png-compression"):
+        LoopConfig(png_compression="zip").validate()
