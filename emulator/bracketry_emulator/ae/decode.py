@@ -49,8 +49,10 @@ class _Elsewhere:
             if state == _DONE:
                 return
             if state == _FAILED:
-                raise BracketryError(f"decoding a frame of sequence {fb.sequences[self.task[1]].index} failed "
-                                     "in another worker")
+                _, seq_i, side_i, exp_i = self.task
+                seq = fb.sequences[seq_i]
+                source = getattr(seq.frames[fb.sides[side_i]][seq.exposures_us[exp_i]], "source", "?")
+                raise BracketryError(f"cannot decode {source} (failed in another worker process)")
             if state == _FREE and fb.claim(self.task):  # released unfinished (cancelled): decode it here
                 fb.run_claimed(self.task)
                 return
