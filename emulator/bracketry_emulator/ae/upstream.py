@@ -68,7 +68,7 @@ class UpstreamShimAE:
     """Shim as the authors' code runs it (see the module docstring; id ``shim`` with ``--parity upstream``)."""
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 10
+    step_cost = 150
 
     def __init__(self, delta: float = 0.06, lam: float = 1e3, kp: float = 0.2, name: str = "shim") -> None:
         self.delta, self.lam, self.kp = delta, lam, kp
@@ -94,7 +94,42 @@ class UpstreamShimAE:
 
 def upstream_kim_metric(gray12: np.ndarray, alpha: float = 16.0, tau: float = 4.0, mask_below: float = 0.6
                         ) -> float:
-    """The authors' Kim metric of a 12-bit gray image (uint16 HxW), quirks included (module docstring)."""
+    """The authors' Kim metric of a 12-bit gray image (uint16 HxW), quirks included (module docstring).
+
+    Every per-pixel quantity but the gradient is a function of the pixel's 8-bit value, so it is computed once per
+    value (a 256-entry table, the same operations on the same numbers) and gathered; the reductions (std, mean,
+    sums) run on the gathered full-size arrays as the authors' do, so the result is theirs bit for bit, ~3x faster.
+    """
+    if gray12.size == 0 or int(gray12.max(initial=0)) > 4095:
+        return _upstream_kim_metric_direct(gray12, alpha, tau, mask_below)
+    img = (gray12 >> 4).astype(np.uint8)  # = uint8(gray / 16.0) for 12-bit codes
+    flat = img.ravel()
+    hist = np.bincount(flat, minlength=256)
+    p = hist / hist.sum()
+    present = hist > 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        h_of = -p * np.log2(p)
+    h = h_of[flat]
+    gx = cv2.Sobel(img, ddepth=cv2.CV_16U, dx=1, dy=0, ksize=3).ravel()
+    gy = cv2.Sobel(img, ddepth=cv2.CV_16U, dx=0, dy=1, ksize=3).ravel()
+    g = gx**2 + gy**2  # uint16: wraps
+    sigma = np.std(h)
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
+        w_of = (1 / sigma) * np.exp(((h_of - np.mean(h)) ** 2) / (2 * sigma**2))
+    w_of = w_of / np.sum(w_of[flat])
+    h_min, h_max = np.min(h_of[present]), np.max(h_of[present])
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        hn_of = (h_of - h_min) / (h_max - h_min)
+        act_of = (2 / (1 + np.exp(-alpha * hn_of + tau))) - 1
+    mask_of = np.zeros_like(hn_of)
+    mask_of[hn_of < mask_below] = 1
+    n = g.shape[0]
+    rest_of = act_of * mask_of * w_of * (1 / n) * np.sum(g)
+    return float(np.sum((w_of[flat] * g) + rest_of[flat]))
+
+
+def _upstream_kim_metric_direct(gray12: np.ndarray, alpha: float, tau: float, mask_below: float) -> float:
+    """:func:`upstream_kim_metric` computed per pixel, as the authors write it (any input)."""
     img = (gray12 / 16.0).astype(np.uint8)
     flat = img.ravel()
     hist = np.bincount(flat, minlength=256)
@@ -123,7 +158,7 @@ class UpstreamKimAE:
     """
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 40
+    step_cost = 130
 
     def __init__(self, seed: int = 0, name: str = "kim") -> None:
         self.seed = seed
@@ -242,7 +277,7 @@ class UpstreamZhangAE:
     """
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 10
+    step_cost = 150
 
     _SCHARR_X = np.array([[3, 0, -3], [10, 0, -10], [3, 0, -3]], dtype=np.float64)
     _SCHARR_Y = np.array([[3, 10, 3], [0, 0, 0], [-3, -10, -3]], dtype=np.float64)

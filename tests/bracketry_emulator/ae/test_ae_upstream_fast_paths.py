@@ -1,4 +1,5 @@
-"""The upstream Zhang's fast paths (compiled kernel, numpy fallback) give exactly the authors' formula's values."""
+"""The upstream methods' fast paths (Zhang's compiled kernel and numpy fallback, Kim's per-value tables) give exactly
+the values of the authors' formulas as written."""
 
 from __future__ import annotations
 
@@ -80,3 +81,18 @@ def test_zhang_equals_the_formula_as_written_on_the_sample(borealhdr_sample: Pat
     assert (70 / 256) * 4096 < mean < (190 / 256) * 4096  # the gradient branch
     want = reference_next_ms(gray, 8.0, z._icrf_slope(meta)) * 1000.0
     assert z.next_exposure_us(img, 8000.0, meta) == want
+
+
+@pytest.mark.realdata
+def test_kim_metric_tables_equal_the_per_pixel_formula(borealhdr_sample: Path, borealhdr_sequence: Path) -> None:
+    pcalib = borealhdr_sample / "calibration" / "pcalib_inside1.txt"
+    emu = Emulator(EmulatorConfig(selection="upstream", parity="upstream", crf=str(pcalib)))
+    brackets = open_dataset(borealhdr_sequence).sequences()[0].load("left")
+    for t_us in (1500.0, 8000.0, 30000.0):
+        gray = bayer_gray(emu.emulate(brackets, t_us).image)
+        assert U.upstream_kim_metric(gray) == U._upstream_kim_metric_direct(gray, 16.0, 4.0, 0.6), t_us
+    rng = np.random.default_rng(1)
+    for high in (2, 300, 4096):  # 2: one 8-bit value, a constant entropy: NaN (0/0) in both
+        gray = rng.integers(0, high, (37, 51)).astype(np.uint16)
+        fast, direct = U.upstream_kim_metric(gray), U._upstream_kim_metric_direct(gray, 16.0, 4.0, 0.6)
+        assert fast == direct or (high == 2 and np.isnan(fast) and np.isnan(direct)), high
