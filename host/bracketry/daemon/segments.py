@@ -91,6 +91,12 @@ class Acquisition:
     session_id: int
     camera_trigger: CameraTrigger
     pulses: dict[str, int] = field(default_factory=dict)  # side -> pulses meant for it (written by the pump only)
+    armed_frames: dict[str, int] = field(default_factory=dict)  # side -> frames received before the first pulse
+
+    def frames_to_wait_for(self) -> dict[str, int]:
+        """Frames each camera will have delivered once the pulses fired so far arrived (priming frames included)."""
+        fired = self.camera_trigger.frames_expected
+        return {side: self.armed_frames.get(side, 0) + fired for side in self.session.cameras}
 
     def deliver(self, event: TriggerEvent, state: RigState) -> None:
         """The pulse reaches the cameras (a camera that failed a software trigger is skipped until the next
@@ -324,7 +330,8 @@ class SegmentRecorder:
                                    initial_alignment=camera_trigger.initial_alignment, tap=self.preview_tap).start()
         camera_trigger.arm()  # e.g. the fake camera loses the first software trigger after AcquisitionStart
         self._session_id = (self._session_id + 1) & 0xFFFFFFFF or 1
-        return Acquisition(session, recorder, self._session_id, camera_trigger, dict.fromkeys(cameras, 0))
+        armed = {side: session.frames_received.get(side, 0) for side in cameras}  # e.g. a priming frame
+        return Acquisition(session, recorder, self._session_id, camera_trigger, dict.fromkeys(cameras, 0), armed)
 
     def _start_trigger(self, acquisition: Acquisition, trigger: TriggerDevice, what: str) -> bool:
         """Make ``acquisition`` the open one and START the trigger; on failure it is closed and the trigger ERR."""
@@ -358,7 +365,7 @@ class SegmentRecorder:
             for event in take_queued():
                 o.deliver(event, self.state)
         # the last pulses' buffers, also under load
-        return o.session.stop(drain_s=3.0, expect_frames=o.camera_trigger.frames_expected)
+        return o.session.stop(drain_s=3.0, expect_frames=o.frames_to_wait_for())
 
     @_locked
     def drop_camera(self, side: str) -> None:
