@@ -156,8 +156,9 @@ def test_event_pump_delivers_in_order_counts_overflow_and_holds() -> None:
     pump.start()
     try:
         pump.put(event(1, 3))
-        pump.settle(2.0)
-        assert [e.trigger_seq for e in got] == [3]
+        pump.settle(2.0)  # queue empty: the pump took it ...
+        with pump.hold():
+            assert [e.trigger_seq for e in got] == [3]  # ... and delivered it before anyone can hold the pump
         with pump.hold() as take_queued:
             pump.put(event(1, 4))
             threading.Event().wait(0.15)
