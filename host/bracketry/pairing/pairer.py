@@ -12,6 +12,13 @@ frames follow, the first moved frame is noted ``timestamp_mismatch`` and the ski
 single late frame (host scheduling, a jittery fake camera) never moves anything. Sets touched by an unconfirmed
 candidate are held back until it is confirmed or dropped.
 
+Cameras fired by the host (``initial_alignment="host_time"``: the fake camera, whose timestamps are host time) are
+checked against the pulse's host time instead. Such a camera gives one frame per trigger it takes, never before its
+pulse, but as late as the host's scheduling makes it: on a loaded machine whole bursts of frames of both cameras
+come one to many periods late, a session's first frames included, so lateness proves nothing (a running reference
+would learn it and re-sync a whole camera wrongly). The count stands unless ``confirm_frames`` frames are stamped
+before their pulse: the camera gave a frame for no pulse, and they move back by the smallest such ``m``.
+
 A trigger_seq is emitted (``PairedSet``) as soon as the event and every camera's frame are there, or when it falls
 ``window`` pulses behind the newest one seen (then with what is missing counted), or at ``flush()``.
 """
@@ -19,6 +26,7 @@ A trigger_seq is emitted (``PairedSet``) as soon as the event and every camera's
 from __future__ import annotations
 
 import logging
+import math
 import statistics
 from collections import deque
 from collections.abc import Callable
@@ -204,6 +212,10 @@ class Pairer:
         if self._period_us is None or not self._events or not frame.cam_timestamp_ns:
             return seq  # an incomplete buffer whose leader was lost carries no timestamp
         period_ns = self._period_us * 1000.0
+        if self.initial_alignment == "host_time":
+            host_ns = self._pulse_host_ns(seq)
+            if host_ns is not None:
+                return self._check_host_time(side, seq, frame.cam_timestamp_ns - host_ns, period_ns)
         offset = frame.cam_timestamp_ns - self._pulse_device_ns(seq)
         st.recent[seq] = offset
         if len(st.recent) > 64:
@@ -232,6 +244,38 @@ class Pairer:
             return seq
         return self._apply_shift(side, seq)
 
+    def _check_host_time(self, side: str, seq: int, late_ns: float, period_ns: float) -> int:
+        """The check of a host-fired camera's frame stamped ``late_ns`` after its pulse's host time (module doc)."""
+        st = self._state[side]
+        tol = self.tolerance_fraction * period_ns
+        if late_ns >= -tol:  # at or after its pulse: however late, the count stands
+            st.last_ok_seq = seq
+            if st.candidate:
+                log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
+            st.candidate = []
+            st.candidate_shift = 0
+            return seq
+        # before its pulse: the frame belongs to an earlier one, by at least m pulses (lateness only shortens it)
+        m = -math.ceil((-late_ns - tol) / period_ns)
+        st.candidate_shift = m if not st.candidate else min(st.candidate_shift, m)
+        st.candidate.append(seq)
+        if len(st.candidate) < self.confirm_frames:
+            return seq
+        return self._apply_shift(side, seq)
+
+    def _pulse_host_ns(self, seq: int) -> float | None:
+        """Host time of pulse ``seq``: its event's, else extrapolated from the nearest earlier event with a host time
+        (None when there is none)."""
+        ev = self._events.get(seq)
+        if ev is not None and ev.t_start_host_ns is not None:
+            return float(ev.t_start_host_ns)
+        before = [k for k, e in self._events.items() if k < seq and e.t_start_host_ns is not None]
+        if not before:
+            return None
+        ref = self._events[max(before)]
+        assert ref.t_start_host_ns is not None
+        return ref.t_start_host_ns + (seq - ref.trigger_seq) * (self._period_us or 0.0) * 1000.0
+
     def _pulse_device_ns(self, seq: int) -> float:
         """Device time of pulse ``seq``: its event's, else extrapolated from the nearest event with the period."""
         ev = self._events.get(seq)
@@ -247,7 +291,9 @@ class Pairer:
         # every frame of this side after the last frame whose timestamp agreed (incomplete frames carry none,
         # outliers were not decided) moves too: the shift happened somewhere after that frame
         first = min(st.candidate)
-        for seq_before in range(st.last_ok_seq + 1 if st.last_ok_seq is not None else first, first):
+        # (no frame of this side agreed yet: every earlier frame of it is as unconfirmed as the candidates)
+        start = st.last_ok_seq + 1 if st.last_ok_seq is not None else max(self._emitted_upto + 1, 0)
+        for seq_before in range(start, first):
             if seq_before > self._emitted_upto and side in self._pending.get(seq_before, {}):
                 st.candidate.append(seq_before)
         # and the undecided frames between the candidates (incomplete ones carry no timestamp): they shifted too
@@ -310,10 +356,8 @@ class Pairer:
         """True while a timestamp shift under confirmation could still move this seq's frames: the candidates and
         every frame after the last frame whose timestamp agreed (see ``_apply_shift``)."""
         for st in self._state.values():
-            if st.candidate:
-                start = st.last_ok_seq + 1 if st.last_ok_seq is not None else min(st.candidate)
-                if seq >= min(start, min(st.candidate)):
-                    return True
+            if st.candidate and (st.last_ok_seq is None or seq >= min(st.last_ok_seq + 1, min(st.candidate))):
+                return True
         return False
 
     def _release(self, everything: bool = False) -> None:

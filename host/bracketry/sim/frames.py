@@ -5,9 +5,10 @@ Frame k of a side is the synthetic world at the world time of its bracket cycle 
 ``brackets[k % n]``. A renderer process
 (:func:`render_frames`, started by :meth:`FrameSchedule.start`) writes the frames in order into one shared memory
 file per side and counts them in a small shared counter, so the rig starts recording while later frames are still
-being rendered. The fake camera's image source serves the next frame of the cycle whose exposure matches the one the
-camera was triggered with (a dropped trigger resynchronises on the next matching frame), waiting for the renderer
-when it is behind.
+being rendered. The fake camera's image source serves each side its next bracket frame, by count (the k-th bracket
+frame a camera fills is frame k, as the pairer gives the k-th frame a camera took the k-th pulse), so both images of
+a stereo pair show the same rendered frame, whatever the load; a fill whose exposure is not in the bracket cycle
+(the priming trigger) gets no frame.
 
 Identity, not timing: every served frame carries the index k of the rendered frame it shows, written into its first
 :data:`FRAME_ID_PIXELS` pixels (row 0) by :func:`embed_frame_id`; :func:`read_frame_id` reads it back from a
@@ -99,11 +100,13 @@ class FrameSchedule:
     sides: Sequence[str] = ("left", "right")
     wait_for_render_s: float = WAIT_FOR_RENDER_S
     frames: dict[str, np.ndarray] = field(default_factory=dict, init=False)
-    #: per side, how many frames were served by index (k) and without identity
+    #: per side, how many bracket frames were served (the next one is bracket frame ``served[side]``), and how many
+    #: frames without identity
     served: dict[str, int] = field(default_factory=dict, init=False)
     unidentified: dict[str, int] = field(default_factory=dict, init=False)
     #: per side, frames the camera had to wait for (the renderer was behind the triggers)
     waited: dict[str, int] = field(default_factory=dict, init=False)
+    #: bracket frames whose camera filled them with another exposure than their own (a late fill, see ``source``)
     mismatches: int = field(default=0, init=False)
     #: bracket frames served from an earlier rendered cycle because the renderer was behind (the world held)
     held: int = field(default=0, init=False)
@@ -125,8 +128,6 @@ class FrameSchedule:
                                                   shape=(3,))
         self._lock = threading.Lock()
         self._chosen: dict[int, int] = {}
-        #: exposure_us -> (bracket frame m, time.monotonic()) of its latest serving, by either side
-        self._last_by_exposure: dict[int, tuple[int, float]] = {}
         self._proc: Any = None
 
     def frame_path(self, side: str) -> Path:
@@ -222,31 +223,19 @@ class FrameSchedule:
 
     def source(self, side: str) -> Callable[[int, int, int], np.ndarray]:
         """The fake camera image source of ``side``: (exposure_us, width, height) -> uint16 (height, width)."""
-        n = len(self.brackets_us)
 
         def fill(exposure_us: int, width: int, height: int) -> np.ndarray:
             with self._lock:
-                m = self.served[side]
-                matched = None
-                now_s = time.monotonic()
-                recent = self._last_by_exposure.get(int(exposure_us))
-                if recent is not None and now_s - recent[1] < 0.5 * n / self.fps and recent[0] >= m - n:
-                    # this exposure was served less than half a cycle ago (by either side): the same pulse. A
-                    # camera that fills twice for one trigger must not step its count a whole cycle ahead of the
-                    # other side's (a stereo pair of two different world times)
-                    matched = recent[0]
-                else:
-                    for step in range(n):
-                        if abs(self.exposure_us(m + step) - exposure_us) <= 1:
-                            if step:
-                                self.mismatches += 1
-                            matched = m + step
-                            break
-                if matched is not None:
-                    self._last_by_exposure[int(exposure_us)] = (matched, now_s)
-                k = None
-                if matched is not None:
-                    self.served[side] = max(self.served[side], matched + 1)
+                matched = k = None
+                if any(abs(b - exposure_us) <= 1 for b in self.brackets_us):
+                    # the side's next bracket frame, by count: the pairer counts this camera's frames the same way
+                    # (one per trigger it took). The exposure only tells bracket frames from others: the fake camera
+                    # reads its exposure register when it fills a frame, and a late fill can find the next pulse's
+                    # exposure already written (a real sensor latches it at the trigger)
+                    matched = self.served[side]
+                    self.served[side] += 1
+                    if abs(self.exposure_us(matched) - exposure_us) > 1:
+                        self.mismatches += 1
                     k = self.choose(matched)
             frame = None
             if matched is not None:

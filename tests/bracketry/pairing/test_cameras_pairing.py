@@ -172,3 +172,59 @@ def test_a_shift_to_before_pulse_zero_is_never_applied() -> None:
     seqs = [s.trigger_seq for s in sets]
     assert seqs and min(seqs) >= 0
     assert sum(1 for s in sets if s.frames["left"] is not None) == 40  # every left frame recorded once
+
+
+def host_fired_run(n: int, late_ms: dict[tuple[str, int], float], miss_trigger: frozenset = frozenset(),
+                   extra_frame: frozenset = frozenset()) -> tuple[Pairer, list[PairedSet]]:
+    """n pulses to cameras fired by the host (``host_time`` alignment): each frame's timestamp is its pulse's host time
+    + 2 ms + ``late_ms[(side, k)]``; miss_trigger: (side, k) the camera never fired; extra_frame: (side, k) a frame
+    that belongs to no pulse, stamped half a period before pulse k."""
+    sets: list[PairedSet] = []
+    p = Pairer(("left", "right"), sets.append, window=8, initial_alignment="host_time")
+    index = {"left": 0, "right": 0}
+    for k in range(n):
+        p.add_event(event(k))
+        for side in ("left", "right"):
+            host_ns = event(k).t_start_host_ns
+            assert host_ns is not None
+            if (side, k) in extra_frame:
+                p.add_frame(FakeFrame(side, index[side] + 1, index[side], "success", host_ns - PERIOD_US * 500, 0))
+                index[side] += 1
+            if (side, k) in miss_trigger:
+                continue
+            stamp = host_ns + 2_000_000 + int(late_ms.get((side, k), 0.0) * 1e6)
+            p.add_frame(FakeFrame(side, index[side] + 1, index[side], "success", stamp, stamp + 1_000_000))
+            index[side] += 1
+    p.flush()
+    return p, sets
+
+
+def test_host_fired_cameras_late_at_the_start_or_in_bursts_keep_their_pulses() -> None:
+    """Frames of host-fired cameras are late by whatever the host's scheduling adds: the first frames of a session a
+    period late, then a burst that builds up to four periods and catches up. Their count is right: nothing moves,
+    every set is complete (a reference learnt from late first frames re-synced a whole camera by -1 pulse)."""
+    period_ms = PERIOD_US / 1000
+    late = {("right", 0): 1.1 * period_ms, ("right", 1): 1.05 * period_ms}
+    for i, f in enumerate([0.6, 1.3, 2.2, 3.1, 4.0, 3.7, 3.0, 2.6, 1.9, 1.2, 0.5]):
+        late[("left", 30 + i)] = late[("right", 30 + i)] = f * period_ms
+    for k in range(60, 110):  # the host fires both cameras more than a period late for two seconds
+        late[("left", k)], late[("right", k)] = 1.4 * period_ms, (1.4 + 0.1 * (k % 3)) * period_ms
+    p, sets = host_fired_run(120, late)
+    assert [s.trigger_seq for s in sets] == list(range(120))
+    assert all(s.complete and not s.notes for s in sets)
+    for side in ("left", "right"):
+        c = p.counters[side]
+        assert (c.drops, c.unpaired, c.timestamp_mismatches) == (0, 0, 0), side
+
+
+def test_host_fired_camera_keeps_its_count_unless_a_frame_precedes_its_pulse() -> None:
+    """A host-fired camera that took one trigger too few looks exactly like one the host fired late: its count
+    stands (the missing frame shows at the end). A frame stamped before its pulse proves a frame for no pulse: the
+    frames move back within ``confirm_frames``."""
+    p, sets = host_fired_run(120, {("right", 41): 60.0}, miss_trigger=frozenset({("right", 40)}))
+    assert [s.trigger_seq for s in sets if s.frames["right"] is None] == [119]
+    assert p.counters["right"].timestamp_mismatches == 0
+    p, sets = host_fired_run(60, {}, extra_frame=frozenset({("left", 20)}))
+    assert p.counters["left"].timestamp_mismatches == 1
+    by_seq = {s.trigger_seq: s for s in sets if s.frames["right"] is not None}
+    assert all(by_seq[k].complete for k in range(21, 60)) and all(by_seq[k].complete for k in range(20))

@@ -49,9 +49,9 @@ def test_cycle_time() -> None:
     assert [cycle_time_s(k, 6, 20.0) for k in (0, 5, 6, 11, 12)] == [0.0, 0.0, 0.3, 0.3, 0.6]
 
 
-def test_source_serves_identified_frames_by_exposure(tmp_path: Path) -> None:
-    """The source serves the next frame of the cycle with the triggered exposure; each carries its own index, equal
-    to what the renderer wrote; a skipped trigger resynchronises; an exposure outside the cycle has no identity."""
+def test_source_serves_each_side_its_next_bracket_frame(tmp_path: Path) -> None:
+    """The source serves each side its next bracket frame by count; each carries its own index, equal to what the
+    renderer wrote; an exposure outside the cycle has no frame and no identity."""
     sched = FrameSchedule(tmp_path, None, BRACKETS_US, 20.0, 24, resolution=(32, 16), wait_for_render_s=0.0)
     late = sched.source("right")(1000, 32, 16)  # nothing rendered yet (not started): served without identity
     assert read_frame_id(late) is None and sched.unidentified["right"] == 1 and sched.waited["right"] == 1
@@ -63,9 +63,12 @@ def test_source_serves_identified_frames_by_exposure(tmp_path: Path) -> None:
         first = src(1000, 32, 16)  # waits for the renderer
         assert read_frame_id(first) == 0
         assert read_frame_id(src(2000, 32, 16)) == 1
-        assert read_frame_id(src(8000, 32, 16)) == 3  # the 4000 us trigger was lost: resynchronised
-        priming = src(77, 32, 16)
+        # a fill that found another pulse's exposure in the register (filled late): still this side's next frame,
+        # as the pairer counts it (a stereo pair never shows two rendered frames)
+        assert read_frame_id(src(8000, 32, 16)) == 2 and sched.mismatches == 1
+        priming = src(77, 32, 16)  # not a bracket exposure: no frame, not counted
         assert read_frame_id(priming) is None and sched.unidentified["left"] == 1
+        assert read_frame_id(src(8000, 32, 16)) == 3
         assert read_frame_id(src(16000, 32, 16)) == 4
         cropped = src(32000, 16, 8)
         assert read_frame_id(cropped) == 5
