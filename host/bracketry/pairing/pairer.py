@@ -13,11 +13,12 @@ single late frame (host scheduling, a jittery fake camera) never moves anything.
 candidate are held back until it is confirmed or dropped.
 
 Cameras fired by the host (``initial_alignment="host_time"``: the fake camera, whose timestamps are host time) are
-checked against the pulse's host time instead. Such a camera gives one frame per trigger it takes, never before its
-pulse, but as late as the host's scheduling makes it: on a loaded machine whole bursts of frames of both cameras
-come one to many periods late, a session's first frames included, so lateness proves nothing (a running reference
-would learn it and re-sync a whole camera wrongly). The count stands unless ``confirm_frames`` frames are stamped
-before their pulse: the camera gave a frame for no pulse, and they move back by the smallest such ``m``.
+checked against host times instead. Such a camera gives one frame per trigger it takes, never before its pulse, but
+as late as the host's scheduling makes it: on a loaded machine whole bursts of frames of both cameras come one to
+many periods late, a session's first frames included, so lateness alone proves nothing (a running reference would
+learn it and re-sync a whole camera wrongly). A frame stamped before its pulse proves a frame for no pulse
+(``confirm_frames`` of them move back); a camera whose frames come whole periods later than the other cameras'
+frames of the same pulses (twice ``confirm_frames`` in a row) missed a pulse. The smallest such ``m`` is the shift.
 
 A trigger_seq is emitted (``PairedSet``) as soon as the event and every camera's frame are there, or when it falls
 ``window`` pulses behind the newest one seen (then with what is missing counted), or at ``flush()``.
@@ -82,6 +83,7 @@ class _SideState:
     recent: dict[int, int] = field(default_factory=dict)  # seq -> offset of recent frames (accepted or not)
     waiting: list = field(default_factory=list)  # frames before any event (host_time alignment)
     last_ok_seq: int | None = None  # last frame whose timestamp agreed with its pulse
+    stamps: dict[int, int] = field(default_factory=dict)  # seq -> camera timestamp (host-fired cameras)
     newest_seq: int = -1  # newest trigger_seq a frame of this side was assigned
 
 
@@ -193,9 +195,9 @@ class Pairer:
         With ``initial_alignment="counter"`` the CounterValue chunk is authoritative (for cameras whose Counter1 is
         configured to count trigger pulses and reset at START, first pulse = 1; the shipped camera profiles do not
         configure it, so the chunk is only recorded by default). With ``initial_alignment="host_time"`` (cameras
-        whose timestamps are host time, like the Aravis fake camera) it is the latest pulse that started before the
-        frame's timestamp, and None (frame ignored) when no pulse did. Otherwise the first frame is pulse 0 (k-th
-        frame since START).
+        whose timestamps are host time, like the Aravis fake camera) it is the first pulse, when one started before
+        the frame's timestamp (a frame late by whole periods is still the first pulse's), and None (frame ignored:
+        the priming trigger's) when none did. Otherwise the first frame is pulse 0 (k-th frame since START).
         """
         counter = getattr(frame, "counter_value", None)
         if self.initial_alignment == "counter" and counter is not None and counter > 0:
@@ -203,7 +205,7 @@ class Pairer:
         if self.initial_alignment == "host_time":
             started = [e.trigger_seq for e in self._events.values()
                        if e.t_start_host_ns is not None and e.t_start_host_ns <= frame.cam_timestamp_ns]
-            return max(started) if started else None
+            return min(started) if started else None
         return 0
 
     def _check_time(self, side: str, seq: int, frame: Any) -> int:
@@ -215,7 +217,7 @@ class Pairer:
         if self.initial_alignment == "host_time":
             host_ns = self._pulse_host_ns(seq)
             if host_ns is not None:
-                return self._check_host_time(side, seq, frame.cam_timestamp_ns - host_ns, period_ns)
+                return self._check_host_time(side, seq, frame.cam_timestamp_ns, host_ns, period_ns)
         offset = frame.cam_timestamp_ns - self._pulse_device_ns(seq)
         st.recent[seq] = offset
         if len(st.recent) > 64:
@@ -244,22 +246,42 @@ class Pairer:
             return seq
         return self._apply_shift(side, seq)
 
-    def _check_host_time(self, side: str, seq: int, late_ns: float, period_ns: float) -> int:
-        """The check of a host-fired camera's frame stamped ``late_ns`` after its pulse's host time (module doc)."""
+    def _check_host_time(self, side: str, seq: int, cam_ns: int, host_ns: float, period_ns: float) -> int:
+        """The check of a host-fired camera's frame stamped ``cam_ns``, assigned the pulse of host time ``host_ns``
+        (see the module doc)."""
         st = self._state[side]
+        st.stamps[seq] = cam_ns
+        if len(st.stamps) > 256:
+            del st.stamps[min(st.stamps)]
         tol = self.tolerance_fraction * period_ns
-        if late_ns >= -tol:  # at or after its pulse: however late, the count stands
+        late_ns = cam_ns - host_ns
+        if late_ns < -tol:  # before its pulse: the frame belongs to an earlier one, by at least m pulses
+            m = -math.ceil((-late_ns - tol) / period_ns)
+        else:  # later than another camera's frame of the same pulse by m whole periods (0: the host's lateness)
+            others = [self._state[o].stamps.get(seq) for o in self.sides if o != side]
+            known = [o_ns for o_ns in others if o_ns is not None]
+            m = max(0, math.floor((cam_ns - min(known) + tol) / period_ns)) if known else 0
+            for other in self.sides:  # and this frame may show that another camera's candidate is only host lag
+                o_st = self._state[other]
+                o_ns = o_st.stamps.get(seq)
+                if (other != side and o_st.candidate_shift > 0 and seq in o_st.candidate and o_ns is not None
+                        and o_ns - cam_ns < o_st.candidate_shift * period_ns - tol):
+                    log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", other, seq)
+                    o_st.candidate = []
+                    o_st.candidate_shift = 0
+        if m == 0:
             st.last_ok_seq = seq
             if st.candidate:
                 log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
             st.candidate = []
             st.candidate_shift = 0
             return seq
-        # before its pulse: the frame belongs to an earlier one, by at least m pulses (lateness only shortens it)
-        m = -math.ceil((-late_ns - tol) / period_ns)
+        if st.candidate and (m > 0) != (st.candidate_shift > 0):
+            st.candidate = []
+        # lateness only shortens an early frame's lead and lengthens a late one's lag: the smallest m is the shift
         st.candidate_shift = m if not st.candidate else min(st.candidate_shift, m)
         st.candidate.append(seq)
-        if len(st.candidate) < self.confirm_frames:
+        if len(st.candidate) < self.confirm_frames * (1 if m < 0 else 2):
             return seq
         return self._apply_shift(side, seq)
 
@@ -320,6 +342,8 @@ class Pairer:
                 self._emit_single(new, side, frame, "timestamp_mismatch")
                 continue
             self._pending.setdefault(new, {})[side] = frame
+            if old in st.stamps:
+                st.stamps[new] = st.stamps.pop(old)
             self._newest = max(self._newest, new)
             if old == first_moved:
                 self._notes.setdefault(new, {})[side] = "timestamp_mismatch"

@@ -7,8 +7,9 @@ Frame k of a side is the synthetic world at the world time of its bracket cycle 
 file per side and counts them in a small shared counter, so the rig starts recording while later frames are still
 being rendered. The fake camera's image source serves each side its next bracket frame, by count (the k-th bracket
 frame a camera fills is frame k, as the pairer gives the k-th frame a camera took the k-th pulse), so both images of
-a stereo pair show the same rendered frame, whatever the load; a fill whose exposure is not in the bracket cycle
-(the priming trigger) gets no frame.
+a stereo pair show the same rendered frame whatever the load; the exposure the camera reports only moves the count
+when two fills in a row show it off (see :meth:`FrameSchedule.source`), and a fill whose exposure is not in the
+bracket cycle (the priming trigger) gets no frame.
 
 Identity, not timing: every served frame carries the index k of the rendered frame it shows, written into its first
 :data:`FRAME_ID_PIXELS` pixels (row 0) by :func:`embed_frame_id`; :func:`read_frame_id` reads it back from a
@@ -108,6 +109,9 @@ class FrameSchedule:
     waited: dict[str, int] = field(default_factory=dict, init=False)
     #: bracket frames whose camera filled them with another exposure than their own (a late fill, see ``source``)
     mismatches: int = field(default=0, init=False)
+    #: times a side's count moved because two fills in a row showed the camera took one trigger for two, or two
+    #: frames for one (see ``source``)
+    resyncs: int = field(default=0, init=False)
     #: bracket frames served from an earlier rendered cycle because the renderer was behind (the world held)
     held: int = field(default=0, init=False)
 
@@ -128,6 +132,8 @@ class FrameSchedule:
                                                   shape=(3,))
         self._lock = threading.Lock()
         self._chosen: dict[int, int] = {}
+        #: per side, how far the latest fill's exposure was from its frame's (in frames of the cycle)
+        self._offset: dict[str, int] = {side: 0 for side in self.sides}
         self._proc: Any = None
 
     def frame_path(self, side: str) -> Path:
@@ -229,13 +235,21 @@ class FrameSchedule:
                 matched = k = None
                 if any(abs(b - exposure_us) <= 1 for b in self.brackets_us):
                     # the side's next bracket frame, by count: the pairer counts this camera's frames the same way
-                    # (one per trigger it took). The exposure only tells bracket frames from others: the fake camera
-                    # reads its exposure register when it fills a frame, and a late fill can find the next pulse's
-                    # exposure already written (a real sensor latches it at the trigger)
-                    matched = self.served[side]
-                    self.served[side] += 1
-                    if abs(self.exposure_us(matched) - exposure_us) > 1:
-                        self.mismatches += 1
+                    # (one per trigger it took). A fill whose exposure is another pulse's does not move the count:
+                    # the fake camera reads its exposure register when it fills a frame, and a late fill finds the
+                    # next pulse's exposure already written (a real sensor latches it at the trigger). Two fills in a
+                    # row off by the same d do: the camera took one trigger for two (d > 0) or filled twice for one
+                    # (d < 0), and the pairer moves its frames by d too (by their timestamps)
+                    c = self.served[side]
+                    d = next((d for d in (0, 1, -1, 2, -2, 3) if abs(self.exposure_us(c + d) - exposure_us) <= 1
+                              and c + d >= 0), 0)
+                    if d and self._offset[side] == d:
+                        matched, self._offset[side] = c + d, 0
+                        self.resyncs += 1
+                    else:
+                        matched, self._offset[side] = c, d
+                        self.mismatches += d != 0
+                    self.served[side] = matched + 1
                     k = self.choose(matched)
             frame = None
             if matched is not None:

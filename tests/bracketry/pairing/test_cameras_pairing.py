@@ -209,6 +209,8 @@ def test_host_fired_cameras_late_at_the_start_or_in_bursts_keep_their_pulses() -
         late[("left", 30 + i)] = late[("right", 30 + i)] = f * period_ms
     for k in range(60, 110):  # the host fires both cameras more than a period late for two seconds
         late[("left", k)], late[("right", k)] = 1.4 * period_ms, (1.4 + 0.1 * (k % 3)) * period_ms
+    for k in range(112, 116):  # one camera's thread alone two periods late for four frames
+        late[("left", k)] = 2.2 * period_ms
     p, sets = host_fired_run(120, late)
     assert [s.trigger_seq for s in sets] == list(range(120))
     assert all(s.complete and not s.notes for s in sets)
@@ -217,13 +219,15 @@ def test_host_fired_cameras_late_at_the_start_or_in_bursts_keep_their_pulses() -
         assert (c.drops, c.unpaired, c.timestamp_mismatches) == (0, 0, 0), side
 
 
-def test_host_fired_camera_keeps_its_count_unless_a_frame_precedes_its_pulse() -> None:
-    """A host-fired camera that took one trigger too few looks exactly like one the host fired late: its count
-    stands (the missing frame shows at the end). A frame stamped before its pulse proves a frame for no pulse: the
-    frames move back within ``confirm_frames``."""
+def test_host_fired_camera_that_missed_or_invented_a_pulse_is_resynced() -> None:
+    """A camera whose frames come a period later than the other camera's frames of the same pulses missed one: its
+    frames move on once ``2 * confirm_frames`` agree (the drop lands on the missed pulse). A frame stamped before its
+    pulse proves a frame for no pulse: the frames move back within ``confirm_frames``."""
     p, sets = host_fired_run(120, {("right", 41): 60.0}, miss_trigger=frozenset({("right", 40)}))
-    assert [s.trigger_seq for s in sets if s.frames["right"] is None] == [119]
-    assert p.counters["right"].timestamp_mismatches == 0
+    by_seq = {s.trigger_seq: s for s in sets if s.frames["left"] is not None}
+    assert p.counters["right"].drops == 1 and by_seq[40].frames["right"] is None
+    assert p.counters["right"].timestamp_mismatches == 1
+    assert all(by_seq[k].complete for k in range(41, 120))
     p, sets = host_fired_run(60, {}, extra_frame=frozenset({("left", 20)}))
     assert p.counters["left"].timestamp_mismatches == 1
     by_seq = {s.trigger_seq: s for s in sets if s.frames["right"] is not None}
