@@ -195,9 +195,10 @@ class Pairer:
         With ``initial_alignment="counter"`` the CounterValue chunk is authoritative (for cameras whose Counter1 is
         configured to count trigger pulses and reset at START, first pulse = 1; the shipped camera profiles do not
         configure it, so the chunk is only recorded by default). With ``initial_alignment="host_time"`` (cameras
-        whose timestamps are host time, like the Aravis fake camera) it is the first pulse, when one started before
-        the frame's timestamp (a frame late by whole periods is still the first pulse's), and None (frame ignored:
-        the priming trigger's) when none did. Otherwise the first frame is pulse 0 (k-th frame since START).
+        whose timestamps are host time, like the Aravis fake camera) it is the latest pulse that started before the
+        frame's timestamp (a first frame late by whole periods is moved back by the frames after it, stamped before
+        their pulses), and None (frame ignored: the priming trigger's) when none did. Otherwise the first frame is
+        pulse 0 (k-th frame since START).
         """
         counter = getattr(frame, "counter_value", None)
         if self.initial_alignment == "counter" and counter is not None and counter > 0:
@@ -205,7 +206,7 @@ class Pairer:
         if self.initial_alignment == "host_time":
             started = [e.trigger_seq for e in self._events.values()
                        if e.t_start_host_ns is not None and e.t_start_host_ns <= frame.cam_timestamp_ns]
-            return min(started) if started else None
+            return max(started) if started else None
         return 0
 
     def _check_time(self, side: str, seq: int, frame: Any) -> int:
@@ -270,7 +271,8 @@ class Pairer:
                     o_st.candidate = []
                     o_st.candidate_shift = 0
         if m == 0:
-            st.last_ok_seq = seq
+            if len(st.stamps) > 1:  # (a late first frame may have been aligned to a later pulse: not a reference)
+                st.last_ok_seq = seq
             if st.candidate:
                 log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
             st.candidate = []
