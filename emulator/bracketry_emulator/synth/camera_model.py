@@ -171,13 +171,18 @@ class CameraModel:
         levels = np.clip(np.rint(self.expected_levels(rate_e_per_us, exposure_us)), 0, N_LEVELS - 1).astype(np.int64)
         return self._lut[levels]
 
-    def expose(self, rate_e_per_us: np.ndarray, exposure_us: float, rng: np.random.Generator | None) -> np.ndarray:
+    def expose(self, rate_e_per_us: np.ndarray, exposure_us: float, rng: np.random.Generator | None,
+               normal: np.ndarray | None = None) -> np.ndarray:
         """One noisy frame: per-pixel electron rate float32 (H, W) (incl. QE and vignetting) -> uint16 codes (H, W).
 
-        ``rng`` None gives the noise-free image (same as :meth:`noise_free_codes`)."""
+        ``rng`` None gives the noise-free image (same as :meth:`noise_free_codes`). ``normal``: standard normal
+        variates already drawn, float32 (H * W,) in pixel order, used for the Gaussian noise instead of drawing them
+        from ``rng`` (a caller that keeps a bank of them; not with ``poisson``)."""
         if exposure_us <= 0:
             raise BracketryError(f"exposure must be > 0 us (got {exposure_us})")
-        if rng is None:
+        if normal is not None and (self.poisson or normal.size != np.size(rate_e_per_us)):
+            raise BracketryError("camera model: pre-drawn noise needs the Gaussian model and one value per pixel")
+        if rng is None and normal is None:
             return self.noise_free_codes(rate_e_per_us, exposure_us)
         f32 = np.float32
         rate = np.ascontiguousarray(rate_e_per_us, dtype=np.float32)
@@ -189,11 +194,16 @@ class CameraModel:
         for s0 in range(0, flat.size, _CHUNK):  # cache-sized chunks; the noise is drawn in pixel order
             mean_e = flat[s0:s0 + _CHUNK] * f32(exposure_us)
             np.minimum(mean_e, f32(2.0 * self.full_well_e), out=mean_e)
-            if self.poisson:
+            if normal is not None:
+                e = normal[s0:s0 + _CHUNK] * np.sqrt(mean_e + read_var)
+                e += mean_e
+            elif self.poisson:
+                assert rng is not None
                 e = rng.poisson(mean_e.astype(np.float64)).astype(np.float32)
                 if self.read_noise_e > 0:
                     e += rng.standard_normal(mean_e.shape, dtype=np.float32) * f32(self.read_noise_e)
             else:
+                assert rng is not None
                 e = rng.standard_normal(mean_e.shape, dtype=np.float32)
                 sigma = mean_e + read_var
                 np.sqrt(sigma, out=sigma)

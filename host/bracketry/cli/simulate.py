@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -91,6 +92,33 @@ def _end_with_sigterm(proc: subprocess.Popen) -> None:
     signal.signal(signal.SIGTERM, handler)
 
 
+#: recording starts at the latest this long after the command (the rest of the session start follows: the first
+#: frame is recorded within about 10 s)
+LEAD_DEADLINE_S = 7.0
+
+
+def wait_for_lead(schedule: Any, seconds: float, fps: float, started_mono_s: float) -> None:
+    """Before recording: wait until the renderer, at the rate it has shown so far, will keep ahead of the cameras for
+    the whole recording (every recorded frame then shows its own rendered frame: no world held), but no longer than
+    :data:`LEAD_DEADLINE_S` after the start, and at least until two seconds of frames are there."""
+    import time
+
+    schedule.wait(timeout_s=120.0, frames=round(2.0 * fps))
+    needed = min(schedule.n_frames, round((seconds + 2.0) * fps))
+    t0_s, k0 = time.monotonic(), schedule.rendered()
+    while True:
+        now_s, k = time.monotonic(), schedule.rendered()
+        if k >= needed or now_s >= started_mono_s + LEAD_DEADLINE_S:
+            return
+        if now_s - t0_s >= 1.0:
+            rate = (k - k0) / (now_s - t0_s)  # frames per second per side
+            if k + rate * seconds >= needed + fps:  # ahead until the end, with one second to spare
+                return
+        if schedule.failed():
+            raise BracketryError("the frame renderer failed")
+        time.sleep(0.1)
+
+
 def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: float, preset: str, seed: int,
         world: bool, monitor_port: int | None = None, world_seconds: float | None = None,
         keep_frames: bool = False) -> int:
@@ -101,7 +129,7 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     from bracketry.sim.rig import SimOptions, SimulatedRig, summary_json
     from bracketry.sim.scenario import run_session
 
-    started_ns = time.time_ns()
+    started_ns, started_mono_s = time.time_ns(), time.monotonic()
     opts = SimOptions(out_dir=out_dir, resolution=res, fps=fps, world_seconds=world_seconds or seconds + 5.0,
                       trigger=trigger, preset=preset, seed=seed, world=world, keep_frames=keep_frames,
                       echo=lambda s: click.echo(s, err=True), monitor_port=monitor_port)
@@ -110,8 +138,7 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     try:
         rig.prepare_frames()  # rendered ahead in a separate process while the rig starts and records
         rig.start()
-        # a lead of two seconds of frames before recording starts, so that the cameras rarely wait for the renderer
-        rig.schedule.wait(timeout_s=120.0, frames=round(2.0 * fps))
+        wait_for_lead(rig.schedule, seconds, fps, started_mono_s)
         session = run_session(rig, seconds)
         render_done_ns = rig.schedule.render_done_ns()
     finally:
@@ -132,6 +159,10 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     drops = {s: sum(r.sides[s].drops for r in reports if s in r.sides) for s in ("left", "right")}
     click.echo(f"simulated rig: recorded {session['recorded_s']} s, frames {frames}, drops {drops}, "
                f"{'verified clean' if summary['ok'] else 'PROBLEMS FOUND'}; summary {out_dir / 'simulation.json'}")
+    if rig.schedule is not None and rig.schedule.held:
+        click.echo(f"WARNING: the renderer fell behind the cameras: {rig.schedule.held} recorded frames show an "
+                   "earlier rendered cycle (the world held); every pose is still the shown frame's, but the walk is "
+                   "not that of an idle run")
     if first_ns is not None:
         click.echo(f"first frame recorded {(first_ns - started_ns) / 1e9:.1f} s after the start; rendering "
                    + ("still running then" if render_done_ns is None or render_done_ns > first_ns else

@@ -199,13 +199,18 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     if unknown:
         echo(f"      {unknown} recorded frames have no known pose (no rendered-frame identity, or a stereo pair of two "
              "rendered frames): left out of RTE/RRE, which are refused when that is more than 5 % of a run's frames")
+    held = int(sim.get("frames_held_for_renderer") or 0)
+    if held:
+        echo(f"      WARNING: the frame renderer fell behind the cameras on this loaded machine: {held} recorded "
+             "frames repeat an earlier rendered cycle (the world held); poses stay right, but the walk and so the "
+             "figures below are NOT those of an idle run")
     t_rec = time.monotonic() - t0
     dataset = export_dataset(p, sim, echo)
     result = benchmark(p, dataset, echo)
     best = best_per_metric(result.report_files["summary.csv"]) if "summary.csv" in result.report_files else {}
     summary = {"out_dir": str(p.out_dir), "seconds": p.seconds, "resolution": list(p.resolution),
                "frames": frames, "drops": drops, "recording_verified": bool(sim["ok"]),
-               "frames_without_pose": unknown,
+               "frames_without_pose": unknown, "frames_held_for_renderer": held,
                "recordings": sim["recordings"], "dataset": str(dataset),
                "methods": sorted({r["method"] for r in result.results}),
                "best": {k: {"method": v[0], "value": v[1]} for k, v in best.items()},

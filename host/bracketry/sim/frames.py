@@ -2,7 +2,7 @@
 carrying its own index.
 
 Frame k of a side is the synthetic world at the world time of its bracket cycle (:func:`cycle_time_s`) exposed
-``brackets[k % n]``. A renderer process
+``brackets[k % n]``. One renderer process per side
 (:func:`render_frames`, started by :meth:`FrameSchedule.start`) writes the frames in order into one shared memory
 file per side and counts them in a small shared counter, so the rig starts recording while later frames are still
 being rendered. The fake camera's image source serves each side its next bracket frame, by count (the k-th bracket
@@ -33,6 +33,9 @@ import numpy as np
 
 ProgressFn = Callable[[int, int], None]
 
+#: the renderer's noise: a frame's Gaussian noise is a window, at a random place, of this many frames' worth of
+#: standard normal variates drawn once per side (drawing them per frame cost more than half of exposing one)
+NOISE_BANK_FRAMES = 16
 #: pixels of row 0 holding a frame's identity (three data codes and a check code, 12-bit values)
 FRAME_ID_PIXELS = 4
 _TAGS = (0xA00, 0x500, 0xC00, 0x300)
@@ -127,14 +130,14 @@ class FrameSchedule:
             self.served[side] = 0
             self.unidentified[side] = 0
             self.waited[side] = 0
-        #: [frames rendered (both sides), renderer state: 0 running, 1 done, 2 failed, time.time_ns() when done]
+        #: per side: [frames rendered, renderer state: 0 running, 1 done, 2 failed, time.time_ns() when done]
         self._counter = np.lib.format.open_memmap(self.folder / "rendered.npy", mode="w+", dtype=np.int64,
-                                                  shape=(3,))
+                                                  shape=(len(self.sides), 3))
         self._lock = threading.Lock()
         self._chosen: dict[int, int] = {}
         #: per side, how far the latest fill's exposure was from its frame's (in frames of the cycle)
         self._offset: dict[str, int] = {side: 0 for side in self.sides}
-        self._proc: Any = None
+        self._procs: list[Any] = []
 
     def frame_path(self, side: str) -> Path:
         return self.folder / f"frames_{side}.npy"
@@ -150,24 +153,28 @@ class FrameSchedule:
 
     # ----------------------------------------------------------------------------------------------- rendering
     def start(self) -> FrameSchedule:
-        """Start the renderer process (returns at once; see :meth:`rendered` and :meth:`wait`)."""
+        """Start the renderer processes, one per side (returns at once; see :meth:`rendered` and :meth:`wait`).
+
+        One process per side: both cores when the machine is idle, and twice the share of a loaded one."""
         ctx = multiprocessing.get_context("spawn")  # the rig process runs GLib threads: never fork it
-        self._proc = ctx.Process(target=render_frames, name="bracketry-render", daemon=True,
-                                 args=(str(self.folder), self.world, list(self.brackets_us), self.fps,
-                                       int(self.n_frames), self.resolution, list(self.sides)))
-        self._proc.start()
+        for side in self.sides:
+            proc = ctx.Process(target=render_frames, name=f"bracketry-render-{side}", daemon=True,
+                               args=(str(self.folder), self.world, list(self.brackets_us), self.fps,
+                                     int(self.n_frames), self.resolution, [side], list(self.sides)))
+            proc.start()
+            self._procs.append(proc)
         return self
 
     def rendered(self) -> int:
-        """Frames rendered so far (per side)."""
-        return int(self._counter[0])
+        """Frames rendered so far on every side."""
+        return int(self._counter[:, 0].min())
 
     def render_done_ns(self) -> int | None:
         """Host time (``time.time_ns()``) when the last frame was rendered, None while rendering."""
-        return int(self._counter[2]) if int(self._counter[1]) == 1 else None
+        return int(self._counter[:, 2].max()) if bool((self._counter[:, 1] == 1).all()) else None
 
     def failed(self) -> bool:
-        return int(self._counter[1]) == 2 or (self._proc is not None and self._proc.exitcode not in (None, 0))
+        return bool((self._counter[:, 1] == 2).any()) or any(p.exitcode not in (None, 0) for p in self._procs)
 
     def wait(self, progress: ProgressFn | None = None, timeout_s: float | None = None,
              frames: int | None = None) -> None:
@@ -176,7 +183,7 @@ class FrameSchedule:
         wanted = self.n_frames if frames is None else min(int(frames), self.n_frames)
         while self.rendered() < wanted:
             if self.failed():
-                raise RuntimeError(f"the frame renderer failed (see {self.folder / 'render.log'})")
+                raise RuntimeError(f"the frame renderer failed (see {self.folder}/render_*.log)")
             if deadline is not None and time.monotonic() > deadline:
                 raise TimeoutError(f"frames not rendered within {timeout_s:g} s")
             if progress is not None:
@@ -186,10 +193,12 @@ class FrameSchedule:
             progress(wanted, self.n_frames)
 
     def stop(self) -> None:
-        """End the renderer process (if still running)."""
-        proc, self._proc = self._proc, None
-        if proc is not None and proc.is_alive():
-            proc.terminate()
+        """End the renderer processes (if still running)."""
+        procs, self._procs = self._procs, []
+        for proc in procs:
+            if proc.is_alive():
+                proc.terminate()
+        for proc in procs:
             proc.join(10)
 
     # ----------------------------------------------------------------------------------------------- serving
@@ -287,10 +296,12 @@ def _pattern(side: str, k: int, exposure_us: float, width: int, height: int) -> 
 
 
 def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[int], fps: float, n_frames: int,
-                  resolution: tuple[int, int], sides: list[str]) -> None:
-    """The renderer process: frame k of every side, k = 0, 1, ..., into the shared files, counting as it goes."""
+                  resolution: tuple[int, int], sides: list[str], all_sides: list[str] | None = None) -> None:
+    """A renderer process: frame k of each of ``sides``, k = 0, 1, ..., into the shared files, counting as it goes
+    (in the counter rows of those sides among ``all_sides``, default ``sides``)."""
     base = Path(folder)
     counter = np.load(base / "rendered.npy", mmap_mode="r+")
+    rows = [(all_sides or sides).index(s) for s in sides]
     frames = {s: np.load(base / f"frames_{s}.npy", mmap_mode="r+") for s in sides}
     try:
         world = None
@@ -299,21 +310,29 @@ def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[i
 
             world = World(world_spec.preset, seed=world_spec.seed, resolution=resolution)
         w, h = resolution
+        banks = {}
+        if world is not None:  # standard normal variates drawn once: each frame's noise is a window of them
+            for side in sides:
+                rng = np.random.default_rng(np.random.SeedSequence([world.seed, (all_sides or sides).index(side),
+                                                                    NOISE_BANK_FRAMES]))
+                banks[side] = rng.standard_normal((NOISE_BANK_FRAMES + 1) * w * h, dtype=np.float32)
         for k in range(n_frames):
             t_s, exp_us = cycle_time_s(k, len(brackets_us), fps), float(brackets_us[k % len(brackets_us)])
             for side in sides:
                 if world is not None:
-                    img = world.render(side, t_s, exp_us, rng=world.frame_rng(side, t_s, exp_us))
+                    at = int(world.frame_rng(side, t_s, exp_us).integers(0, NOISE_BANK_FRAMES * w * h))
+                    img = world.camera.expose(world.rate_e_per_us(side, t_s, exp_us), exp_us, None,
+                                              normal=banks[side][at:at + w * h])
                 else:
                     img = _pattern(side, k, exp_us, w, h)
                 embed_frame_id(img, k)
                 frames[side][k] = img
-            counter[0] = k + 1
-        counter[2] = time.time_ns()
-        counter[1] = 1
+            counter[rows, 0] = k + 1
+        counter[rows, 2] = time.time_ns()
+        counter[rows, 1] = 1
     except BaseException as exc:
-        counter[1] = 2
-        (base / "render.log").write_text(f"{type(exc).__name__}: {exc}\n")
+        counter[rows, 1] = 2
+        (base / f"render_{'_'.join(sides)}.log").write_text(f"{type(exc).__name__}: {exc}\n")
         raise
 
 

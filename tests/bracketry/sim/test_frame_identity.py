@@ -91,7 +91,7 @@ def test_a_renderer_behind_holds_the_world_for_both_sides(tmp_path: Path) -> Non
     """Frames not rendered yet: both sides get the latest rendered frame of the same exposure (same index), never a
     delayed trigger and never a frame without identity."""
     sched = FrameSchedule(tmp_path, None, BRACKETS_US, 20.0, 60, resolution=(32, 16), wait_for_render_s=0.0)
-    sched._counter[0] = 14  # frames 0..13 "rendered" (pattern frames, written here)
+    sched._counter[:, 0] = 14  # frames 0..13 "rendered" (pattern frames, written here)
     for k in range(14):
         for side in ("left", "right"):
             img = np.zeros((16, 32), np.uint16)
