@@ -21,7 +21,9 @@ trigger) has no identity: its pose is unknown and reported, never guessed.
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
+import os
 import threading
 import time
 from collections.abc import Callable, Sequence
@@ -36,6 +38,9 @@ ProgressFn = Callable[[int, int], None]
 #: the renderer's noise: a frame's Gaussian noise is a window, at a random place, of this many frames' worth of
 #: standard normal variates drawn once per side (drawing them per frame cost more than half of exposing one)
 NOISE_BANK_FRAMES = 16
+#: fills in a row a side must come most of a period after the other side's before it is taken to have missed a
+#: trigger (the pairer's twice ``confirm_frames`` for host-fired cameras)
+MISSED_CONFIRM_FRAMES = 6
 #: pixels of row 0 holding a frame's identity (three data codes and a check code, 12-bit values)
 FRAME_ID_PIXELS = 4
 _TAGS = (0xA00, 0x500, 0xC00, 0x300)
@@ -112,8 +117,7 @@ class FrameSchedule:
     waited: dict[str, int] = field(default_factory=dict, init=False)
     #: bracket frames whose camera filled them with another exposure than their own (a late fill, see ``source``)
     mismatches: int = field(default=0, init=False)
-    #: times a side's count moved because two fills in a row showed the camera took one trigger for two, or two
-    #: frames for one (see ``source``)
+    #: times a side's count skipped a frame: its fills came a period after the other side's (a missed trigger)
     resyncs: int = field(default=0, init=False)
     #: bracket frames served from an earlier rendered cycle because the renderer was behind (the world held)
     held: int = field(default=0, init=False)
@@ -135,8 +139,10 @@ class FrameSchedule:
                                                   shape=(len(self.sides), 3))
         self._lock = threading.Lock()
         self._chosen: dict[int, int] = {}
-        #: per side, how far the latest fill's exposure was from its frame's (in frames of the cycle)
-        self._offset: dict[str, int] = {side: 0 for side in self.sides}
+        #: per side: fill time (time.monotonic()) of its recent bracket frames, and its run of fills later than the
+        #: other side's by most of a period (see _follow_missed_trigger)
+        self._fill_s: dict[str, dict[int, float]] = {}
+        self._late_run: dict[str, int] = {}
         self._procs: list[Any] = []
 
     def frame_path(self, side: str) -> Path:
@@ -236,6 +242,31 @@ class FrameSchedule:
                     del self._chosen[old]
         return k
 
+    def _follow_missed_trigger(self, side: str, m: int, now_s: float) -> None:
+        """The pairer's rule for a camera that took one trigger for two, on fill times (the fake camera stamps a frame
+        when it fills it): when :data:`MISSED_CONFIRM_FRAMES` fills in a row of ``side`` came at least 0.7 period
+        after the other side's fills of the same bracket frames, ``side`` missed a trigger; its later fills skip one
+        frame, as the pairer moves its later frames on by one pulse. Call with the lock held."""
+        fills = self._fill_s.setdefault(side, {})
+        fills[m] = now_s
+        for old in [key for key in fills if key < m - 64]:
+            del fills[old]
+        others = [self._fill_s.get(o, {}).get(m) for o in self.sides if o != side]
+        known = [t for t in others if t is not None]
+        if not known:
+            return
+        if now_s - min(known) >= 0.7 / self.fps:
+            self._late_run[side] = self._late_run.get(side, 0) + 1
+            if self._late_run[side] >= MISSED_CONFIRM_FRAMES:
+                self._late_run[side] = 0
+                self.served[side] += 1
+                self.resyncs += 1
+        else:
+            self._late_run[side] = 0
+        for other in self.sides:  # a side that filled this frame before this one was not late with it
+            if other != side and m in self._fill_s.get(other, {}):
+                self._late_run[other] = 0
+
     def source(self, side: str) -> Callable[[int, int, int], np.ndarray]:
         """The fake camera image source of ``side``: (exposure_us, width, height) -> uint16 (height, width)."""
 
@@ -244,21 +275,13 @@ class FrameSchedule:
                 matched = k = None
                 if any(abs(b - exposure_us) <= 1 for b in self.brackets_us):
                     # the side's next bracket frame, by count: the pairer counts this camera's frames the same way
-                    # (one per trigger it took). A fill whose exposure is another pulse's does not move the count:
-                    # the fake camera reads its exposure register when it fills a frame, and a late fill finds the
-                    # next pulse's exposure already written (a real sensor latches it at the trigger). Two fills in a
-                    # row off by the same d do: the camera took one trigger for two (d > 0) or filled twice for one
-                    # (d < 0), and the pairer moves its frames by d too (by their timestamps)
-                    c = self.served[side]
-                    d = next((d for d in (0, 1, -1, 2, -2, 3) if abs(self.exposure_us(c + d) - exposure_us) <= 1
-                              and c + d >= 0), 0)
-                    if d and self._offset[side] == d:
-                        matched, self._offset[side] = c + d, 0
-                        self.resyncs += 1
-                    else:
-                        matched, self._offset[side] = c, d
-                        self.mismatches += d != 0
-                    self.served[side] = matched + 1
+                    # (one per trigger it took). The exposure only tells bracket frames from others: the fake camera
+                    # reads its exposure register when it fills a frame, and a late fill finds the next pulse's
+                    # exposure already written (a real sensor latches it at the trigger)
+                    matched = self.served[side]
+                    self.mismatches += abs(self.exposure_us(matched) - exposure_us) > 1
+                    self._follow_missed_trigger(side, matched, time.monotonic())
+                    self.served[side] += 1
                     k = self.choose(matched)
             frame = None
             if matched is not None:
@@ -299,6 +322,11 @@ def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[i
                   resolution: tuple[int, int], sides: list[str], all_sides: list[str] | None = None) -> None:
     """A renderer process: frame k of each of ``sides``, k = 0, 1, ..., into the shared files, counting as it goes
     (in the counter rows of those sides among ``all_sides``, default ``sides``)."""
+    parent = os.getppid()
+    # its own session: with the kernel's autogroup scheduling, a session's processes share one CPU share, so the
+    # renderer competes with other sessions' load rather than with the rig it feeds (which has its own)
+    with contextlib.suppress(OSError):
+        os.setsid()
     base = Path(folder)
     counter = np.load(base / "rendered.npy", mmap_mode="r+")
     rows = [(all_sides or sides).index(s) for s in sides]
@@ -317,6 +345,8 @@ def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[i
                                                                     NOISE_BANK_FRAMES]))
                 banks[side] = rng.standard_normal((NOISE_BANK_FRAMES + 1) * w * h, dtype=np.float32)
         for k in range(n_frames):
+            if k % 64 == 0 and os.getppid() != parent:
+                return  # the rig process is gone (killed): outside its process group, nobody else ends us
             t_s, exp_us = cycle_time_s(k, len(brackets_us), fps), float(brackets_us[k % len(brackets_us)])
             for side in sides:
                 if world is not None:

@@ -81,7 +81,9 @@ def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_show
     for side in recorded:
         assert len(recorded[side]) >= 20, (side, len(recorded[side]))
         known = [k for _t, k in recorded[side] if k is not None]
-        assert len(known) >= len(recorded[side]) // 2, f"{side}: {len(known)} of {len(recorded[side])} identified"
+        assert len(known) == len(recorded[side]), f"{side}: {len(known)} of {len(recorded[side])} identified"
+    # the renderer kept ahead: every bracket frame showed its own rendered frame (the world never held), as idle
+    assert summary["frames_held_for_renderer"] == 0
 
     # the ground truth: one pose per identified left frame, the world's pose at that frame's time; the rest listed
     from bracketry_emulator.synth import World
@@ -96,15 +98,11 @@ def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_show
     unknown_file = out / "groundtruth_unknown.txt"
     unknown = [int(x) for x in unknown_file.read_text().split()] if unknown_file.exists() else []
     assert summary["groundtruth"]["unknown"] == len(unknown)
-    # both images of a stereo pair show the same rendered frame (one world time per pair). Under load a fake
-    # camera may still apply a software-set exposure late (its image is then the previous bracket's frame): such a
-    # pair is rare and has no pose (listed as unknown below); a camera a whole cycle ahead of the other is a defect
+    # both images of a stereo pair show the same rendered frame (one world time per pair), late fills included
     right_by_t = dict(recorded["right"])
     split_pairs = [(t, k, right_by_t[t]) for t, k in recorded["left"]
                    if k is not None and right_by_t.get(t) is not None and right_by_t[t] != k]
-    assert len(split_pairs) <= max(2, len(recorded["left"]) // 50), \
-        f"stereo pairs of two rendered frames: {split_pairs[:5]}"
-    assert all(abs(kl - kr) < 6 for _t, kl, kr in split_pairs), split_pairs
+    assert not split_pairs, f"stereo pairs of two rendered frames: {split_pairs[:5]}"
     # a pair whose right image carries no identity has no known pose either
     left = sorted(((t, k if right_by_t.get(t, k) == k else None) for t, k in recorded["left"]), key=lambda tk: tk[0])
     assert len(left) == summary["groundtruth"]["frames"]
