@@ -11,7 +11,9 @@ Usage:
 selects matplotlib's TkAgg backend, so without ``$DISPLAY`` it runs under ``xvfb-run`` (Debian xvfb). Each repeat
 runs, as separate processes, the authors' script (methods classical-30/50/70, fixed-0, shim-0, kim-0, zhang-0, their
 initial 4 ms, saving images) and ``bracketry emulate -m fix,ae30,ae50,ae70,shim,kim,zhang --parity upstream`` (PNGs of
-both cameras, depth 12); it prints the median wall time of each, per (method, stereo step), and the ratio.
+both cameras, depth 12); it prints the median wall time of each, per (method, stereo step), and the ratio, and the
+CPU time (user + system of the process and its children) of each with its ratio, and the load average around each
+run: on a shared machine the wall-time ratio moves with the other jobs' load, the CPU-time ratio much less.
 
 Without ``BRACKETRY_BOREALHDR_CODE`` it says so and runs ``bench_ae.py``, the RE-IMPLEMENTATION of the authors'
 architecture, as a clearly labelled fallback.
@@ -22,6 +24,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import runpy
 import shutil
 import statistics
@@ -39,14 +42,22 @@ AUTHORS_METHODS = ["classical-30", "classical-50", "classical-70", "fixed-0", "s
 OUR_METHODS = "fix,ae30,ae50,ae70,shim,kim,zhang"
 
 
-def timed(cmd: list[str], cwd: Path | None = None) -> float:
-    """Wall time of one whole process (its output kept out of ours; a failure stops the benchmark)."""
+def timed(cmd: list[str], cwd: Path | None = None) -> tuple[float, float]:
+    """(wall s, CPU s = user + system of the process and everything it waited for) of one whole process (its
+    output kept out of ours; a failure stops the benchmark)."""
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     res = subprocess.run(cmd, cwd=cwd, stdin=subprocess.DEVNULL, capture_output=True, text=True)
     wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     if res.returncode != 0:
         raise SystemExit(f"failed ({res.returncode}): {' '.join(cmd)}\n{res.stderr[-2000:]}")
-    return wall
+    return wall, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
+
+
+def load() -> str:
+    """The 1-minute load average (this machine's other jobs)."""
+    return f"{os.getloadavg()[0]:.1f}"
 
 
 def count_pngs(folder: Path) -> int:
@@ -81,20 +92,29 @@ def main() -> int:
     xvfb = ["xvfb-run", "-a"] if not os.environ.get("DISPLAY") and shutil.which("xvfb-run") else []
     authors_s: list[float] = []
     ours_s: list[float] = []
+    authors_cpu: list[float] = []
+    ours_cpu: list[float] = []
     with tempfile.TemporaryDirectory(prefix="bench-authors-") as tmp:
         t = Path(tmp)
         for r in range(args.repeats):
             a_out, o_out = t / f"authors{r}", t / f"ours{r}"
-            authors_s.append(timed([*xvfb, python, str(script), "--dataset_folder", str(seq.parent), "--experiment",
-                                    seq.name, "--save_path", str(a_out), "--exposure_time_init", "4.0",
-                                    "--automatic_exposure_techniques", *AUTHORS_METHODS], cwd=script.parent))
-            ours_s.append(timed([str(bracketry), "emulate", str(seq), "-m", OUR_METHODS, "--parity", "upstream",
-                                 "--crf", str(pcalib),
-                                 "--init-exposure-ms", "4", "--depth", "12", "-o", str(o_out), "--overwrite", "-q"]))
+            load_a = load()
+            wall, cpu = timed([*xvfb, python, str(script), "--dataset_folder", str(seq.parent), "--experiment",
+                               seq.name, "--save_path", str(a_out), "--exposure_time_init", "4.0",
+                               "--automatic_exposure_techniques", *AUTHORS_METHODS], cwd=script.parent)
+            authors_s.append(wall)
+            authors_cpu.append(cpu)
+            load_o = load()
+            wall, cpu = timed([str(bracketry), "emulate", str(seq), "-m", OUR_METHODS, "--parity", "upstream",
+                               "--crf", str(pcalib),
+                               "--init-exposure-ms", "4", "--depth", "12", "-o", str(o_out), "--overwrite", "-q"])
+            ours_s.append(wall)
+            ours_cpu.append(cpu)
             n_seq = json.loads((o_out / "summary.json").read_text())["sequences"]
-            print(f"repeat {r + 1}/{args.repeats}: authors' emulator_threads.py {authors_s[-1]:.1f} s "
-                  f"({count_pngs(a_out)} PNGs), bracketry emulate {ours_s[-1]:.1f} s ({count_pngs(o_out)} PNGs)",
-                  flush=True)
+            print(f"repeat {r + 1}/{args.repeats}: authors' emulator_threads.py {authors_s[-1]:.1f} s, CPU "
+                  f"{authors_cpu[-1]:.1f} s ({count_pngs(a_out)} PNGs, load {load_a}); bracketry emulate "
+                  f"{ours_s[-1]:.1f} s, CPU {ours_cpu[-1]:.1f} s ({count_pngs(o_out)} PNGs, load {load_o}, then "
+                  f"{load()}); ratio {authors_s[-1] / ours_s[-1]:.1f}x", flush=True)
             if r + 1 < args.repeats:
                 shutil.rmtree(a_out, ignore_errors=True)
                 shutil.rmtree(o_out, ignore_errors=True)
@@ -107,6 +127,9 @@ def main() -> int:
     print(f"bracketry emulate:                                 median {mo:.1f} s = {mo / steps:.3f} s per "
           f"(method, stereo step)")
     print(f"ratio: {ma / mo:.1f}x (medians of {args.repeats} runs each, side by side)")
+    ca, co = statistics.median(authors_cpu), statistics.median(ours_cpu)
+    print(f"CPU time (user + system): authors' median {ca:.1f} s, bracketry emulate median {co:.1f} s, "
+          f"ratio {ca / co:.1f}x")
     return 0
 
 

@@ -68,7 +68,7 @@ class UpstreamShimAE:
     """Shim as the authors' code runs it (see the module docstring; id ``shim`` with ``--parity upstream``)."""
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 150
+    step_cost = 215
 
     def __init__(self, delta: float = 0.06, lam: float = 1e3, kp: float = 0.2, name: str = "shim") -> None:
         self.delta, self.lam, self.kp = delta, lam, kp
@@ -158,7 +158,7 @@ class UpstreamKimAE:
     """
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 130
+    step_cost = 150
 
     def __init__(self, seed: int = 0, name: str = "kim") -> None:
         self.seed = seed
@@ -277,7 +277,7 @@ class UpstreamZhangAE:
     """
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 150
+    step_cost = 170
 
     _SCHARR_X = np.array([[3, 0, -3], [10, 0, -10], [3, 0, -3]], dtype=np.float64)
     _SCHARR_Y = np.array([[3, 10, 3], [0, 0, 0], [-3, -10, -3]], dtype=np.float64)
