@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import concurrent.futures
+import json
 import multiprocessing
+import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.benchmark.emulated_runs import all_methods, loop_config
@@ -22,6 +25,8 @@ class BenchmarkResult:
     results: list[dict]
     out_dir: Path
     report_files: dict[str, Path]
+    #: where the time went (:func:`stage_document`)
+    timing: dict = field(default_factory=dict)
 
 
 def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> list[str]:
@@ -109,7 +114,7 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
                   progress: bool = False, loop: dict | None = None,
                   on_done: Callable[[dict], None] | None = None, slam: dict | None = None,
                   slam_echo: Callable[[str], None] | None = None,
-                  stats_methods: str | list[str] = "paper") -> BenchmarkResult:
+                  stats_methods: str | list[str] = "paper", write_images: bool = False) -> BenchmarkResult:
     """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
     ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally,
@@ -119,6 +124,11 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     settings (selection, crf, init_exposure_us, seed, ae_camera; see
     :data:`~bracketry_emulator.benchmark.emulated_runs.LOOP_DEFAULTS`), part of every cache key.
     ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
+    Locally (no scheduler, no ``slam_dir``, no ``export_orbslam``) SLAM gets the emulated images in memory
+    (:mod:`~bracketry_emulator.benchmark.stream`: every run of a trajectory is fed by its one closed-loop pass) and
+    PNGs are written only with ``write_images``; otherwise the closed loops write PNGs and SLAM reads them.
+    Where the time went is in the report's stage table and ``report/stages.json``
+    (:mod:`~bracketry_emulator.benchmark.stages`).
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO); with
     ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and spread
     (statistics on the medians). Paced ORB-SLAM3 runs mostly wait: locally twice ``workers`` of them run at once.
@@ -155,20 +165,77 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     references = {s.name: _reference(s, out) for s in specs}
     tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam_path, weights, loop, slam_opts, r,
                        references[s.name]) for s in specs for m in method_ids for r in range(repeats)]
-    if scheduler is None and slam_path is None:
-        _shared_closed_loops(specs, tasks, out, weights, workers, progress, loop)
+    from bracketry_emulator.benchmark.stages import StageTimes
+
+    t_start = time.perf_counter()
+    stages = StageTimes()
     paced = slam_opts.get("backend") == "orbslam3" and slam_opts.get("pace") != 0.0
     slam_workers = workers * 2 if paced and workers > 1 else workers
-    runs = _run_dask(tasks, scheduler, on_done) if scheduler else _run_local(tasks, slam_workers, on_done)
+    if scheduler is None and slam_path is None and not export_orbslam:
+        streamed = _streamed(specs, tasks, out, weights, workers, progress, loop, write_images, stages, on_done)
+        runs = [*streamed, *_run_local([t for t in tasks if t["key"] not in {r["key"] for r in streamed}],
+                                       slam_workers, on_done)]
+    elif scheduler is None:
+        if slam_path is None:
+            _shared_closed_loops(specs, tasks, out, weights, workers, progress, loop)
+        runs = _run_local(tasks, slam_workers, on_done)
+    else:
+        runs = _run_dask(tasks, scheduler, on_done)
+    for r in runs:  # this invocation's SLAM and metrics seconds (cached results did no work now)
+        if not r.get("cached") and r.get("stages"):
+            stages.merge(r["stages"])
     results = group_repeats(runs)
     results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
     files: dict[str, Path] = {}
+    timing = stage_document(stages, results, time.perf_counter() - t_start, len(runs),
+                            sum(1 for r in runs if r.get("cached")))
     if report:
         from bracketry_emulator.report import write_report
 
-        files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha, slam=slam_opts,
-                             stats_methods=select_stats_methods(stats_methods, method_ids, reference))
-    return BenchmarkResult(results, out, files)
+        with stages.time("report"):
+            files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha, slam=slam_opts,
+                                 stats_methods=select_stats_methods(stats_methods, method_ids, reference),
+                                 stages=timing)
+        timing = {**timing, "stages": stages.as_dict(), "wall_s": round(time.perf_counter() - t_start, 3)}
+        files["stages.json"] = out / "report" / "stages.json"
+        files["stages.json"].write_text(json.dumps(timing, indent=1) + "\n")
+    return BenchmarkResult(results, out, files, timing)
+
+
+def stage_document(stages: Any, results: list[dict], wall_s: float, n_runs: int, n_cached: int) -> dict:
+    """The benchmark's timing: machine, trajectory seconds (per trajectory, the longest run's duration), wall clock,
+    runs (and how many came from the cache, which add nothing to the stages) and the stage seconds."""
+    import math
+
+    from bracketry_emulator.benchmark.stages import describe_machine
+
+    per_traj: dict[str, float] = {}
+    for r in results:
+        d = float(r.get("duration_s", math.nan))
+        if math.isfinite(d):
+            per_traj[r["trajectory"]] = max(per_traj.get(r["trajectory"], 0.0), d)
+    return {"machine": describe_machine(), "trajectory_s": round(sum(per_traj.values()), 3),
+            "trajectories": per_traj, "wall_s": round(wall_s, 3), "runs": n_runs, "runs_cached": n_cached,
+            "stages": stages.as_dict()}
+
+
+def _streamed(specs: list[TrajectorySpec], tasks: list[dict], out: Path, drl_weights: str | None, workers: int,
+              progress: bool, loop: dict | None, write_images: bool, stages: Any,
+              on_done: Callable[[dict], None] | None) -> list[dict]:
+    """Per trajectory, the tasks still to run (not cached, no existing run) in one in-memory pass (see
+    :mod:`~bracketry_emulator.benchmark.stream`); returns their results."""
+    from bracketry_emulator.benchmark.stream import stream_trajectory
+    from bracketry_emulator.benchmark.tasks import load_cached
+
+    out_results: list[dict] = []
+    for spec in specs:
+        todo = [t for t in tasks if t["trajectory"] == spec.name and not t["existing_run"]
+                and load_cached(t) is None]
+        if todo:
+            out_results += stream_trajectory(spec, todo, out, drl_weights=drl_weights, workers=workers,
+                                             progress=progress, loop=loop, write_images=write_images,
+                                             stages=stages, on_done=on_done)
+    return out_results
 
 
 def _reference(spec: TrajectorySpec, out: Path) -> Path | None:

@@ -115,7 +115,7 @@ def run_slam(opts: dict | None, run_dir: Path, calibration_dir: str, vo_dir: Pat
                         OrbSlam3Options(o["vocabulary"], pace_s=pace, loop_closing=o["loop_closing"]),
                         max_frames=max_frames)
     return {"backend": "orbslam3", "s_per_frame": info.get("track_s_median", float("nan")), **{
-        k: info[k] for k in ("settings", "vocabulary_load_s", "raw_states") if k in info}}
+        k: info[k] for k in ("settings", "vocabulary_load_s", "raw_states", "wall_s", "cpu_s", "source") if k in info}}
 
 
 #: metrics combined over repeats by their median

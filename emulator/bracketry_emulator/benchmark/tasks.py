@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import time
 from pathlib import Path
 
 from bracketry_emulator.benchmark.emulated_runs import loop_options
@@ -150,24 +151,56 @@ def run_task(task: dict) -> dict:
         from bracketry_emulator.vo.orbslam import export_orbslam
 
         export_orbslam(run_dir, task["calibration"], out / "orbslam" / task["trajectory"] / task["method"])
-    vo_dir = out / "vo" / task["trajectory"] / _run_name(task)
-    base = {"trajectory": task["trajectory"], "subset": task["subset"], "method": task["method"],
-            "repeat": int(task.get("repeat", 0)), "key": task["key"], "run_dir": str(run_dir),
-            "vo_dir": str(vo_dir)}
+    vo_dir = vo_path(task)
     if task.get("slam_dir"):
         from bracketry_emulator.vo.orbslam import import_orbslam
 
         slam = Path(task["slam_dir"]) / task["trajectory"] / task["method"]
         import_orbslam(slam, run_dir / "times_images_left.txt", vo_dir)
-        info: dict = {"backend": "external", "s_per_frame": float("nan")}
-    else:
-        try:
-            info = run_slam(task.get("slam"), run_dir, task["calibration"], vo_dir, task["max_frames"])
-        except BracketryError as exc:  # this run only: a clear line in the report, the benchmark goes on
-            return {**base, **failed_metrics(), "slam": task.get("slam", {}).get("backend", "builtin"),
-                    "s_per_frame": float("nan"), "error": str(exc), "cached": False}
-    metrics = evaluate_run(vo_dir, task["groundtruth"], tuple(task["windows_m"]))
-    result = {**base, **metrics, "slam": info["backend"], "s_per_frame": info["s_per_frame"]}
+        return complete_task(task, run_dir, {"backend": "external", "s_per_frame": float("nan")})
+    t0, c0 = time.perf_counter(), time.thread_time()
+    try:
+        info = run_slam(task.get("slam"), run_dir, task["calibration"], vo_dir, task["max_frames"])
+    except BracketryError as exc:  # this run only: a clear line in the report, the benchmark goes on
+        return complete_task(task, run_dir, None, str(exc),
+                             slam_s=(time.perf_counter() - t0, time.thread_time() - c0))
+    return complete_task(task, run_dir, info, slam_s=(time.perf_counter() - t0, time.thread_time() - c0))
+
+
+def vo_path(task: dict) -> Path:
+    """Where a task's SLAM output goes: ``out/vo/<trajectory>/<method>[.r<repeat>]``."""
+    return Path(task["out"]) / "vo" / task["trajectory"] / _run_name(task)
+
+
+def complete_task(task: dict, run_dir: Path, info: dict | None, error: str | None = None,
+                  slam_s: tuple[float, float] | None = None) -> dict:
+    """The result of a task whose SLAM run is over: its metrics (timed), written to the cache; or, with ``error``
+    (the SLAM run failed), NaN metrics and the error line, not cached.
+
+    ``info``: the SLAM run's facts (backend, s_per_frame; a child process's ``wall_s``/``cpu_s``). ``slam_s``:
+    (wall, CPU) seconds of an in-process run. The result's ``stages`` holds the SLAM and metrics seconds of this
+    run (:mod:`~bracketry_emulator.benchmark.stages`)."""
+    from bracketry_emulator.benchmark.stages import StageTimes
+
+    vo_dir = vo_path(task)
+    stages = StageTimes()
+    if info is not None and "wall_s" in info:
+        stages.add("slam", info["wall_s"], info.get("cpu_s", float("nan")))
+    elif slam_s is not None:
+        stages.add("slam", *slam_s)
+    base = {"trajectory": task["trajectory"], "subset": task["subset"], "method": task["method"],
+            "repeat": int(task.get("repeat", 0)), "key": task["key"], "run_dir": str(run_dir),
+            "vo_dir": str(vo_dir)}
+    if error is not None or info is None:
+        return {**base, **failed_metrics(), "slam": task.get("slam", {}).get("backend", "builtin"),
+                "s_per_frame": float("nan"), "error": error or "the SLAM run failed", "cached": False,
+                "stages": stages.as_dict()}
+    with stages.time("metrics"):
+        metrics = evaluate_run(vo_dir, task["groundtruth"], tuple(task["windows_m"]))
+    result = {**base, **metrics, "slam": info["backend"], "s_per_frame": info["s_per_frame"],
+              "stages": stages.as_dict()}
+    if info.get("source"):
+        result["slam_input"] = info["source"]
     _write_atomic(cache_path(task), json.dumps(result))
     result["cached"] = False
     return result

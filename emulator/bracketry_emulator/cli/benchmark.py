@@ -59,6 +59,9 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--alpha", default=0.05, show_default=True, type=Number(0, 1, min_open=True, max_open=True),
               help="Significance level before the Bonferroni correction, in (0, 1).")
 @click.option("--max-frames", default=None, type=Integer(2), help="Only the first N frames of each run (N >= 2).")
+@click.option("--write-images", is_flag=True,
+              help="Also write every emulated image as a PNG under OUT/runs/<trajectory>/<method>/ (default: SLAM "
+                   "gets them in memory and no PNG is written).")
 @click.option("--export-orbslam", is_flag=True,
               help="Also export each run for ORB-SLAM2/3's stereo examples to OUT/orbslam/<trajectory>/<method>/.")
 @click.option("--slam-trajectories", "slam_dir", default=None, type=input_dir(),
@@ -92,7 +95,8 @@ def _windows(text: str) -> tuple[float, ...]:
 @quiet_option("No progress bar for the closed loops.")
 def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_dir: Path, reference: str,
             scheduler: str | None, workers: int, windows_text: str, alpha: float, max_frames: int | None,
-            export_orbslam: bool, slam_dir: Path | None, drl_weights: Path | None, selection: str, crf: str,
+            write_images: bool, export_orbslam: bool, slam_dir: Path | None, drl_weights: Path | None,
+            selection: str, crf: str,
             init_exposure_ms: float, seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: Path | None,
             slam_pace: str, loop_closing: bool, slam_repeats: int, quiet: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
@@ -100,7 +104,8 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
     in one pass that decodes each bracket sequence once; then per (trajectory, method) ORB-SLAM3 stereo (each run
     in its own process, its output in a log beside the run; a failed run is a line in the report) or the built-in
-    VO, RTE/RRE with evo, the distance tracked and the failure metrics. Results are cached under
+    VO, RTE/RRE with evo, the distance tracked and the failure metrics. SLAM gets the emulated images in memory
+    as the closed loops make them (PNGs only with --write-images or --export-orbslam). Results are cached under
     OUT/cache, so running the same command again resumes. The report is written to OUT/report (CSV, Markdown,
     HTML, figures). Exit code 0.
     """
@@ -133,7 +138,7 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
                            workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
                            export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
                            progress=not quiet, on_done=done, slam=slam, slam_echo=click.echo,
-                           stats_methods=stats_methods,
+                           stats_methods=stats_methods, write_images=write_images,
                            loop={"selection": selection, "crf": crf, "init_exposure_us": init_exposure_ms * 1000.0,
                                  "seed": seed, "ae_camera": ae_camera, "parity": parity})
     click.echo(f"report: {result.report_files.get('report.html')}")

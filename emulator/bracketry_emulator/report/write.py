@@ -66,10 +66,12 @@ def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, d
 
 
 def write_report(results: list[dict], out_dir: str | Path, reference: str, methods: list[str],
-                 alpha: float = 0.05, slam: dict | None = None, stats_methods: list[str] | None = None
-                 ) -> dict[str, Path]:
+                 alpha: float = 0.05, slam: dict | None = None, stats_methods: list[str] | None = None,
+                 stages: dict | None = None) -> dict[str, Path]:
     """Write every table and figure; returns {name: path}. ``slam``: the SLAM options (named in the report).
-    ``stats_methods``: the methods the statistical tests cover (default: all of ``methods``)."""
+    ``stats_methods``: the methods the statistical tests cover (default: all of ``methods``). ``stages``: where the
+    benchmark's time went (:func:`~bracketry_emulator.benchmark.orchestrate.stage_document`): the report ends with
+    its stage table (also ``stages.csv``)."""
     from bracketry_emulator.benchmark.slam import describe
     rep = Path(out_dir) / "report"
     rep.mkdir(parents=True, exist_ok=True)
@@ -139,6 +141,10 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     for title, rows in sections:
         md += [f"## {title}", "", _markdown(rows), ""]
     md += ["## Figures", ""] + [f"![{cap}]({name})\n" for name, cap in figs]
+    stage_rows, stage_text = _stage_section(stages)
+    if stage_rows:
+        files["stages.csv"] = _write_csv(rep / "stages.csv", stage_rows)
+        md += ["## Where the time went", "", stage_text, "", _markdown(stage_rows), ""]
     files["report.md"] = rep / "report.md"
     files["report.md"].write_text("\n".join(md))
     style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse;margin:8px 0}"
@@ -150,12 +156,32 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     body.append("<h2>Figures</h2>")
     body += [f"<figure><img src='{n}' alt='{html.escape(c)}'><figcaption>{html.escape(c)}</figcaption></figure>"
              for n, c in figs]
+    if stage_rows:
+        body.append(f"<h2>Where the time went</h2><p>{html.escape(stage_text)}</p>{_html_table(stage_rows)}")
     files["report.html"] = rep / "report.html"
     files["report.html"].write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>AE benchmark</title>"
                                     f"<style>{style}</style></head><body>{''.join(body)}</body></html>")
     files["results.json"] = rep / "results.json"
     files["results.json"].write_text(json.dumps(results, indent=1, default=float))
     return files
+
+
+def _stage_section(doc: dict | None) -> tuple[list[list[str]], str]:
+    """The stage table and its one-paragraph legend (machine, trajectory minutes, cached runs)."""
+    from bracketry_emulator.benchmark.stages import machine_line, stage_rows
+
+    if not doc or not doc.get("stages"):
+        return [], ""
+    rows = stage_rows(doc["stages"], float(doc.get("trajectory_s", 0.0)), doc.get("wall_s"))
+    minutes = float(doc.get("trajectory_s", 0.0)) / 60.0
+    cached = int(doc.get("runs_cached", 0))
+    text = (f"Measured on {machine_line(doc.get('machine', {}))}. {minutes:.2f} trajectory-minutes benchmarked; "
+            "seconds are summed over the threads and processes that did the work (stages overlap, so they do not "
+            "add up to the wall clock); SLAM = each run's process from start to exit (paced runs wait for their "
+            "frames' time) and its CPU time.")
+    if cached:
+        text += f" {cached} of {doc.get('runs', cached)} SLAM runs came from the cache (no time spent now)."
+    return rows, text
 
 
 def _window_text(results: list[dict]) -> str:

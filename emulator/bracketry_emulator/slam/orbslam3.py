@@ -28,6 +28,7 @@ import os
 import signal
 import subprocess
 import sys
+import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -93,34 +94,87 @@ def _last_line(log: Path) -> str:
     return lines[-1][:200] if lines else ""
 
 
-def run_orbslam3(run_dir: str | Path, calibration_dir: str | Path, out_dir: str | Path, options: OrbSlam3Options,
-                 max_frames: int | None = None) -> dict:
-    """Track a whole run with ORB-SLAM3 in a child process; write the VO output layout; return ``slam.json``."""
+@dataclass
+class SlamChild:
+    """A running SLAM child process (:func:`start_child`); :func:`wait_child` collects it."""
+
+    proc: subprocess.Popen[bytes]
+    out_dir: Path
+    log: Path
+    started: float
+    timeout_s: float
+
+
+def start_child(request: dict, out_dir: str | Path, timeout_s: float = 3600.0) -> SlamChild:
+    """Start ``python -m bracketry_emulator.slam.orbslam3_child`` on ``request`` (written to
+    ``out_dir/request.json``; see that module), its stdout/stderr file descriptors into ``out_dir/orbslam3.log``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     for old in (*out.glob("CameraTrajectory*.txt"), out / "frames.csv", out / "slam.json"):
         old.unlink(missing_ok=True)
-    if not Path(options.vocabulary).is_file():
-        raise SlamRunError(f"ORB-SLAM3 vocabulary not found: {options.vocabulary}")
-    request = {"run_dir": str(run_dir), "calibration_dir": str(calibration_dir), "out_dir": str(out),
-               "max_frames": max_frames, "options": asdict(options)}
-    (out / "request.json").write_text(json.dumps(request, indent=1))
+    (out / "request.json").write_text(json.dumps({**request, "out_dir": str(out)}, indent=1))
     log = out / "orbslam3.log"
     env = dict(os.environ, OMP_NUM_THREADS="1")
     with open(log, "wb") as fh:
-        try:
-            proc = subprocess.run([sys.executable, "-m", "bracketry_emulator.slam.orbslam3_child",
-                                   str(out / "request.json")], stdin=subprocess.DEVNULL, stdout=fh,
-                                  stderr=subprocess.STDOUT, env=env, timeout=options.timeout_s, check=False)
-        except subprocess.TimeoutExpired:
-            raise SlamRunError(f"ORB-SLAM3 did not finish within {options.timeout_s:g} s (log: {log})") from None
-    result_file = out / "slam.json"
-    if proc.returncode != 0 or not result_file.is_file():
-        why = (f"killed by {_signal_name(proc.returncode)}" if proc.returncode < 0
-               else f"exit code {proc.returncode}")
-        last = _last_line(log)
-        raise SlamRunError(f"ORB-SLAM3 failed ({why}){': ' + last if last else ''} (log: {log})")
-    return dict(json.loads(result_file.read_text()))
+        proc = subprocess.Popen([sys.executable, "-m", "bracketry_emulator.slam.orbslam3_child",
+                                 str(out / "request.json")], stdin=subprocess.DEVNULL, stdout=fh,
+                                stderr=subprocess.STDOUT, env=env)
+    return SlamChild(proc, out, log, time.perf_counter(), timeout_s)
+
+
+def wait_child(child: SlamChild) -> dict:
+    """Wait for a child of :func:`start_child`; its ``slam.json`` plus ``wall_s`` and ``cpu_s`` (user + system CPU
+    of the whole child process, all its threads). A crash, an exit code or no ``slam.json`` raises
+    :class:`SlamRunError` naming the exit status and the log's last line; past its timeout the child is killed."""
+    pid = child.proc.pid
+    deadline = child.started + child.timeout_s
+    while True:
+        wpid, status, usage = os.wait4(pid, os.WNOHANG)
+        if wpid == pid:
+            break
+        if time.perf_counter() > deadline:
+            child.proc.kill()
+            os.wait4(pid, 0)
+            child.proc.returncode = -signal.SIGKILL
+            raise SlamRunError(f"the SLAM run did not finish within {child.timeout_s:g} s (log: {child.log})")
+        time.sleep(0.05)
+    rc = os.waitstatus_to_exitcode(status)
+    child.proc.returncode = rc  # reaped here: Popen must not wait again
+    wall_s = time.perf_counter() - child.started
+    result_file = child.out_dir / "slam.json"
+    if rc != 0 or not result_file.is_file():
+        why = f"killed by {_signal_name(rc)}" if rc < 0 else f"exit code {rc}"
+        last = _last_line(child.log)
+        name = "ORB-SLAM3" if _backend(child) == "orbslam3" else "the SLAM process"
+        raise SlamRunError(f"{name} failed ({why}){': ' + last if last else ''} (log: {child.log})")
+    return {**json.loads(result_file.read_text()), "wall_s": wall_s, "cpu_s": usage.ru_utime + usage.ru_stime}
+
+
+def _backend(child: SlamChild) -> str:
+    try:
+        return str(json.loads((child.out_dir / "request.json").read_text()).get("backend", "orbslam3"))
+    except (OSError, ValueError):
+        return "orbslam3"
+
+
+def orbslam3_request(run_dir: str | Path | None, calibration_dir: str | Path, options: OrbSlam3Options,
+                     max_frames: int | None = None, frames_fifo: str | Path | None = None,
+                     fps: float | None = None) -> dict:
+    """The child's request for an ORB-SLAM3 run over a run folder's PNGs (``run_dir``) or an in-memory frame
+    stream (``frames_fifo``, then ``fps``: the frame rate ORB-SLAM3's settings get)."""
+    if not Path(options.vocabulary).is_file():
+        raise SlamRunError(f"ORB-SLAM3 vocabulary not found: {options.vocabulary}")
+    return {"backend": "orbslam3", "run_dir": str(run_dir) if run_dir else None,
+            "frames_fifo": str(frames_fifo) if frames_fifo else None, "fps": fps,
+            "calibration_dir": str(calibration_dir), "max_frames": max_frames, "options": asdict(options)}
+
+
+def run_orbslam3(run_dir: str | Path, calibration_dir: str | Path, out_dir: str | Path, options: OrbSlam3Options,
+                 max_frames: int | None = None) -> dict:
+    """Track a whole run folder with ORB-SLAM3 in a child process; write the VO output layout; return
+    ``slam.json`` (plus the child's ``wall_s`` and ``cpu_s``)."""
+    request = orbslam3_request(run_dir, calibration_dir, options, max_frames)
+    return wait_child(start_child(request, out_dir, options.timeout_s))
 
 
 def pose_from_result(pose_wc: np.ndarray) -> np.ndarray:

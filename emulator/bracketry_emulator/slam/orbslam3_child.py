@@ -7,13 +7,51 @@ presence tells the parent the run finished). Exit code 0 on success, 1 with a on
 
 from __future__ import annotations
 
+import itertools
 import json
 import os
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
+
+
+def _frames(request: dict) -> tuple[Iterator[tuple[int, np.ndarray, np.ndarray]], float | None]:
+    """The run's stereo frames as (t_ns, left gray8, right gray8) and, from a run folder, its frame rate (a stream's
+    comes with the request): from ``frames_fifo`` (in memory, see :mod:`.frame_stream`) or ``run_dir`` (PNGs)."""
+    from bracketry_emulator.vo.runner import png_frames, raw_to_gray8
+
+    if request.get("frames_fifo"):
+        from bracketry_emulator.slam.frame_stream import read_stream
+
+        return raw_to_gray8(read_stream(request["frames_fifo"])), None
+    n, frames = png_frames(request["run_dir"], max_frames=request.get("max_frames"))
+    times = _times(request["run_dir"], n)
+    span_s = (times[-1] - times[0]) * 1e-9
+    fps = (len(times) - 1) / span_s if len(times) > 1 and span_s > 0 else 1.0
+    return frames, fps
+
+
+def _times(run_dir: str, n: int) -> list[int]:
+    from bracketry_emulator.vo.runner import list_side_images
+
+    return [t for t, _ in list_side_images(run_dir, "left")][:n]
+
+
+def _track_builtin(request: dict) -> dict:
+    """The built-in VO over the run's frames (no pacing: it is deterministic)."""
+    import cv2
+
+    from bracketry_emulator.vo.runner import track_frames
+
+    cv2.setNumThreads(1)
+    frames, _fps = _frames(request)
+    t0 = time.perf_counter()
+    vo = track_frames(frames, request["calibration_dir"], request["out_dir"], max_frames=request.get("max_frames"))
+    return {"backend": "builtin", "n_frames": len(vo.frames),
+            "s_per_frame": (time.perf_counter() - t0) / max(len(vo.frames), 1)}
 
 
 def _track(request: dict) -> dict:
@@ -25,26 +63,23 @@ def _track(request: dict) -> dict:
     from bracketry_emulator.slam.orbslam3 import map_states
     from bracketry_emulator.slam.settings import OrbSlamCamera, settings_yaml
     from bracketry_emulator.vo.calibration import StereoRectifier
-    from bracketry_emulator.vo.runner import FRAME_FIELDS, estimate_row_offset, list_side_images, read_gray8
+    from bracketry_emulator.vo.runner import FRAME_FIELDS, estimate_row_offset
     from bracketry_emulator.vo.tum import write_tum
 
     cv2.setNumThreads(1)
     opts = request["options"]
     out = Path(request["out_dir"])
-    left = list_side_images(request["run_dir"], "left")
-    right = list_side_images(request["run_dir"], "right")
-    if not left or len(left) != len(right):
-        raise BracketryError(f"{request['run_dir']}: {len(left)} left and {len(right)} right images")
-    if request.get("max_frames"):
-        left, right = left[:request["max_frames"]], right[:request["max_frames"]]
-    first_l, first_r = read_gray8(left[0][1]), read_gray8(right[0][1])
+    frames, fps_run = _frames(request)
+    it = iter(frames)
+    first = next(it, None)
+    if first is None:
+        raise BracketryError("no stereo frame to track")
+    _t_first, first_l, first_r = first
     rect = StereoRectifier.from_dir(request["calibration_dir"], first_l.shape[1], first_l.shape[0])
     a, b, _n = estimate_row_offset(rect, first_l, first_r)
     if abs(a) + abs(b) * rect.width_px / 2 > 0.5:
         rect.correct_rows(a, b)
-    times_ns = [t for t, _ in left]
-    span_s = (times_ns[-1] - times_ns[0]) * 1e-9
-    fps = (len(times_ns) - 1) / span_s if len(times_ns) > 1 and span_s > 0 else 1.0
+    fps = float(request["fps"]) if request.get("fps") else (fps_run or 1.0)
     cam = OrbSlamCamera(rect.fx, rect.fy, rect.cx, rect.cy, rect.baseline_m, rect.width_px, rect.height_px)
     settings_file = out / "settings.yaml"
     settings_file.write_text(settings_yaml(cam, fps, loop_closing=opts["loop_closing"], th_depth=opts["th_depth"]))
@@ -62,11 +97,17 @@ def _track(request: dict) -> dict:
     cov: list[float] = []
     matches: list[int] = []
     track_s: list[float] = []
+    times_ns: list[int] = []
     pace = opts["pace_s"]
+    max_frames = request.get("max_frames")
+    late_s = 0.0
     t_start = time.perf_counter()
-    for k, ((t_ns, pl), (_tr, pr)) in enumerate(zip(left, right)):
-        gl = rect.rectify(read_gray8(pl), "left")
-        gr = rect.rectify(read_gray8(pr), "right")
+    for k, (t_ns, left_gray, right_gray) in enumerate(itertools.chain([first], it)):
+        if max_frames and k >= max_frames:
+            continue  # read to the end: the producer is not held up
+        times_ns.append(t_ns)
+        gl = rect.rectify(left_gray, "left")
+        gr = rect.rectify(right_gray, "right")
         feats = extractor.detect_and_compute(gl, mask)
         kp.append(len(feats))
         cov.append(grid_coverage(feats.xy_px, feats.width_px, feats.height_px, 20))
@@ -74,6 +115,8 @@ def _track(request: dict) -> dict:
         wait = due - time.perf_counter()
         if wait > 0:
             time.sleep(wait)
+        else:
+            late_s = max(late_s, -wait)
         t0 = time.perf_counter()
         res = slam.track_stereo(np.ascontiguousarray(gl), np.ascontiguousarray(gr), t_ns * 1e-9)
         track_s.append(time.perf_counter() - t0)
@@ -98,7 +141,8 @@ def _track(request: dict) -> dict:
                "fps_settings": max(1, round(fps)), "n_frames": len(times_ns), "vocabulary_load_s": load_s,
                "track_s_median": float(np.median(track_s)) if track_s else float("nan"),
                "track_s_mean": float(np.mean(track_s)) if track_s else float("nan"),
-               "raw_states": {s: raw_states.count(s) for s in sorted(set(raw_states))}}
+               "raw_states": {s: raw_states.count(s) for s in sorted(set(raw_states))},
+               "max_late_s": late_s, "source": "stream" if request.get("frames_fifo") else "png"}
     return summary
 
 
@@ -117,7 +161,7 @@ def main(argv: list[str]) -> int:
         return 2
     request = json.loads(Path(argv[0]).read_text())
     try:
-        summary = _track(request)
+        summary = _track_builtin(request) if request.get("backend") == "builtin" else _track(request)
     except Exception as exc:  # one line for the parent's report; the C++ side printed its own story above
         print(f"error: {type(exc).__name__}: {exc}".replace("\n", " "), file=sys.stderr, flush=True)
         return 1

@@ -11,7 +11,9 @@ numbers its maps).
 from __future__ import annotations
 
 import csv
+import itertools
 import json
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -99,42 +101,76 @@ def estimate_row_offset(rect: StereoRectifier, left_gray8: np.ndarray, right_gra
     return float(a), float(b), int(near.sum())
 
 
-def run_vo(run_dir: str | Path, calibration_dir: str | Path, out_dir: str | Path,
-           settings: VOSettings | None = None, bayer: bool = True, max_frames: int | None = None,
-           fix_rows: bool = True) -> VORun:
-    """Track a whole run; write ``frames.csv``, ``CameraTrajectory<n>.txt`` and ``rectification.json``.
-
-    ``fix_rows``: measure the row disagreement of the rectified pair on the first frame
-    (:func:`estimate_row_offset`) and correct the right image when it exceeds 0.5 px anywhere in the image
-    (:meth:`StereoRectifier.correct_rows`); the measurement is written to ``rectification.json``.
-    """
+def png_frames(run_dir: str | Path, bayer: bool = True, max_frames: int | None = None
+               ) -> tuple[int, Iterator[tuple[int, np.ndarray, np.ndarray]]]:
+    """(number of frames, iterator of (t_ns, left gray8, right gray8)) of a run folder's PNG pairs (the k-th left
+    with the k-th right), read lazily; BracketryError when the sides differ in count or are empty."""
     left = list_side_images(run_dir, "left")
     right = list_side_images(run_dir, "right")
     if not left or len(left) != len(right):
         raise BracketryError(f"{run_dir}: {len(left)} left and {len(right)} right images (need equal, > 0)")
     if max_frames is not None:
         left, right = left[:max_frames], right[:max_frames]
-    first = read_gray8(left[0][1], bayer)
+    pairs = list(zip(left, right))
+    return len(pairs), ((tl, read_gray8(pl, bayer), read_gray8(pr, bayer)) for (tl, pl), (_tr, pr) in pairs)
+
+
+def raw_to_gray8(frames: Iterator[tuple[int, np.ndarray, np.ndarray]], bayer: bool = True
+                 ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    """(t_ns, left, right) images as a run stores them (uint16 12-bit / uint8 mosaics) -> the same in gray8, exactly
+    as :func:`read_gray8` converts a decoded PNG."""
+    for t_ns, left, right in frames:
+        yield t_ns, to_gray8(left, bayer=bayer), to_gray8(right, bayer=bayer)
+
+
+def run_vo(run_dir: str | Path, calibration_dir: str | Path, out_dir: str | Path,
+           settings: VOSettings | None = None, bayer: bool = True, max_frames: int | None = None,
+           fix_rows: bool = True) -> VORun:
+    """Track a whole run folder (its PNG pairs); write ``frames.csv``, ``CameraTrajectory<n>.txt`` and
+    ``rectification.json`` (see :func:`track_frames`)."""
+    _n, frames = png_frames(run_dir, bayer, max_frames)
+    return track_frames(frames, calibration_dir, out_dir, settings, fix_rows=fix_rows)
+
+
+def track_frames(frames: Iterator[tuple[int, np.ndarray, np.ndarray]], calibration_dir: str | Path,
+                 out_dir: str | Path, settings: VOSettings | None = None, max_frames: int | None = None,
+                 fix_rows: bool = True) -> VORun:
+    """Track stereo frames (t_ns, left gray8 HxW, right gray8 HxW; from files or in memory) with the built-in VO;
+    write ``frames.csv``, ``CameraTrajectory<n>.txt`` and ``rectification.json``. Frames beyond ``max_frames``
+    are consumed but not tracked.
+
+    ``fix_rows``: measure the row disagreement of the rectified pair on the first frame
+    (:func:`estimate_row_offset`) and correct the right image when it exceeds 0.5 px anywhere in the image
+    (:meth:`StereoRectifier.correct_rows`); the measurement is written to ``rectification.json``.
+    """
+    it = iter(frames)
+    first_frame = next(it, None)
+    if first_frame is None:
+        raise BracketryError("no stereo frame to track")
+    _t0, first, first_r = first_frame
     rect = StereoRectifier.from_dir(calibration_dir, first.shape[1], first.shape[0])
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     info: dict = {"fx_px": rect.fx, "cx_px": rect.cx, "cy_px": rect.cy, "baseline_m": rect.baseline_m,
                   "row_offset_px": 0.0, "row_slope": 0.0, "row_matches": 0, "row_corrected": False}
     if fix_rows:
-        a, b, n = estimate_row_offset(rect, first, read_gray8(right[0][1], bayer))
+        a, b, n = estimate_row_offset(rect, first, first_r)
         info.update(row_offset_px=a, row_slope=b, row_matches=n)
         if abs(a) + abs(b) * rect.width_px / 2 > 0.5:
             rect.correct_rows(a, b)
             info["row_corrected"] = True
     (out / "rectification.json").write_text(json.dumps(info, indent=1))
     vo = StereoVO(rect, settings)
-    frames = [vo.track(tl, read_gray8(pl, bayer), read_gray8(pr, bayer)) for (tl, pl), (_tr, pr) in zip(left, right)]
-    write_frames_csv(out / "frames.csv", frames)
-    for seg in sorted({f.segment for f in frames if f.tracked}):
-        seg_frames = [f for f in frames if f.tracked and f.segment == seg]
+    results = []
+    for k, (t_ns, gl, gr) in enumerate(itertools.chain([first_frame], it)):
+        if max_frames is None or k < max_frames:
+            results.append(vo.track(t_ns, gl, gr))
+    write_frames_csv(out / "frames.csv", results)
+    for seg in sorted({f.segment for f in results if f.tracked}):
+        seg_frames = [f for f in results if f.tracked and f.segment == seg]
         write_tum(out / f"CameraTrajectory{seg}.txt", [f.t_ns * 1e-9 for f in seg_frames],
                   [f.pose_wc for f in seg_frames if f.pose_wc is not None])
-    return VORun(frames, out)
+    return VORun(results, out)
 
 
 def write_frames_csv(path: Path, frames: list[FrameResult]) -> None:
