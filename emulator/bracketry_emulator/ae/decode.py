@@ -84,6 +84,8 @@ class FrameBuffer:
                  slots: int, preloaded: dict[tuple[int, int, int], np.ndarray] | None = None) -> None:
         self.sequences, self.sides, self.shape, self.n_exp = sequences, sides, shape, n_exp
         self.preloaded = preloaded or {}
+        #: set: decodes are timed there (stage ``decode``; see :mod:`~bracketry_emulator.stages`)
+        self.stages: Any = None
         self.mmap = mmap.mmap(-1, slots * self.sequence_bytes(len(sides), n_exp, shape))
         #: one byte per frame (free, claimed, done, failed), shared with forked workers; guarded by ``lock``
         self.state = mmap.mmap(-1, max(1, slots * len(sides) * n_exp))
@@ -102,6 +104,12 @@ class FrameBuffer:
         return np.frombuffer(self.mmap, dtype=np.uint16, count=n, offset=off).reshape(h, w)
 
     def _decode_one(self, task: DecodeTask) -> None:
+        if self.stages is None:
+            return self._load(task)
+        with self.stages.time("decode"):
+            return self._load(task)
+
+    def _load(self, task: DecodeTask) -> None:
         slot, seq_i, side_i, exp_i = task
         seq = self.sequences[seq_i]
         img = self.preloaded.get((seq_i, side_i, exp_i))

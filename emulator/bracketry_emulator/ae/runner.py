@@ -15,8 +15,8 @@ only floor, Zhang's 0.02 ms) and ``max_exposure_us`` = 64 ms (2x the sample's lo
 emulation extrapolates more than one stop above any recorded frame). The first target is ``init_exposure_us``
 (4 ms, as the authors) unless a method carries its own ``init_exposure_us`` attribute (constant-<ms>).
 
-With ``write_images=False`` only the exposure trajectories (ae.csv, summaries, plot) are written. Images are
-lossless PNGs (``png_compression``: ``stored`` by default, the fastest; ``fast``, ``small``, ``opencv``: see
+With ``write_images=False`` only the exposure trajectories (ae.csv, steps.csv, summaries, plot) are written.
+Images are lossless PNGs (``png_compression``: ``stored`` by default, the fastest; ``fast``, ``small``, ``opencv``: see
 :mod:`..emulation.writer` and emulator/DATASET.md for what each costs) written on background threads. Output
 layout: :mod:`.writers`.
 """
@@ -32,6 +32,7 @@ from bracketry.errors import BracketryError
 
 from ..dataset import open_dataset
 from ..emulation import EmulatorConfig
+from ..stages import StageTimes, ae_stage
 from .loop import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US, MethodRun
 from .registry import method_traits
 from .scheduler import LoopSettings, run_scheduled
@@ -90,13 +91,19 @@ class RunSummary:
     plot_path: Path | None = None
     #: the dataset's problems (incomplete sequences, skipped files; one line each), also in summary.json
     problems: list[str] = field(default_factory=list)
+    #: where the time went: decode, emulation, png_write and ae:<method> seconds
+    #: (:class:`~bracketry_emulator.stages.StageTimes` ``as_dict``)
+    stages: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
 def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Path, *, workers: int = 0,
-                config: LoopConfig | None = None, progress: bool = True, **overrides: Any) -> RunSummary:
+                config: LoopConfig | None = None, progress: bool = True, feeds: dict[str, list[Any]] | None = None,
+                **overrides: Any) -> RunSummary:
     """Run ``methods`` (ids, see :func:`get_method`) in closed loop on a dataset; see the module docstring.
 
     ``workers``: processes (0 = automatic, see :func:`~.scheduler.run_scheduled`; 1 = in-process).
+    ``feeds``: {method: [objects with ``write_step``/``close`` like a RunWriter]} that also get every step's images
+    (e.g. a SLAM process fed in memory; see :class:`~.scheduler.Worker`).
     ``overrides``: LoopConfig fields. Raises BracketryError (one line) on bad input or a failing method; outputs
     already written stay on disk.
     """
@@ -129,13 +136,17 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
                             cfg.ae_camera])), cfg.init_exposure_us, cfg.min_exposure_us, cfg.max_exposure_us,
                             cfg.seed, cfg.drl_weights, cfg.write_images, cfg.png_compression, cfg.overwrite)
     bar = _progress_bar(progress, len(specs) * len(sequences))
+    stages = StageTimes()
     try:
         runs = run_scheduled(traits, settings, sequences, out, workers=workers,
-                             memory_budget_bytes=cfg.memory_budget_bytes, progress=bar.update)
+                             memory_budget_bytes=cfg.memory_budget_bytes, progress=bar.update, feeds=feeds,
+                             stages=stages)
     finally:
         bar.close()
+    for spec, run in runs.items():
+        stages.add(ae_stage(spec), sum(st.ae_s for st in run.steps), n=len(run.steps))
     summary = RunSummary(out, runs, len(sequences), write_sides, time.perf_counter() - t_start,
-                         problems=list(dataset.problems))
+                         problems=list(dataset.problems), stages=stages.as_dict())
     emu = asdict(cfg.emulator)
     emu = {k: (str(v) if isinstance(v, Path) else v) for k, v in emu.items()}  # noise: {read_dn, dn_per_e}
     settings_doc = {"dataset": str(dataset.path), "sequences": summary.n_sequences, "sides": list(summary.sides),

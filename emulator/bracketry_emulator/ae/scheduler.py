@@ -36,6 +36,7 @@ from bracketry.errors import BracketryError
 
 from ..dataset import BracketSequence
 from ..emulation import EmulatedImage, EmulatorConfig, RunWriter
+from ..stages import StageTimes
 from .decode import FrameBuffer, frame_shape
 from .emulation_cache import EmulationCache, needed_brackets
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
@@ -98,15 +99,21 @@ class Worker:
     """Advances a group of methods through the sequences; the same object serves in-process and forked modes."""
 
     def __init__(self, specs: list[str], settings: LoopSettings, sequences: list[BracketSequence], out_dir: Path,
-                 frames: FrameBuffer, write_threads: int = 1) -> None:
+                 frames: FrameBuffer, write_threads: int = 1, feeds: dict[str, list[Any]] | None = None) -> None:
         self.settings = s = settings
+        #: where this worker's time goes (decode, emulation, png_write; the AE methods' is in their steps)
+        self.stages = StageTimes()
+        #: {method: [objects with RunWriter.write_step and close]}: each step's images also go there (e.g. to a
+        #: SLAM process, :class:`~bracketry_emulator.slam.frame_stream.FrameFeed`); closed by :meth:`close`
+        self.feeds = feeds or {}
         #: set: decode on demand (only the brackets the methods' targets need) on this pool's threads
         self.decode_pool: ThreadPoolExecutor | None = None
         self._decoded: dict[tuple[int, int, int], Any] = {}  # (slot, side, exposure index): future-like
         self.sequences = sequences
         self.frames = frames
+        frames.stages = self.stages
         self.emu = EmulationCache(s.emulator)
-        self.sink = ImageSink(write_threads if s.write_images else 0)
+        self.sink = ImageSink(write_threads if s.write_images else 0, stages=self.stages)
         self.targets: dict[str, float] = {}
         self.runs: dict[str, MethodRun] = {}
         self.writers: dict[str, RunWriter] = {}
@@ -122,7 +129,7 @@ class Worker:
                                           max_exposure_us=s.max_exposure_us)
             self.writers[spec] = LinkingRunWriter(out_dir, method_folder(spec), s.write_sides, s.emulator.depth,
                                                   s.overwrite, self.sink, s.png_compression,
-                                                  s.emulator.parity)
+                                                  s.emulator.parity, images=s.write_images)
 
     def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
         """Advance every method of this worker through the given sequences (slot = position in the list).
@@ -182,9 +189,11 @@ class Worker:
             raise RuntimeError(f"a method's loop asked for sequence {seq_i} while {self._seq_i} is loaded")
         s = self.settings
         seq = self.sequences[seq_i]
-        images = self._images(seq_i, target_us)
-        if s.write_images:
-            self.writers[spec].write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
+        with self.stages.time("emulation"):
+            images = self._images(seq_i, target_us)
+        self.writers[spec].write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
+        for feed in self.feeds.get(spec, ()):
+            feed.write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
         ae_img = images[s.ae_camera]
         return Frame(ae_img.image, seq.timestamps_ns[s.ae_camera][ae_img.source_exposure_us],
                      ae_img.source_exposure_us, seq.index,
@@ -206,13 +215,16 @@ class Worker:
         for (_, _, si, ei), f in zip(tasks, futures, strict=True):
             self._decoded[(slot, si, ei)] = f
 
-    def close(self) -> dict[str, MethodRun]:
+    def close(self) -> tuple[dict[str, MethodRun], dict[str, dict[str, float]]]:
+        """Finish the writes and the feeds; returns (the runs, this worker's stage times)."""
         try:
             for w in self.writers.values():
                 w.close()
         finally:
             self.sink.close()
-        return self.runs
+            for feed in (f for fs in self.feeds.values() for f in fs):
+                feed.close()
+        return self.runs, self.stages.as_dict()
 
 
 #: ``workers=0`` (auto) forks worker processes only from this many sequences on; shorter runs are faster in one
@@ -223,13 +235,15 @@ AUTO_FORK_MIN_SEQUENCES = 8
 
 def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, sequences: list[BracketSequence],
                   out_dir: Path, *, workers: int, memory_budget_bytes: int,
-                  progress: Callable[[int], None]) -> dict[str, MethodRun]:
+                  progress: Callable[[int], None], feeds: dict[str, list[Any]] | None = None,
+                  stages: StageTimes | None = None) -> dict[str, MethodRun]:
     """Every method's closed loop over ``sequences`` (at least one), its images written under ``out_dir``.
 
     ``traits``: {method id: what it declares}, in run order. ``workers``: processes (0 = min(methods, CPUs, 4)
     from :data:`AUTO_FORK_MIN_SEQUENCES` sequences on, else 1; 1 = in this process). ``progress(n)`` is called
     after every n method steps. Returns {method id: run} in ``traits`` order. Raises BracketryError (one line) on
-    a failing method or worker."""
+    a failing method or worker. ``feeds``: see :class:`Worker`; ``stages``: receives the workers' stage times.
+    """
     specs = list(traits)
     n_seq = len(sequences)
     first = sequences[0]
@@ -249,21 +263,23 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
     groups = partition(traits, n_workers)
 
     def make(group: list[str], write_threads: int = 1) -> Callable[[], Worker]:
-        return lambda: Worker(group, settings, sequences, out_dir, frames, write_threads)
+        return lambda: Worker(group, settings, sequences, out_dir, frames, write_threads,
+                              {m: f for m, f in (feeds or {}).items() if m in group})
 
     runs: dict[str, MethodRun] = {}
+    times = stages if stages is not None else StageTimes()
     try:
         if len(groups) == 1:
-            runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), n_seq, chunk, progress))
+            runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), n_seq, chunk, progress, times))
         else:
-            runs.update(_run_forked(groups, make, n_seq, chunk, frames, progress))
+            runs.update(_run_forked(groups, make, n_seq, chunk, frames, progress, times))
     finally:
         frames.close()  # on an error path the traceback may still hold views of the buffer: freed with them
     return {s: runs[s] for s in specs}
 
 
-def _run_in_process(make: Callable[[], Worker], n_seq: int, chunk: int,
-                    progress: Callable[[int], None]) -> dict[str, MethodRun]:
+def _run_in_process(make: Callable[[], Worker], n_seq: int, chunk: int, progress: Callable[[int], None],
+                    stages: StageTimes) -> dict[str, MethodRun]:
     """One worker in this process, decoding on demand on threads (cv2.imread releases the GIL); matplotlib is
     imported for the final plot on a thread meanwhile."""
     preload = threading.Thread(target=preload_plotting, name="bracketry-mpl-import", daemon=True)
@@ -280,7 +296,9 @@ def _run_in_process(make: Callable[[], Worker], n_seq: int, chunk: int,
                 with contextlib.suppress(Exception):
                     w.sink.close()  # finish the images already submitted; the first error is the one raised
                 raise
-            return w.close()
+            runs, times = w.close()
+            stages.merge(times)
+            return runs
     finally:
         preload.join()
 
@@ -312,7 +330,8 @@ def _worker_loop(conn: Connection, worker: Callable[[], Worker]) -> None:
 
 
 def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[], Worker]], n_seq: int,
-                chunk: int, frames: FrameBuffer, progress: Callable[[int], None]) -> dict[str, MethodRun]:
+                chunk: int, frames: FrameBuffer, progress: Callable[[int], None],
+                stages: StageTimes) -> dict[str, MethodRun]:
     ctx = mp.get_context("fork")
     procs: list[Any] = []
     conns: list[Connection] = []
@@ -335,8 +354,9 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
             _collect(conns, "ran", progress)
         for conn in conns:
             conn.send(("close", None))
-        for res in _collect(conns, "closed", progress):
+        for res, times in _collect(conns, "closed", progress):
             runs.update(res)
+            stages.merge(times)
     finally:
         for conn in conns:
             conn.close()

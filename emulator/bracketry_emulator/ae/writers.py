@@ -8,6 +8,7 @@ source_exposure_ms, ae_ms, and ``summary.json``), ``exposures.csv`` (one column 
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from collections import deque
@@ -30,7 +31,9 @@ class ImageSink:
     encoding overlaps emulation and the AE methods. At most ``max_pending`` images are in flight (bounded memory);
     a failed write raises from the next :meth:`submit` or from :meth:`drain`. ``threads`` = 0 writes inline."""
 
-    def __init__(self, threads: int, max_pending: int = 8) -> None:
+    def __init__(self, threads: int, max_pending: int = 8, stages: Any = None) -> None:
+        #: set: every write is timed there (stage ``png_write``; :mod:`~bracketry_emulator.stages`)
+        self.stages = stages
         self.pool = ThreadPoolExecutor(threads, thread_name_prefix="bracketry-png") if threads > 0 else None
         self.max_pending = max(1, max_pending)
         self.pending: deque[Future[None]] = deque()
@@ -38,6 +41,8 @@ class ImageSink:
         self.written: dict[tuple[int, str, float], tuple[Path, Future[None] | None]] = {}
 
     def submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
+        if self.stages is not None:
+            fn = functools.partial(self._timed, fn)
         if self.pool is None:
             fn(*args)
             return None
@@ -46,6 +51,10 @@ class ImageSink:
         while len(self.pending) > self.max_pending:
             self.pending.popleft().result()
         return fut
+
+    def _timed(self, fn: Callable[..., None], *args: Any) -> None:
+        with self.stages.time("png_write"):
+            fn(*args)
 
     def drain(self) -> None:
         """Wait for every pending write (raises the first failure)."""
@@ -70,9 +79,9 @@ class LinkingRunWriter(RunWriter):
     """
 
     def __init__(self, out_dir: Path, method: str, sides: tuple[str, ...], depth: int, overwrite: bool,
-                 sink: ImageSink, png_compression: str, mode: str = "default") -> None:
+                 sink: ImageSink, png_compression: str, mode: str = "default", images: bool = True) -> None:
         super().__init__(out_dir, method, sides, depth=depth, overwrite=overwrite, png_compression=png_compression,
-                         mode=mode)
+                         mode=mode, images=images)
         self._sink = sink
 
     def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:

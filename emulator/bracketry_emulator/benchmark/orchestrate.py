@@ -128,7 +128,7 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     (:mod:`~bracketry_emulator.benchmark.stream`: every run of a trajectory is fed by its one closed-loop pass) and
     PNGs are written only with ``write_images``; otherwise the closed loops write PNGs and SLAM reads them.
     Where the time went is in the report's stage table and ``report/stages.json``
-    (:mod:`~bracketry_emulator.benchmark.stages`).
+    (:mod:`~bracketry_emulator.stages`).
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO); with
     ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and spread
     (statistics on the medians). Paced ORB-SLAM3 runs mostly wait: locally twice ``workers`` of them run at once.
@@ -165,7 +165,7 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     references = {s.name: _reference(s, out) for s in specs}
     tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam_path, weights, loop, slam_opts, r,
                        references[s.name]) for s in specs for m in method_ids for r in range(repeats)]
-    from bracketry_emulator.benchmark.stages import StageTimes
+    from bracketry_emulator.stages import StageTimes
 
     t_start = time.perf_counter()
     stages = StageTimes()
@@ -207,7 +207,7 @@ def stage_document(stages: Any, results: list[dict], wall_s: float, n_runs: int,
     runs (and how many came from the cache, which add nothing to the stages) and the stage seconds."""
     import math
 
-    from bracketry_emulator.benchmark.stages import describe_machine
+    from bracketry_emulator.stages import describe_machine
 
     per_traj: dict[str, float] = {}
     for r in results:

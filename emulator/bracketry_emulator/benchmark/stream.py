@@ -22,8 +22,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.benchmark.stages import StageTimes
 from bracketry_emulator.metrics.manifest import TrajectorySpec
+from bracketry_emulator.stages import StageTimes
 
 FIFO_NAME = "frames.fifo"
 
@@ -100,10 +100,10 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[dict], out: Path, *, drl
     for t in tasks:
         run_dir = run_dirs[t["method"]]
         info, error = None, errors.get(t["key"])
-        child = children.get(t["key"])
-        if child is not None:
+        started = children.get(t["key"])
+        if started is not None:
             try:
-                info = wait_child(child)
+                info = wait_child(started)
             except SlamRunError as exc:
                 error = str(exc)
         (vo_path(t) / FIFO_NAME).unlink(missing_ok=True)
@@ -121,7 +121,7 @@ def emulate_feeding(dataset_path: Path, methods: list[str], runs_dir: Path, feed
     the runs' files (ae.csv, steps, summaries; images only with ``write_images``) replace any earlier ones in
     ``runs_dir/<method>``. Returns {method: its folder}."""
     from bracketry_emulator.ae import run_methods
-    from bracketry_emulator.benchmark.closedloop import _check_options, loop_config, loop_options
+    from bracketry_emulator.benchmark.emulated_runs import _check_options, loop_config, loop_options
 
     _check_options(runs_dir, loop_options(**(options or {})))
     cfg = loop_config(options, drl_weights)

@@ -179,8 +179,8 @@ def complete_task(task: dict, run_dir: Path, info: dict | None, error: str | Non
 
     ``info``: the SLAM run's facts (backend, s_per_frame; a child process's ``wall_s``/``cpu_s``). ``slam_s``:
     (wall, CPU) seconds of an in-process run. The result's ``stages`` holds the SLAM and metrics seconds of this
-    run (:mod:`~bracketry_emulator.benchmark.stages`)."""
-    from bracketry_emulator.benchmark.stages import StageTimes
+    run (:mod:`~bracketry_emulator.stages`)."""
+    from bracketry_emulator.stages import StageTimes
 
     vo_dir = vo_path(task)
     stages = StageTimes()

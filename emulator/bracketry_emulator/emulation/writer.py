@@ -100,12 +100,13 @@ class RunWriter:
     """Writes one method's emulated run. Use as a context manager or call :meth:`close`.
 
     Refuses to write into a method folder that already holds files unless ``overwrite=True`` (then only the files
-    of this layout are replaced), so nothing recorded is lost by accident.
+    of this layout are replaced), so nothing recorded is lost by accident. ``images=False`` records the steps
+    (``steps.csv``) without images (no image folders, no times files): e.g. when the images went to SLAM in memory.
     """
 
     def __init__(self, out_dir: str | Path, method: str, sides: tuple[str, ...] | list[str] = ("left", "right"),
-                 depth: int = 12, overwrite: bool = False, png_compression: str = "opencv", mode: str = "default"
-                 ) -> None:
+                 depth: int = 12, overwrite: bool = False, png_compression: str = "opencv", mode: str = "default",
+                 images: bool = True) -> None:
         if depth not in (8, 12):
             raise BracketryError(f"depth must be 12 or 8, got {depth}")
         if png_compression not in PNG_COMPRESSIONS:
@@ -117,11 +118,12 @@ class RunWriter:
         self.depth = depth
         self.png_compression = png_compression
         self.mode = mode
+        self.images = images
         if self.root.exists() and any(self.root.iterdir()) and not overwrite:
             raise BracketryError(f"output folder already holds a run: {self.root} (choose another --out)")
         self.root.mkdir(parents=True, exist_ok=True)
         self._times: dict[str, IO[str]] = {}
-        for side in self.sides:
+        for side in self.sides if images else ():
             (self.root / f"images_{side}").mkdir(exist_ok=True)
             self._times[side] = open(self.root / f"times_images_{side}.txt", "w")  # noqa: SIM115
         self._steps_file = open(self.root / "steps.csv", "w", newline="")  # noqa: SIM115
@@ -160,7 +162,7 @@ class RunWriter:
             raise BracketryError(f"step {step}: the cameras' images come from different source brackets "
                                  f"{sorted(sources)} us (one source bracket per stereo step)")
         ts = seq.timestamps_ns[self.sides[0]][em.source_exposure_us]
-        for side in self.sides:
+        for side in self.sides if self.images else ():
             self.write_image(self.image_path(side, ts), side_images[side], (seq.index, side, float(target_us)))
             self._times[side].write(f"{ts} {ts} {target_us / 1000.0:.6f}\n")
         self._steps.writerow([step, ts, f"{target_us / 1000.0:.6f}", f"{em.source_exposure_us / 1000.0:.6f}",

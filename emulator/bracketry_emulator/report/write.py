@@ -168,9 +168,9 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
 
 def _stage_section(doc: dict | None) -> tuple[list[list[str]], str]:
     """The stage table and its one-paragraph legend (machine, trajectory minutes, cached runs)."""
-    from bracketry_emulator.benchmark.stages import machine_line, stage_rows
+    from bracketry_emulator.stages import machine_line, stage_rows
 
-    if not doc or not doc.get("stages"):
+    if not doc:
         return [], ""
     rows = stage_rows(doc["stages"], float(doc.get("trajectory_s", 0.0)), doc.get("wall_s"))
     minutes = float(doc.get("trajectory_s", 0.0)) / 60.0

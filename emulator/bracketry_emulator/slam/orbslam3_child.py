@@ -51,7 +51,8 @@ def _track_builtin(request: dict) -> dict:
     t0 = time.perf_counter()
     vo = track_frames(frames, request["calibration_dir"], request["out_dir"], max_frames=request.get("max_frames"))
     return {"backend": "builtin", "n_frames": len(vo.frames),
-            "s_per_frame": (time.perf_counter() - t0) / max(len(vo.frames), 1)}
+            "s_per_frame": (time.perf_counter() - t0) / max(len(vo.frames), 1),
+            "source": "stream" if request.get("frames_fifo") else "png"}
 
 
 def _track(request: dict) -> dict:

@@ -19,6 +19,7 @@ from __future__ import annotations
 import math
 import os
 import platform
+import threading
 import time
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
@@ -44,6 +45,7 @@ class StageTimes:
     ``merge`` adds another collector (e.g. a worker process's, sent back as :meth:`as_dict`)."""
 
     def __init__(self) -> None:
+        self._lock = threading.Lock()  # decodes and PNG writes are timed on threads
         self.wall_s: dict[str, float] = {}
         self.cpu_s: dict[str, float] = {}
         self.count: dict[str, int] = {}
@@ -51,10 +53,11 @@ class StageTimes:
     def add(self, stage: str, wall_s: float, cpu_s: float = math.nan, n: int = 1) -> None:
         """Add ``wall_s`` / ``cpu_s`` seconds (NaN: not measured) of ``n`` runs of ``stage``."""
         _check(stage)
-        self.wall_s[stage] = self.wall_s.get(stage, 0.0) + float(wall_s)
-        if not math.isnan(cpu_s):
-            self.cpu_s[stage] = self.cpu_s.get(stage, 0.0) + float(cpu_s)
-        self.count[stage] = self.count.get(stage, 0) + int(n)
+        with self._lock:
+            self.wall_s[stage] = self.wall_s.get(stage, 0.0) + float(wall_s)
+            if not math.isnan(cpu_s):
+                self.cpu_s[stage] = self.cpu_s.get(stage, 0.0) + float(cpu_s)
+            self.count[stage] = self.count.get(stage, 0) + int(n)
 
     @contextmanager
     def time(self, stage: str) -> Iterator[None]:
@@ -134,5 +137,6 @@ def describe_machine() -> dict[str, object]:
 def machine_line(machine: Mapping[str, object]) -> str:
     """One line naming the machine of :func:`describe_machine`."""
     load = machine.get("load_average") or []
-    load_text = f", load average {' / '.join(str(x) for x in load)} (1/5/15 min)" if load else ""  # type: ignore[union-attr]
+    load_text = (f", load average {' / '.join(str(x) for x in load)} (1/5/15 min)"  # type: ignore[attr-defined]
+                 if load else "")
     return f"{machine.get('cpu')}, {machine.get('cpus')} logical CPUs, {machine.get('system')}{load_text}"

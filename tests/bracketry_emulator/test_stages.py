@@ -6,7 +6,7 @@ import time
 
 import pytest
 
-from bracketry_emulator.benchmark.stages import StageTimes, ae_stage, machine_line, stage_rows
+from bracketry_emulator.stages import StageTimes, ae_stage, machine_line, stage_rows
 
 
 def test_stage_times_add_merge_and_order() -> None:

@@ -1,0 +1,87 @@
+"""The benchmark feeds SLAM in memory: the images that reach SLAM are the PNG route's, bit for bit; the results are
+the same; PNGs only when asked; the report ends with the stage table."""
+
+from __future__ import annotations
+
+import json
+import threading
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from bracketry.cli import main as cli_main
+from bracketry_emulator.ae import run_methods
+from bracketry_emulator.benchmark import run_benchmark
+from bracketry_emulator.slam.frame_stream import FrameFeed, read_stream
+from bracketry_emulator.vo import run_vo
+from bracketry_emulator.vo.runner import list_side_images
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory) -> Path:
+    d = tmp_path_factory.mktemp("bench_stream") / "walk"
+    assert cli_main(["synth", "trajectory", "--out", str(d), "--seconds", "3", "--resolution", "320x200",
+                     "-q"]) == 0
+    return d
+
+
+@pytest.mark.parametrize("workers", [1, 2])  # in this process, and forked workers that open the FIFOs themselves
+def test_streamed_images_equal_the_written_pngs(world: Path, tmp_path: Path, workers: int) -> None:
+    methods = ["ae50", "shim"]
+    received: dict[str, list] = {m: [] for m in methods}
+    feeds, readers = {}, []
+    for m in methods:
+        fifo = FrameFeed.make_fifo(tmp_path / f"{m}.fifo")
+        t = threading.Thread(target=lambda f=fifo, m=m: received[m].extend(read_stream(f)))
+        t.start()
+        readers.append(t)
+        feeds[m] = [FrameFeed(fifo)]
+    run_methods(world, methods, tmp_path / "runs", workers=workers, progress=False, feeds=feeds)
+    for t in readers:
+        t.join(timeout=60)
+    for m in methods:
+        left = list_side_images(tmp_path / "runs" / m, "left")
+        right = list_side_images(tmp_path / "runs" / m, "right")
+        assert len(received[m]) == len(left) == len(right) > 5
+        for (t_ns, sl, sr), (tl, pl), (_tr, pr) in zip(received[m], left, right, strict=True):
+            assert t_ns == tl
+            for streamed, png in ((sl, pl), (sr, pr)):
+                decoded = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+                assert streamed.dtype == decoded.dtype == np.uint16 and np.array_equal(streamed, decoded), png
+
+
+def test_streamed_slam_results_equal_the_png_route(world: Path, tmp_path: Path) -> None:
+    """The built-in VO (deterministic) fed in memory gives the same per-frame log and trajectory as run on the PNG
+    files of the same closed loop; the report ends with the stage table; without --write-images no PNG is written."""
+    res = run_benchmark([world], ["ae50"], tmp_path / "b", reference="ae50", windows_m=(1.0,), write_images=True)
+    (r,) = res.results
+    assert r["slam_input"] == "stream" and not r.get("error")
+    vo = run_vo(r["run_dir"], world / "calibration", tmp_path / "png_route")
+    streamed_dir = Path(r["vo_dir"])
+    assert (streamed_dir / "frames.csv").read_text() == (vo.out_dir / "frames.csv").read_text()
+    tums = sorted(p.name for p in vo.out_dir.glob("CameraTrajectory*.txt"))
+    assert tums and tums == sorted(p.name for p in streamed_dir.glob("CameraTrajectory*.txt"))
+    for name in tums:
+        assert (streamed_dir / name).read_text() == (vo.out_dir / name).read_text()
+    assert not (streamed_dir / "frames.fifo").exists()
+    timing = json.loads((res.out_dir / "report" / "stages.json").read_text())
+    assert {"decode", "emulation", "ae:ae50", "png_write", "slam", "metrics", "report"} <= set(timing["stages"])
+    assert timing["stages"]["slam"]["count"] == 1 and timing["stages"]["slam"]["cpu_s"] > 0
+    assert timing["trajectory_s"] == pytest.approx(r["duration_s"], abs=1e-3) and timing["machine"]["cpus"] >= 1
+    md = (res.out_dir / "report" / "report.md").read_text()
+    assert md.rstrip().splitlines()[-1].startswith("| benchmark (wall clock) |")  # the report ends with it
+    assert "## Where the time went" in md and "s per trajectory-minute" in md and "logical CPUs" in md
+    # the default: no PNG at all, the same results, the steps still recorded
+    res2 = run_benchmark([world], ["ae50"], tmp_path / "c", reference="ae50", windows_m=(1.0,))
+    run_dir = Path(res2.results[0]["run_dir"])
+    assert not list(run_dir.rglob("*.png")) and len((run_dir / "steps.csv").read_text().splitlines()) > 5
+    assert (Path(res2.results[0]["vo_dir"]) / "frames.csv").read_text() == (vo.out_dir / "frames.csv").read_text()
+    assert "png_write" not in json.loads((res2.out_dir / "report" / "stages.json").read_text())["stages"]
+    # cached on a second call: no work now, said in the table's legend
+    again = run_benchmark([world], ["ae50"], tmp_path / "c", reference="ae50", windows_m=(1.0,))
+    assert again.results[0]["cached"] and "came from the cache" in (again.out_dir / "report" / "report.md"
+                                                                    ).read_text()
