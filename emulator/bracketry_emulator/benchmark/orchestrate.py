@@ -214,7 +214,9 @@ def stage_document(stages: Any, results: list[dict], wall_s: float, n_runs: int,
         d = float(r.get("duration_s", math.nan))
         if math.isfinite(d):
             per_traj[r["trajectory"]] = max(per_traj.get(r["trajectory"], 0.0), d)
+    late = [float(r["slam_late_s"]) for r in results if math.isfinite(float(r.get("slam_late_s", math.nan)))]
     return {"machine": describe_machine(), "trajectory_s": round(sum(per_traj.values()), 3),
+            "slam_late_s": round(max(late), 3) if late else None,
             "trajectories": per_traj, "wall_s": round(wall_s, 3), "runs": n_runs, "runs_cached": n_cached,
             "stages": stages.as_dict()}
 

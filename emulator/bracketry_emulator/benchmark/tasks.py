@@ -197,10 +197,12 @@ def complete_task(task: dict, run_dir: Path, info: dict | None, error: str | Non
                 "stages": stages.as_dict()}
     with stages.time("metrics"):
         metrics = evaluate_run(vo_dir, task["groundtruth"], tuple(task["windows_m"]))
-    result = {**base, **metrics, "slam": info["backend"], "s_per_frame": info["s_per_frame"],
-              "stages": stages.as_dict()}
+    s_per_frame = info.get("s_per_frame", info.get("track_s_median", float("nan")))  # ORB-SLAM3: median track
+    result = {**base, **metrics, "slam": info["backend"], "s_per_frame": s_per_frame, "stages": stages.as_dict()}
     if info.get("source"):
         result["slam_input"] = info["source"]
+    if info.get("pace_s", 0.0) != 0.0 and "max_late_s" in info:  # a paced run: how far it fell behind its clock
+        result["slam_late_s"] = info["max_late_s"]
     _write_atomic(cache_path(task), json.dumps(result))
     result["cached"] = False
     return result

@@ -179,6 +179,9 @@ def _stage_section(doc: dict | None) -> tuple[list[list[str]], str]:
             "seconds are summed over the threads and processes that did the work (stages overlap, so they do not "
             "add up to the wall clock); SLAM = each run's process from start to exit (paced runs wait for their "
             "frames' time) and its CPU time.")
+    if doc.get("slam_late_s") is not None:
+        text += (f" Paced SLAM runs fell behind their real-time clock by up to {doc['slam_late_s']:.1f} s (a frame fed"
+                 " late when the machine could not keep up).")
     if cached:
         text += f" {cached} of {doc.get('runs', cached)} SLAM runs came from the cache (no time spent now)."
     return rows, text

@@ -6,6 +6,7 @@ ORB-SLAM3 run is a real child process of pyorbslam3.
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import cv2
@@ -191,3 +192,45 @@ def test_bench_combine_repeats_median_and_failures() -> None:
     out = combine_repeats(runs)
     assert out["rte_pct"] == 2.0 and out["rte_pct_spread"] == 2.0 and out["repeat"] == 2
     assert out["repeats"] == 4 and out["repeats_ok"] == 3 and out["errors"] == ["ORB-SLAM3 failed (killed by SIGSEGV)"]
+
+
+@pytest.fixture(scope="module")
+def bracketed(tmp_path_factory) -> Path:
+    """A bracketed synthetic trajectory (the closed loops run on it, so SLAM is fed in memory)."""
+    d = tmp_path_factory.mktemp("orbslam3_stream") / "walk"
+    assert cli_main(["synth", "trajectory", "--out", str(d), "--seconds", "3", "--resolution", "320x240",
+                     "-q"]) == 0
+    return d
+
+
+def test_bench_orbslam3_fed_in_memory(bracketed: Path, vocabulary: Path, tmp_path: Path) -> None:
+    """ORB-SLAM3 children get the closed loops' images through their FIFOs (no PNG written): every frame reaches
+    SLAM, the settings are those the PNG route writes (same frame rate), the child's CPU time is measured."""
+    slam = slam_options("orbslam3", vocabulary, pace=0.0)
+    res = run_benchmark([bracketed], ["ae50", "fix"], tmp_path / "out", reference="ae50", windows_m=(1.0,),
+                        workers=1, slam=slam)
+    for r in res.results:
+        assert not r.get("error") and r["slam_input"] == "stream", r.get("error")
+        assert r["n_frames"] == 11 and r["tracked_fraction"] > 0.5
+        assert not list(Path(r["run_dir"]).rglob("*.png"))
+    stream_settings = (Path(res.results[0]["vo_dir"]) / "settings.yaml").read_text()
+    png = run_benchmark([bracketed], ["ae50"], tmp_path / "png", reference="ae50", windows_m=(1.0,), workers=1,
+                        slam=slam, export_orbslam=True)  # the PNG route (the export needs the files)
+    assert png.results[0]["slam_input"] == "png"
+    assert (Path(png.results[0]["vo_dir"]) / "settings.yaml").read_text() == stream_settings
+    stages = json.loads((res.out_dir / "report" / "stages.json").read_text())["stages"]
+    assert stages["slam"]["count"] == 2 and stages["slam"]["cpu_s"] > 0
+
+
+def test_bench_orbslam3_failing_children_do_not_hold_the_closed_loop(bracketed: Path, tmp_path: Path) -> None:
+    """Every ORB-SLAM3 child exits on a broken vocabulary after its first frame: each run is one failed-run line,
+    the closed loop (which was feeding them) and the benchmark finish."""
+    bad = tmp_path / "bad.txt"
+    bad.write_text("this is not a vocabulary")
+    slam = slam_options("orbslam3", bad, pace=0.0)
+    res = run_benchmark([bracketed], ["ae50", "fix"], tmp_path / "out", reference="ae50", windows_m=(1.0,),
+                        workers=1, slam=slam)
+    for r in res.results:
+        assert "ORB-SLAM3 failed" in r["error"] and "\n" not in r["error"] and np.isnan(r["rte_pct"])
+    assert "Failed SLAM runs" in (res.out_dir / "report" / "report.md").read_text()
+    assert (Path(res.results[0]["run_dir"]) / "ae.csv").is_file()  # the closed loop itself completed
