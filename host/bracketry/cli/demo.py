@@ -21,12 +21,17 @@ from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Number, input_file, op
               help="The DRL actor's .pth (env BRACKETRY_DRL_WEIGHTS); without it DRL is left out.")
 @click.option("--slam", type=click.Choice(["orbslam3", "builtin"]), default=None,
               help="Localisation (default: orbslam3; builtin with --quick).")
+@click.option("--slam-pace", default="0", show_default=True,
+              help="ORB-SLAM3 feed: seconds between frames (0 = as fast as it tracks: every method's run at once "
+                   "on the machine's cores) or 'realtime' (the recording's timestamps).")
 def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, drl_weights: Path | None,
-            slam: str | None) -> int:
+            slam: str | None, slam_pace: str) -> int:
     """Run the whole pipeline on the embedded default: simulated rig -> recording -> AE benchmark -> report."""
     from bracketry.demo.pipeline import plan, run
+    from bracketry_emulator.benchmark.slam import parse_pace
 
-    summary = run(plan(out_dir, seconds, quick, str(drl_weights) if drl_weights else None, slam),
+    pace = parse_pace(slam_pace)  # a bad value: one line before anything runs
+    summary = run(plan(out_dir, seconds, quick, str(drl_weights) if drl_weights else None, slam, pace),
                   echo=lambda s: click.echo(s, err=True))
     click.echo("")
     verdict = "verified clean" if summary["recording_verified"] else "HAS PROBLEMS"
@@ -40,5 +45,7 @@ def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, 
                    "(refused beyond 5 % of a run's frames)")
     report = summary["report"].get("report.html") or summary["report"].get("report.md")
     click.echo(f"report: {report}")
-    click.echo(f"took {summary['timing_s']['total']} s (recording {summary['timing_s']['record']} s)")
+    t = summary["timing_s"]
+    click.echo(f"took {t['total']} s (recording {t['record']} s, export {t['export']} s, benchmark {t['benchmark']} s"
+               f"; load average {' / '.join(str(x) for x in summary['load_average'])})")
     return EXIT_OK if summary["recording_verified"] else EXIT_PROBLEMS
