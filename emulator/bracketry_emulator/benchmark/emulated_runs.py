@@ -72,30 +72,37 @@ def all_methods() -> tuple[str, ...]:
 
 
 def _closed_loops(dataset_path: Path, methods: list[str], tmp_root: Path, drl_weights: str | None, workers: int,
-                  progress: bool, options: dict[str, Any] | None) -> None:
+                  progress: bool, options: dict[str, Any] | None, stages: Any = None) -> None:
     from bracketry_emulator.ae import run_methods
 
     cfg = loop_config(options, drl_weights)
     shutil.rmtree(tmp_root, ignore_errors=True)
     tmp_root.mkdir(parents=True)
-    run_methods(dataset_path, methods, tmp_root, workers=workers, progress=progress, config=cfg)
+    summary = run_methods(dataset_path, methods, tmp_root, workers=workers, progress=progress, config=cfg)
+    if stages is not None:
+        stages.merge(summary.stages)
     for method in methods:
         if not (tmp_root / method / "images_left").is_dir():
             raise BracketryError(f"the closed loop of {method!r} on {dataset_path} produced no images_left/")
 
 
 def emulate_runs(dataset_path: Path, methods: list[str], runs_dir: Path, *, drl_weights: str | None = None,
-                 workers: int = 0, progress: bool = False, options: dict[str, Any] | None = None) -> list[Path]:
+                 workers: int = 0, progress: bool = False, options: dict[str, Any] | None = None,
+                 stages: Any = None) -> list[Path]:
     """Emulated run folders ``runs_dir/<method>`` of ``methods`` on the dataset, the missing ones produced in one
     shared-decode pass (``workers`` processes, 0 = automatic) with the closed-loop ``options`` (see
-    :data:`LOOP_DEFAULTS`). Returns the folders in ``methods`` order."""
+    :data:`LOOP_DEFAULTS`). Returns the folders in ``methods`` order. A folder without images (a run whose images
+    went to SLAM in memory) is made again, with them. ``stages``: receives the pass's stage times
+    (:class:`~bracketry_emulator.stages.StageTimes`)."""
     _check_options(runs_dir, loop_options(**(options or {})))
     finals = [runs_dir / m for m in methods]
     missing = [m for m, f in zip(methods, finals, strict=True) if not (f / "images_left").is_dir()]
     if missing:
         tmp_root = runs_dir / ".partial"
-        _closed_loops(dataset_path, missing, tmp_root, drl_weights, workers, progress, options)
+        _closed_loops(dataset_path, missing, tmp_root, drl_weights, workers, progress, options, stages)
         for method in missing:
+            if (runs_dir / method).exists():
+                shutil.rmtree(runs_dir / method)
             (tmp_root / method).rename(runs_dir / method)
         for extra in tmp_root.iterdir():  # summary.json, exposures.csv, exposure_times.png of the pass
             if extra.is_file():

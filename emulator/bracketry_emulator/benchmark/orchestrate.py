@@ -52,7 +52,7 @@ def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> lis
 
 
 def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[dict], out: Path, drl_weights: str | None,
-                         workers: int, progress: bool, loop: dict | None) -> None:
+                         workers: int, progress: bool, loop: dict | None, stages: Any = None) -> None:
     """Per trajectory, the closed loops of every method whose task still needs one, in one shared-decode pass."""
     from bracketry_emulator.benchmark.emulated_runs import emulate_runs
     from bracketry_emulator.benchmark.tasks import load_cached
@@ -62,7 +62,7 @@ def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[dict], out: Pa
                                   and not t["existing_run"] and load_cached(t) is None))
         if todo:
             emulate_runs(spec.path, todo, out / "runs" / spec.name, drl_weights=drl_weights,
-                         workers=max(0, workers), progress=progress, options=loop)
+                         workers=max(0, workers), progress=progress, options=loop, stages=stages)
 
 
 def _run_local(tasks: list[dict], workers: int, on_done: Callable[[dict], None] | None) -> list[dict]:
@@ -177,7 +177,7 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
                                        slam_workers, on_done)]
     elif scheduler is None:
         if slam_path is None:
-            _shared_closed_loops(specs, tasks, out, weights, workers, progress, loop)
+            _shared_closed_loops(specs, tasks, out, weights, workers, progress, loop, stages)
         runs = _run_local(tasks, slam_workers, on_done)
     else:
         runs = _run_dask(tasks, scheduler, on_done)

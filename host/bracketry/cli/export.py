@@ -59,6 +59,9 @@ def command(recording: Path, fmt: str, out: Path, workers: int, keep_unpaired: b
             click.echo(f"exported {written} images to {dst}"
                        + (f"; {summary.skipped_no_event} frames without trigger event skipped"
                           if summary.skipped_no_event else ""))
+            if summary.duplicates:
+                click.echo(f"warning: {summary.duplicates} frame(s) with the time and exposure of a frame already "
+                           "exported (a camera delivered two frames for one trigger): the first kept", err=True)
             if summary.unpaired:
                 verb = "written" if keep_unpaired else "not written (--keep-unpaired writes them)"
                 click.echo(f"warning: {summary.unpaired} frame(s) whose other-camera partner was lost: {verb}",

@@ -39,6 +39,9 @@ class ExportSummary:
     skipped_no_pixels: int = 0
     #: frames whose partner of the other camera (same trigger) is missing from the recording
     unpaired: int = 0
+    #: frames of a camera with the same time and exposure as one already exported (a camera that delivered two
+    #: frames for one trigger): the first is kept
+    duplicates: int = 0
     out_dir: str = ""
 
 
@@ -85,6 +88,7 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
 
         bar = Progress("export", total=total, unit="img")
     made: set[Path] = set()
+    written: set[Path] = set()
 
     def job(path: Path, image: np.ndarray, side: str) -> None:
         _write_png(path, image)
@@ -114,7 +118,12 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
                 if folder not in made:
                     folder.mkdir(parents=True, exist_ok=True)
                     made.add(folder)
-                futures.append(pool.submit(job, folder / f"{img.stamp_ns}.png", img.image, side))
+                target = folder / f"{img.stamp_ns}.png"
+                if target in written:  # never two writes of one file (on threads: a corrupt PNG)
+                    summary.duplicates += 1
+                    continue
+                written.add(target)
+                futures.append(pool.submit(job, target, img.image, side))
                 if len(futures) > 4 * workers:
                     futures.pop(0).result()
         for f in futures:
