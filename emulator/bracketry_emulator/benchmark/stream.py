@@ -28,22 +28,29 @@ from bracketry_emulator.stages import StageTimes
 FIFO_NAME = "frames.fifo"
 
 
-def stream_fps(dataset_path: str | Path, max_frames: int | None) -> float:
+def stream_fps(dataset_path: str | Path, max_frames: int | None) -> tuple[float, int]:
     """The frame rate a streamed run gets in ORB-SLAM3's settings: bracket sequences per second of the dataset
-    (first frame of each sequence, first side), over the first ``max_frames`` sequences when given."""
+    (first frame of each sequence, first side), over the first ``max_frames`` sequences when given; and the number
+    of steps the closed loop will take (every sequence)."""
     from bracketry_emulator.dataset import open_dataset
 
     ds = open_dataset(dataset_path)
     seqs = ds.sequences()
+    n_steps = len(seqs)
     if max_frames:
         seqs = seqs[:max_frames]
     side = ds.sides[0]
     times = [min(s.timestamps_ns[side].values()) for s in seqs]
     span_s = (times[-1] - times[0]) * 1e-9 if times else 0.0
-    return (len(times) - 1) / span_s if len(times) > 1 and span_s > 0 else 1.0
+    return ((len(times) - 1) / span_s if len(times) > 1 and span_s > 0 else 1.0), n_steps
 
 
-def _request(task: dict, fifo: Path, fps: float) -> dict:
+def _request(task: dict, fifo: Path, fps: float, n_steps: int) -> dict:
+    """The child's request; ``preview_index``: the run's middle frame, kept as the report's qualitative image."""
+    return {**_backend_request(task, fifo, fps), "preview_index": n_steps // 2}
+
+
+def _backend_request(task: dict, fifo: Path, fps: float) -> dict:
     from bracketry_emulator.benchmark.slam import SLAM_DEFAULTS
     from bracketry_emulator.slam.orbslam3 import OrbSlam3Options, orbslam3_request
 
@@ -68,7 +75,7 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[dict], out: Path, *, drl
 
     if spec.calibration_dir() is None:
         raise BracketryError(f"{spec.path}: no calibration/ folder with left/right camera_info YAMLs")
-    fps = stream_fps(spec.path, tasks[0]["max_frames"])
+    fps, n_steps = stream_fps(spec.path, tasks[0]["max_frames"])
     children: dict[str, SlamChild] = {}
     errors: dict[str, str] = {}
     feeds: dict[str, list[FrameFeed]] = {}
@@ -80,7 +87,7 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[dict], out: Path, *, drl
             vo_dir.mkdir(parents=True, exist_ok=True)
             fifo = FrameFeed.make_fifo(vo_dir / FIFO_NAME)
             try:
-                children[t["key"]] = start_child(_request(t, fifo, fps), vo_dir)
+                children[t["key"]] = start_child(_request(t, fifo, fps, n_steps), vo_dir)
             except SlamRunError as exc:  # e.g. a vocabulary gone missing: this run fails, the others go on
                 errors[t["key"]] = str(exc)
                 continue

@@ -13,6 +13,7 @@ import html
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 
 from bracketry_emulator.report import plots
@@ -60,8 +61,13 @@ def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, d
             frames = list_side_images(Path(r["run_dir"]), "left")
             if frames:
                 images[m] = read_gray8(frames[len(frames) // 2][1])
+                continue
         except Exception:
-            continue
+            pass
+        preview = Path(r.get("vo_dir", "")) / "preview_left.png"  # SLAM was fed in memory: its kept middle frame
+        img = cv2.imread(str(preview), cv2.IMREAD_UNCHANGED) if preview.is_file() else None
+        if img is not None:
+            images[m] = img
     return traj, images
 
 

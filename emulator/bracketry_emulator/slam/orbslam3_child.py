@@ -26,12 +26,30 @@ def _frames(request: dict) -> tuple[Iterator[tuple[int, np.ndarray, np.ndarray]]
     if request.get("frames_fifo"):
         from bracketry_emulator.slam.frame_stream import read_stream
 
-        return raw_to_gray8(read_stream(request["frames_fifo"])), None
+        frames = raw_to_gray8(read_stream(request["frames_fifo"]))
+        if request.get("preview_index") is not None:
+            frames = _keep_preview(frames, int(request["preview_index"]), Path(request["out_dir"]) / PREVIEW_NAME)
+        return frames, None
     n, frames = png_frames(request["run_dir"], max_frames=request.get("max_frames"))
     times = _times(request["run_dir"], n)
     span_s = (times[-1] - times[0]) * 1e-9
     fps = (len(times) - 1) / span_s if len(times) > 1 and span_s > 0 else 1.0
     return frames, fps
+
+
+#: the left gray image of one frame (the run's middle one), kept when the run's images exist only in memory (the
+#: report's qualitative figure)
+PREVIEW_NAME = "preview_left.png"
+
+
+def _keep_preview(frames: Iterator[tuple[int, np.ndarray, np.ndarray]], index: int, path: Path
+                  ) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
+    import cv2
+
+    for k, frame in enumerate(frames):
+        if k == index:
+            cv2.imwrite(str(path), frame[1])
+        yield frame
 
 
 def _times(run_dir: str, n: int) -> list[int]:

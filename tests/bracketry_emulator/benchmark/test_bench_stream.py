@@ -16,7 +16,7 @@ from bracketry_emulator.ae import run_methods
 from bracketry_emulator.benchmark import run_benchmark
 from bracketry_emulator.slam.frame_stream import FrameFeed, read_stream
 from bracketry_emulator.vo import run_vo
-from bracketry_emulator.vo.runner import list_side_images
+from bracketry_emulator.vo.runner import list_side_images, read_gray8
 
 pytestmark = pytest.mark.slow
 
@@ -68,6 +68,9 @@ def test_streamed_slam_results_equal_the_png_route(world: Path, tmp_path: Path) 
     for name in tums:
         assert (streamed_dir / name).read_text() == (vo.out_dir / name).read_text()
     assert not (streamed_dir / "frames.fifo").exists()
+    left = list_side_images(r["run_dir"], "left")  # the kept middle frame (qualitative figure) is the PNG route's
+    preview = cv2.imread(str(streamed_dir / "preview_left.png"), cv2.IMREAD_UNCHANGED)
+    assert np.array_equal(preview, read_gray8(left[len(left) // 2][1]))
     timing = json.loads((res.out_dir / "report" / "stages.json").read_text())
     assert {"decode", "emulation", "ae:ae50", "png_write", "slam", "metrics", "report"} <= set(timing["stages"])
     assert timing["stages"]["slam"]["count"] == 1 and timing["stages"]["slam"]["cpu_s"] > 0
@@ -79,6 +82,7 @@ def test_streamed_slam_results_equal_the_png_route(world: Path, tmp_path: Path) 
     res2 = run_benchmark([world], ["ae50"], tmp_path / "c", reference="ae50", windows_m=(1.0,))
     run_dir = Path(res2.results[0]["run_dir"])
     assert not list(run_dir.rglob("*.png")) and len((run_dir / "steps.csv").read_text().splitlines()) > 5
+    assert (res2.out_dir / "report" / "qualitative.png").stat().st_size > 1000
     assert (Path(res2.results[0]["vo_dir"]) / "frames.csv").read_text() == (vo.out_dir / "frames.csv").read_text()
     assert "png_write" not in json.loads((res2.out_dir / "report" / "stages.json").read_text())["stages"]
     # cached on a second call: no work now, said in the table's legend

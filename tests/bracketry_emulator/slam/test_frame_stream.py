@@ -65,7 +65,7 @@ def test_feed_sends_what_the_png_writer_writes(tmp_path: Path) -> None:
     reader = threading.Thread(target=lambda: received.extend(read_stream(fifo, max_buffered_bytes=1)))
     reader.start()  # a 1-byte budget: one frame waits at a time, the producer is held (back-pressure)
     feed = FrameFeed(fifo, reader_pid=os.getpid())
-    writer = RunWriter(tmp_path / "runs", "m", ("left", "right"), depth=12, stored_png=True)
+    writer = RunWriter(tmp_path / "runs", "m", ("left", "right"), depth=12, png_compression="stored")
     for k, (t, a, b) in enumerate(frames):
         src_us = 1000 * (k + 1)
         seq = SimpleNamespace(index=k, timestamps_ns={"left": {src_us: t}, "right": {src_us: t + 3}})
