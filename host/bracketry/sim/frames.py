@@ -278,6 +278,13 @@ class FrameSchedule:
                     # (one per trigger it took). The exposure only tells bracket frames from others: the fake camera
                     # reads its exposure register when it fills a frame, and a late fill finds the next pulse's
                     # exposure already written (a real sensor latches it at the trigger)
+                    if side not in self._fill_s:
+                        # this side's first bracket frame: the camera may have lost the first trigger(s) of the
+                        # acquisition, so its place in the cycle is its exposure's (the pairer places the first frame
+                        # by its timestamp the same way)
+                        c = self.served[side]
+                        self.served[side] = next((c + j for j in range(len(self.brackets_us))
+                                                  if abs(self.exposure_us(c + j) - exposure_us) <= 1), c)
                     matched = self.served[side]
                     self.mismatches += abs(self.exposure_us(matched) - exposure_us) > 1
                     self._follow_missed_trigger(side, matched, time.monotonic())

@@ -57,9 +57,12 @@ def test_source_serves_each_side_its_next_bracket_frame(tmp_path: Path) -> None:
     late = sched.source("right")(1000, 32, 16)  # nothing rendered yet (not started): served without identity
     assert read_frame_id(late) is None and sched.unidentified["right"] == 1 and sched.waited["right"] == 1
     sched.served["right"] = 0
+    sched._fill_s.clear()  # as if that fill had not happened
     sched.wait_for_render_s = 60.0
     sched.start()
     try:
+        lost_first = sched.source("right")(2000, 32, 16)  # the right camera lost the first trigger: frame 1
+        assert read_frame_id(lost_first) == 1 and sched.served["right"] == 2
         src = sched.source("left")
         first = src(1000, 32, 16)  # waits for the renderer
         assert read_frame_id(first) == 0
