@@ -19,12 +19,13 @@ import pytest
 
 from bracketry.cameras.netns import netns_available
 from bracketry.recording import topics as T
-from bracketry.recording.decode import decode_image_msg
+from bracketry.recording.decode import decode, decode_image_msg
 from bracketry.recording.reader import RecordingReader
 from bracketry.sim.frames import cycle_time_s, read_frame_id
 from bracketry_testkit import missing_component
 
 pytestmark = [pytest.mark.aravis, pytest.mark.socat, pytest.mark.slow]
+BRACKETS_US = [1000, 2000, 4000, 8000, 16000, 32000]
 HOG = "import time\nend = time.monotonic() + {s}\nwhile time.monotonic() < end:\n    pass\n"
 
 
@@ -69,8 +70,13 @@ def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_show
     rendered = {s: np.load(out / "dev" / "frames" / f"frames_{s}.npy", mmap_mode="r") for s in ("left", "right")}
     n_frames = rendered["left"].shape[0]
     recorded: dict[str, list[tuple[int, int | None]]] = {"left": [], "right": []}
+    labelled: dict[tuple[str, int], int] = {}  # (side, frame stamp) -> the exposure its pulse gave it
     for seg in summary["recordings"]:
         for f in sorted(Path(seg).glob("*.mcap")):
+            for msg in RecordingReader(f).messages({T.frame_meta_topic(s) for s in recorded}):
+                meta = decode("bracketry_msgs/msg/FrameMeta", msg.data)
+                side = "left" if msg.topic == T.frame_meta_topic("left") else "right"
+                labelled[(side, meta.trigger_host_ns)] = meta.exposure_us
             for msg in RecordingReader(f).messages({T.image_topic(s) for s in recorded}):
                 side = "left" if msg.topic == T.image_topic("left") else "right"
                 img = decode_image_msg(msg.data)
@@ -78,6 +84,9 @@ def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_show
                 if k is not None:  # the recorded pixels are exactly those of the rendered frame it names
                     assert np.array_equal(img.image, rendered[side][k % n_frames]), (side, k)
                 recorded[side].append((img.stamp_ns, k))
+                # the image shows the exposure its pulse set (a camera that lost its first trigger, or a late fill,
+                # must not give a frame its neighbour's exposure)
+                assert k is None or labelled.get((side, img.stamp_ns)) == BRACKETS_US[k % 6], (side, k)
     for side in recorded:
         assert len(recorded[side]) >= 20, (side, len(recorded[side]))
         known = [k for _t, k in recorded[side] if k is not None]
