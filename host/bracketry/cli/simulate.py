@@ -129,6 +129,8 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     from bracketry.sim.rig import SimOptions, SimulatedRig, summary_json
     from bracketry.sim.scenario import run_session
 
+    # SIGTERM ends the simulation through its clean-up (devices, daemon, renderers, the frames in /dev/shm)
+    signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))
     started_ns, started_mono_s = time.time_ns(), time.monotonic()
     opts = SimOptions(out_dir=out_dir, resolution=res, fps=fps, world_seconds=world_seconds or seconds + 5.0,
                       trigger=trigger, preset=preset, seed=seed, world=world, keep_frames=keep_frames,
