@@ -20,6 +20,7 @@ This module reproduces that pipeline with these documented differences:
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 import cv2
@@ -171,6 +172,36 @@ class OrbExtractor:
         pick = _spread(xy, resp, w, h, wanted)
         return xy[pick], resp[pick]
 
+    def _level_points(self, gray8: np.ndarray, mask: np.ndarray | None
+                      ) -> Iterator[tuple[int, np.ndarray, np.ndarray, np.ndarray]]:
+        """(level, level image, keypoints xy in level pixels, responses) of every level with keypoints in ``mask``."""
+        if gray8.dtype != np.uint8 or gray8.ndim != 2:
+            raise ValueError("ORB detection needs a uint8 HxW gray image")
+        h0, w0 = gray8.shape
+        wanted = self.settings.features_per_level()
+        for level, image in enumerate(self.pyramid(gray8)):
+            xy, resp = self._detect_level(image, wanted[level])
+            if len(xy) == 0:
+                continue
+            if mask is not None:
+                scale = self.scale_factors[level]
+                x0 = np.clip((xy[:, 0] * scale).astype(int), 0, w0 - 1)
+                y0 = np.clip((xy[:, 1] * scale).astype(int), 0, h0 - 1)
+                ok = np.asarray(mask)[y0, x0] > 0
+                xy, resp = xy[ok], resp[ok]
+                if len(xy) == 0:
+                    continue
+            yield level, image, xy, resp
+
+    def detect_xy(self, gray8: np.ndarray, mask: np.ndarray | None = None) -> np.ndarray:
+        """The keypoint positions of :meth:`detect_and_compute` (float32 (N, 2), ``gray8`` pixels, same order)
+        without orientations and descriptors (a third of the cost): the descriptor step drops no keypoint, since
+        the detector keeps ``edge_px`` (19) from every border and ORB's descriptor border is 16 px."""
+        if self.settings.edge_px < _HALF_PATCH + 1:  # then the descriptor step may drop keypoints: do it
+            return self.detect_and_compute(gray8, mask).xy_px
+        out = [xy * self.scale_factors[level] for level, _image, xy, _resp in self._level_points(gray8, mask)]
+        return np.concatenate(out).astype(np.float32) if out else np.zeros((0, 2), np.float32)
+
     def detect_and_compute(self, gray8: np.ndarray, mask: np.ndarray | None = None) -> Features:
         """Detect and describe keypoints.
 
@@ -180,23 +211,10 @@ class OrbExtractor:
         Returns:
             :class:`Features` (at most ``n_features`` keypoints, positions in ``gray8`` pixels).
         """
-        if gray8.dtype != np.uint8 or gray8.ndim != 2:
-            raise ValueError("detect_and_compute needs a uint8 HxW gray image")
         h0, w0 = gray8.shape
-        wanted = self.settings.features_per_level()
         out_xy, out_oct, out_ang, out_resp, out_desc = [], [], [], [], []
-        for level, image in enumerate(self.pyramid(gray8)):
-            xy, resp = self._detect_level(image, wanted[level])
-            if len(xy) == 0:
-                continue
+        for level, image, xy, resp in self._level_points(gray8, mask):
             scale = self.scale_factors[level]
-            if mask is not None:
-                x0 = np.clip((xy[:, 0] * scale).astype(int), 0, w0 - 1)
-                y0 = np.clip((xy[:, 1] * scale).astype(int), 0, h0 - 1)
-                ok = np.asarray(mask)[y0, x0] > 0
-                xy, resp = xy[ok], resp[ok]
-                if len(xy) == 0:
-                    continue
             ix = np.rint(xy[:, 0]).astype(np.int32)
             iy = np.rint(xy[:, 1]).astype(np.int32)
             angle = _ic_angle_deg(image, ix, iy)

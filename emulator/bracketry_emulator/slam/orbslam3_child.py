@@ -127,9 +127,9 @@ def _track(request: dict) -> dict:
         times_ns.append(t_ns)
         gl = rect.rectify(left_gray, "left")
         gr = rect.rectify(right_gray, "right")
-        feats = extractor.detect_and_compute(gl, mask)
-        kp.append(len(feats))
-        cov.append(grid_coverage(feats.xy_px, feats.width_px, feats.height_px, 20))
+        xy = extractor.detect_xy(gl, mask)  # our keypoints at the paper's settings: count and coverage only
+        kp.append(len(xy))
+        cov.append(grid_coverage(xy, gl.shape[1], gl.shape[0], 20))
         due = t_start + ((t_ns - times_ns[0]) * 1e-9 if pace is None else k * float(pace))
         wait = due - time.perf_counter()
         if wait > 0:

@@ -72,3 +72,23 @@ def test_bench_orb_on_real_sample(borealhdr_sequence) -> None:
     f = OrbExtractor().detect_and_compute(gray)
     assert len(f) >= 2900  # the 3000 budget is met on a textured forest image
     assert grid_coverage(f.xy_px, gray.shape[1], gray.shape[0]) > 0.9
+
+
+def test_bench_orb_detect_xy_is_detect_and_compute_without_descriptors(borealhdr_sequence) -> None:
+    """SLAM's coverage and keypoint counts use detect_xy: the same keypoints, in the same order, as the full
+    extractor (textured, blank-bordered, masked and tiny images; the real sample)."""
+    rng = np.random.default_rng(11)
+    images = [cv2.GaussianBlur(rng.integers(0, 256, (400, 640), dtype=np.uint8), (5, 5), s) for s in (0.8, 2.0)]
+    edge = images[0].copy()
+    edge[:, :40] = 0  # keypoints hug the edge of a blank band
+    images += [edge, images[1][:90, :120].copy(), np.zeros((200, 320), np.uint8)]
+    png = sorted((borealhdr_sequence / "camera_left" / "4.0").glob("*.png"))[0]
+    images.append(bayer12_to_gray8(cv2.imread(str(png), cv2.IMREAD_UNCHANGED)))
+    ex = OrbExtractor()
+    for k, img in enumerate(images):
+        mask = np.zeros(img.shape, np.uint8)
+        mask[10:-10, 25:-30] = 1
+        for m in (None, mask):
+            assert np.array_equal(ex.detect_xy(img, m), ex.detect_and_compute(img, m).xy_px), (k, m is None)
+    small_edge = OrbExtractor(OrbSettings(edge_px=15))  # below the descriptor border: falls back to the full path
+    assert np.array_equal(small_edge.detect_xy(images[0]), small_edge.detect_and_compute(images[0]).xy_px)
