@@ -224,5 +224,5 @@ def connect(url: str, state_fn: Callable[[], dict[str, Any]], on_button: Callabl
     """
     from bracketry.wire.link import SerialLink
 
-    link = SerialLink(url, baudrate, heartbeat_period_s=None, auto_ack_buttons=False, name="panel")
+    link = SerialLink(url, baudrate, heartbeat_period_s=None, name="panel")
     return PanelClient(link, state_fn, on_button, rate_hz).start()

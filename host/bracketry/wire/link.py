@@ -38,7 +38,7 @@ EVENT_TYPES = (bproto.MSG_TRIGGER, bproto.MSG_BUTTON, bproto.MSG_HELLO, bproto.M
 COUNTER_NAMES = ("frames_in", "frames_out", "crc_errors", "length_errors", "cobs_errors", "version_errors",
                  "overflows", "resyncs", "bytes_discarded", "requests", "retries", "timeouts", "nacks", "reboots",
                  "unsolicited_hellos", "heartbeats_in", "heartbeats_out", "peer_lost", "trigger_events",
-                 "button_events", "button_duplicates", "bad_payloads", "unknown_types",
+                 "button_events", "bad_payloads", "unknown_types",
                  "unmatched_replies", "listener_errors", "reconnects", "io_errors", "seq_gaps", "send_acks",
                  "send_nacks")
 
@@ -82,16 +82,16 @@ class SerialLink:
 
     Parameters: ``url`` (pyserial URL or path), ``baudrate``, ``heartbeat_period_s`` (0.5 = 2 Hz; ``None`` sends no
     HEARTBEAT, e.g. for the panel whose PANEL_STATE is the host heartbeat), ``peer_lost_after_s`` (1.5 s = 3 missed
-    heartbeats), ``auto_ack_buttons`` (ACK every BUTTON and hand each ``event_seq`` to listeners once),
-    ``reconnect`` (reopen the port after an I/O error, e.g. an unplug), ``time_ns`` (host clock for PING stamps and
-    the clock model; default ``time.monotonic_ns``).
+    heartbeats), ``reconnect`` (reopen the port after an I/O error, e.g. an unplug), ``time_ns`` (host clock for
+    PING stamps and the clock model; default ``time.monotonic_ns``). BUTTON frames are handed to the listeners as
+    they come (ACKs and duplicates are the panel client's).
 
     Attributes: ``clock`` (:class:`ClockModel`), ``device_info`` (fields of the last device HELLO or None),
     ``peer_lost`` (bool), ``connected`` (bool), ``counters`` (dict, see :data:`COUNTER_NAMES`; a snapshot).
     """
 
     def __init__(self, url: str, baudrate: int = 921600, *, heartbeat_period_s: float | None = 0.5,
-                 peer_lost_after_s: float = 1.5, auto_ack_buttons: bool = False, reconnect: bool = True,
+                 peer_lost_after_s: float = 1.5, reconnect: bool = True,
                  time_ns: Callable[[], int] = time.monotonic_ns, name: str | None = None,
                  on_reboot: Callable[[dict[str, Any]], None] | None = None) -> None:
         self.url = url
@@ -99,7 +99,6 @@ class SerialLink:
         self.baudrate = baudrate
         self.heartbeat_period_s = heartbeat_period_s
         self.peer_lost_after_s = peer_lost_after_s
-        self.auto_ack_buttons = auto_ack_buttons
         self.reconnect = reconnect
         self._time_ns = time_ns
         self.clock = ClockModel()
@@ -119,7 +118,6 @@ class SerialLink:
         if on_reboot is not None:
             self._reboot_listeners.append(on_reboot)
         self._last_uptime_ms: int | None = None  # of the device's last HEARTBEAT (None until one after a boot)
-        self._last_button_event: int | None = None
         self._heard_device = False
         self._last_device_seq: int | None = None
         self._sent_seqs: deque[int] = deque(maxlen=64)  # seqs of recent fire-and-forget sends (their ACKs are fine)
@@ -540,15 +538,7 @@ class SerialLink:
         self._emit(bproto.MSG_TRIGGER, seq, fields)
 
     def _on_button(self, seq: int, fields: dict[str, Any]) -> None:
+        # ACKs and duplicate BUTTON events are the panel client's (the application's) business, counted there once.
         with self._lock:
             self._counters["button_events"] += 1
-            duplicate = self._last_button_event == fields["event_seq"]
-            if duplicate:
-                self._counters["button_duplicates"] += 1
-            self._last_button_event = fields["event_seq"]
-        if self.auto_ack_buttons:
-            with contextlib.suppress(DeviceLostError):
-                self.send(bproto.MSG_ACK, {"acked_seq": seq})
-            if duplicate:
-                return
         self._emit(bproto.MSG_BUTTON, seq, fields)

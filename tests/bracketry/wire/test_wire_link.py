@@ -12,6 +12,7 @@ from typing import Any
 import pytest
 from wire_fake_device import FakeDevice
 
+from bracketry.panel.client import PanelClient
 from bracketry.trigger.client import TriggerClient
 from bracketry.wire import bproto
 from bracketry.wire.errors import DeviceLostError, LinkClosedError, NackError
@@ -186,9 +187,11 @@ def test_wire_clock_model_over_pty(link: SerialLink, device: FakeDevice) -> None
 
 def test_wire_trigger_gaps_and_buttons(device: FakeDevice) -> None:
     got: list[tuple[int, dict[str, Any]]] = []
-    with SerialLink(device.path, auto_ack_buttons=True) as link:
+    pressed: list[int] = []
+    with SerialLink(device.path) as link:
         link.add_listener(lambda t, s, f: got.append((t, f)))
         client = TriggerClient(link)  # the one counter of missing trigger events
+        panel = PanelClient(link, dict, on_button=lambda e: pressed.append(e.event_seq))  # the one of duplicates
         link.hello(timeout_s=T)
         for k in (0, 1, 2, 5, 6):  # 3 and 4 lost
             device.emit_trigger(77, k)
@@ -197,10 +200,11 @@ def test_wire_trigger_gaps_and_buttons(device: FakeDevice) -> None:
         assert wait_for(lambda: link.counters["button_events"] == 2 and link.counters["trigger_events"] == 5)
         assert client.counters.missed_events == 2 and client.counters.gaps == [(3, 5)]
         assert "trigger_gaps" not in link.counters  # counted once, by the trigger client
-        assert link.counters["button_duplicates"] == 1
-        assert wait_for(lambda: device.acked_buttons.count(seq) == 2)  # every copy ACKed
-        buttons = [f for t, f in got if t == bproto.MSG_BUTTON]
-        assert len(buttons) == 1  # acted on once
+        assert "button_duplicates" not in link.counters  # counted once, by the panel client
+        assert wait_for(lambda: panel.counters["duplicates"] == 1)
+        assert wait_for(lambda: device.acked_buttons.count(seq) == 2)  # every copy ACKed, by the panel client
+        assert [f["event_seq"] for t, f in got if t == bproto.MSG_BUTTON] == [0, 0]  # the link hands on both
+        assert pressed == [0] and panel.counters["buttons"] == 1  # acted on once
         assert [f["trigger_seq"] for t, f in got if t == bproto.MSG_TRIGGER] == [0, 1, 2, 5, 6]
 
 
