@@ -131,7 +131,8 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     (:mod:`~bracketry_emulator.stages`).
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO); with
     ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and spread
-    (statistics on the medians). Paced ORB-SLAM3 runs mostly wait: locally twice ``workers`` of them run at once.
+    (statistics on the medians). Fed in memory, every run of a trajectory runs at once; on the PNG route paced
+    ORB-SLAM3 runs mostly wait, so locally twice ``workers`` of them run at once.
     An unresolved ORB-SLAM3 vocabulary is resolved after the other input was checked (``slam_echo`` says when the
     default vocabulary is being built). ``stats_methods``: the methods the statistics (and their Bonferroni count)
     cover: ``paper`` (default: the benchmarked methods among the paper's eight; ``zhang`` and plugins are reported

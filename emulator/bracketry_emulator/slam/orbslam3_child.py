@@ -1,8 +1,10 @@
-"""Child process of :func:`bracketry_emulator.slam.orbslam3.run_orbslam3`: ``python -m ... REQUEST.json``.
+"""A SLAM run's child process (:func:`bracketry_emulator.slam.orbslam3.start_child`): ``python -m ... REQUEST.json``.
 
-Reads the run's pairs, rectifies them as the built-in VO does (same row correction), feeds ORB-SLAM3 at the requested
-pace, and writes ``frames.csv``, ``CameraTrajectory<n>.txt``, ``settings.yaml`` and, last, ``slam.json`` (its
-presence tells the parent the run finished). Exit code 0 on success, 1 with a one-line message otherwise.
+Reads the run's pairs (a run folder's PNGs, or the closed loop's images through the FIFO ``frames_fifo``, see
+:mod:`.frame_stream`), rectifies them as the built-in VO does (same row correction), feeds ORB-SLAM3 at the requested
+pace (or, ``backend: builtin``, tracks them with the built-in VO), and writes ``frames.csv``,
+``CameraTrajectory<n>.txt``, ``settings.yaml`` and, last, ``slam.json`` (its presence tells the parent the run
+finished). Exit code 0 on success, 1 with a one-line message otherwise.
 """
 
 from __future__ import annotations
