@@ -68,6 +68,8 @@ def test_panel_e2e_screen_button_once_reboot(rig: dict[str, Any]) -> None:
 
     assert wait_for(lambda: shows(["L:IDL R:IDL TRIG:IDL", "IM:CAL LI:ERR GN:OFF", "21.9/22.0 512G --:--",
                                    "READY               "]), 30), read_screen(screen)
+    # the HELLO is handled on the link's reader thread, which may run after the screen already shows the state
+    assert wait_for(lambda: client.panel_hello is not None, 10), "the panel's boot HELLO never reached the client"
     assert client.panel_hello is not None and client.panel_hello["device_kind"] == 2
     state.update(cam_left=2, cam_right=2, trigger=2, lidar=2, rec_seconds=3725, message="REC 0001")
     assert wait_for(lambda: shows(["L:REC R:REC TRIG:REC", "IM:CAL LI:REC GN:OFF", "21.9/22.0 512G 62:05",
