@@ -46,13 +46,22 @@ def test_demo_quick_records_verifies_and_reports_every_method(tmp_path: Path) ->
     assert summary["methods"] == methods
     # every recorded frame carries the rendered frame it shows, both images of a pair the same one: every pose known
     assert summary["frames_without_pose"] == 0, res.stdout[-2000:]
-    assert set(summary["best"]) == set(METRICS)
+    held = summary["frames_held_for_renderer"]
+    if held:  # a renderer behind on a loaded machine: said, and the walk may be too short for the RTE windows
+        assert "not those of an idle run" in res.stderr and "not an idle run's figures" in res.stdout, res.stdout
+        assert set(METRICS) - set(summary["best"]) <= {"RTE (%)", "RRE (deg/m)"}, summary["best"]
+        if "RTE (%)" not in summary["best"]:
+            assert "RTE/RRE not computed for any method: the world held" in res.stdout, res.stdout
+    else:
+        assert set(summary["best"]) == set(METRICS), (summary["best"], summary["load_average"], res.stdout[-2000:])
     with open(summary["report"]["summary.csv"], newline="") as f:
         rows = list(csv.reader(f))
     assert rows[0][:6] == ["method", *METRICS]
     assert sorted(r[0] for r in rows[1:]) == methods
-    for row in rows[1:]:  # every method has a finite value for every metric
+    for row in rows[1:]:  # every method has a finite value for every metric (RTE/RRE: unless the world held)
         for metric, value in zip(METRICS, row[1:6], strict=True):
+            if held and metric in ("RTE (%)", "RRE (deg/m)"):
+                continue
             assert math.isfinite(float(value)), (row[0], metric, value)
     report_md = Path(summary["report"]["report.md"]).read_text()
     for method in methods:

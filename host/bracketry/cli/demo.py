@@ -40,9 +40,16 @@ def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, 
     unknown = summary.get("frames_without_pose", 0)
     for metric, best in summary["best"].items():  # RTE/RRE are absent when the benchmark refused them
         click.echo(f"  best {metric:<32} {best['method']:<8} {best['value']}")
+    held = summary.get("frames_held_for_renderer", 0)
     if unknown:
         click.echo(f"  {unknown} recorded frames have no known ground-truth pose: left out of RTE/RRE "
                    "(refused beyond 5 % of a run's frames)")
+    if "RTE (%)" not in summary["best"] and not unknown:
+        why = (f"the world held for {held} frames (renderer behind on a loaded machine), so the walk may be shorter "
+               "than the RTE windows" if held else "no method tracked a stretch as long as the RTE windows")
+        click.echo(f"  RTE/RRE not computed for any method: {why}")
+    if held:
+        click.echo(f"  WARNING: {held} frames repeat an earlier rendered cycle: these are not an idle run's figures")
     report = summary["report"].get("report.html") or summary["report"].get("report.md")
     click.echo(f"report: {report}")
     t = summary["timing_s"]
