@@ -14,8 +14,8 @@ from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Number, input_file, op
               show_default=True, help="Output folder, new or empty (recording, dataset, benchmark report).")
 @overwrite_option("Run again into a non-empty --out (the earlier demo's files are replaced).")
 @option("--duration-s", "seconds", aliases=("--seconds",), type=Number(3.0, 600.0), default=None,
-        help="Seconds to record, 3 to 600 (default 40, or 8 with --quick).")
-@click.option("--quick", is_flag=True, help="Small and short (320x200, 8 s of recording): the version CI runs.")
+        help="Seconds to record, 3 to 600 (default 40, or 10 with --quick).")
+@click.option("--quick", is_flag=True, help="Small and short (320x200, 10 s of recording): the version CI runs.")
 @click.option("--drl-weights", type=input_file(), default=None,
               envvar="BRACKETRY_DRL_WEIGHTS",
               help="The DRL actor's .pth (env BRACKETRY_DRL_WEIGHTS); without it DRL is left out.")

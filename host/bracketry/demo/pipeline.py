@@ -57,7 +57,9 @@ DEMO_PACE = 0.0
 
 
 DEFAULT_SECONDS = 40.0
-QUICK_SECONDS = 8.0
+#: 10 s: the simulated walk (~0.58 m/s) covers ~5.8 m, safely more than the shortest RTE window (5 m, pairs from
+#: 4.5 m); 8 s (~4.7 m) left RTE/RRE to chance.
+QUICK_SECONDS = 10.0
 DEFAULT_RESOLUTION = (640, 400)
 QUICK_RESOLUTION = (320, 200)
 
