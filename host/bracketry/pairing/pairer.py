@@ -86,6 +86,13 @@ class _SideState:
     stamps: dict[int, int] = field(default_factory=dict)  # seq -> camera timestamp (host-fired cameras)
     newest_seq: int = -1  # newest trigger_seq a frame of this side was assigned
 
+    def drop_candidate(self, side: str | None = None, seq: int | None = None) -> None:
+        """Forget the shift candidate; with ``side`` and ``seq``, log that a pending one was dropped at ``seq``."""
+        if self.candidate and side is not None:
+            log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
+        self.candidate = []
+        self.candidate_shift = 0
+
 
 class Pairer:
     """Pairs frames of ``sides`` with TRIGGER events. Not thread-safe: feed it from one thread.
@@ -234,10 +241,7 @@ class Pairer:
         if m == 0:
             st.offsets.append(offset)
             st.last_ok_seq = seq
-            if st.candidate:
-                log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
-            st.candidate = []
-            st.candidate_shift = 0
+            st.drop_candidate(side, seq)
             return seq
         if m != st.candidate_shift:
             st.candidate = []
@@ -267,16 +271,11 @@ class Pairer:
                 o_ns = o_st.stamps.get(seq)
                 if (other != side and o_st.candidate_shift > 0 and seq in o_st.candidate and o_ns is not None
                         and o_ns - cam_ns < o_st.candidate_shift * period_ns - tol):
-                    log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", other, seq)
-                    o_st.candidate = []
-                    o_st.candidate_shift = 0
+                    o_st.drop_candidate(other, seq)
         if m == 0:
             if len(st.stamps) > 1:  # (a late first frame may have been aligned to a later pulse: not a reference)
                 st.last_ok_seq = seq
-            if st.candidate:
-                log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
-            st.candidate = []
-            st.candidate_shift = 0
+            st.drop_candidate(side, seq)
             return seq
         if st.candidate and (m > 0) != (st.candidate_shift > 0):
             st.candidate = []
@@ -328,8 +327,7 @@ class Pairer:
             # a shift to before the first pulse is no shift (timestamps of frames that came before START)
             log.info("camera %s: timestamp shift of %+d pulses at trigger_seq %d dropped (before pulse 0)",
                      side, m, min(st.candidate))
-            st.candidate = []
-            st.candidate_shift = 0
+            st.drop_candidate()
             return seq
         moved_seq = seq
         first_moved = min(st.candidate)
@@ -357,8 +355,7 @@ class Pairer:
                         side, m, first_moved)
         self.counters[side].timestamp_mismatches += 1
         st.offset = (st.offset or 0) + m
-        st.candidate = []
-        st.candidate_shift = 0
+        st.drop_candidate()
         return moved_seq
 
     # -- output ---------------------------------------------------------------------------------------------------
