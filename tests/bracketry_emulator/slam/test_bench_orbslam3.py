@@ -41,6 +41,14 @@ def toy(tmp_path_factory) -> Path:
     return d
 
 
+def toy_dataset(toy: Path, ds: Path) -> Path:
+    """A dataset folder ``ds`` with the toy's calibration, ground truth and its ae50 run (symlinks)."""
+    ds.mkdir()
+    for name in ("calibration", "groundtruth.txt", "ae50"):
+        (ds / name).symlink_to(toy / name)
+    return ds
+
+
 @pytest.fixture(scope="module")
 def vocabulary(toy: Path) -> Path:
     out = toy / "voc.txt"
@@ -112,12 +120,7 @@ def test_bench_orbslam3_tracks_in_every_repeat(toy: Path, vocabulary: Path, tmp_
     give tens of percent).
     """
     slam = slam_options("orbslam3", vocabulary, pace=0.0, repeats=3)
-    ds = tmp_path / "ds"
-    ds.mkdir()
-    for name in ("calibration", "groundtruth.txt"):
-        (ds / name).symlink_to(toy / name)
-    runs = ds
-    (runs / "ae50").symlink_to(toy / "ae50")
+    ds = toy_dataset(toy, tmp_path / "ds")
     seen: list[dict] = []
     res = run_benchmark([ds], ["ae50"], tmp_path / "out", reference="ae50", windows_m=(1.0, 2.0, 4.0),
                         workers=2, slam=slam, on_done=seen.append)
@@ -161,13 +164,8 @@ def test_bench_orbslam3_broken_vocabulary_is_one_line(toy: Path, tmp_path: Path)
 
 
 def test_bench_failed_run_is_a_report_line_and_others_finish(toy: Path, vocabulary: Path, tmp_path: Path) -> None:
-    ds = tmp_path / "ds"
-    ds.mkdir()
-    for name in ("calibration", "groundtruth.txt"):
-        (ds / name).symlink_to(toy / name)
-    runs = ds
-    (runs / "ae50").symlink_to(toy / "ae50")
-    broken = runs / "broken"
+    ds = toy_dataset(toy, tmp_path / "ds")
+    broken = ds / "broken"
     (broken / "images_left").mkdir(parents=True)
     (broken / "images_right").mkdir()
     for k in range(3):  # unreadable images: this run fails in its child, not the benchmark
