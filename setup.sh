@@ -12,7 +12,7 @@ SUDO=""; if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
 
 APT_PACKAGES=(libaravis-0.8-0 gir1.2-aravis-0.8 aravis-tools aravis-tools-cli libgirepository1.0-dev
   libcairo2-dev pkg-config gcc make socat gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm
-  iproute2 util-linux python3-venv python3-dev chromium
+  iproute2 util-linux python3-venv python3-dev chromium libdeflate-dev
   libgl1 libegl1 libopengl0 libsm6 libice6 libx11-6 libxext6)  # the OpenGL/X11 runtime libraries pyorbslam3 links
 command -v node >/dev/null 2>&1 || APT_PACKAGES+=(nodejs)
 command -v npm >/dev/null 2>&1 || APT_PACKAGES+=(npm)
@@ -41,10 +41,12 @@ stamp=.venv/.bracketry-installed
 # (re)install when pyproject.toml or a C extension's source changed, or a built extension is missing
 lut12_src=emulator/bracketry_emulator/emulation/_lut12.c
 zhang_src=emulator/bracketry_emulator/ae/_zhang_terms.c
+pngread_src=emulator/bracketry_emulator/dataset/_pngread.c
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$lut12_src" -nt "$stamp" ] \
-   || [ "$zhang_src" -nt "$stamp" ] \
+   || [ "$zhang_src" -nt "$stamp" ] || [ "$pngread_src" -nt "$stamp" ] \
    || ! ls emulator/bracketry_emulator/emulation/_lut12*.so >/dev/null 2>&1 \
-   || ! ls emulator/bracketry_emulator/ae/_zhang_terms*.so >/dev/null 2>&1; then
+   || ! ls emulator/bracketry_emulator/ae/_zhang_terms*.so >/dev/null 2>&1 \
+   || ! ls emulator/bracketry_emulator/dataset/_pngread*.so >/dev/null 2>&1; then
   .venv/bin/python -m pip install -q -e '.[all]'
   touch "$stamp"
 else

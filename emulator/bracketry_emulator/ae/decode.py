@@ -112,16 +112,18 @@ class FrameBuffer:
     def _load(self, task: DecodeTask) -> None:
         slot, seq_i, side_i, exp_i = task
         seq = self.sequences[seq_i]
+        view = self.view(slot, side_i, exp_i)
         img = self.preloaded.get((seq_i, side_i, exp_i))
-        if img is None:
-            img = seq.frames[self.sides[side_i]][seq.exposures_us[exp_i]].load()
+        if img is None:  # decoded straight into the buffer (a PNG), else copied there
+            img = seq.frames[self.sides[side_i]][seq.exposures_us[exp_i]].load_into(view)
         if img.shape != self.shape:
             raise BracketryError(f"sequence {seq.index}: frame shape {img.shape} differs from {self.shape}")
-        self.view(slot, side_i, exp_i)[...] = img
+        if img is not view:
+            view[...] = img
 
     def decode(self, tasks: list[DecodeTask], pool: ThreadPoolExecutor | None = None) -> list[Future[None]]:
         """Decode frames into the buffer (unconditionally, without the state table): with ``pool`` on its threads
-        (cv2.imread releases the GIL; the futures are returned: wait on them before reading), else inline."""
+        (the decoders release the GIL; the futures are returned: wait on them before reading), else inline."""
         if pool is None:
             for task in tasks:
                 self._decode_one(task)

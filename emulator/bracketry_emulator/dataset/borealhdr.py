@@ -7,11 +7,10 @@ raw RGGB Bayer 12-bit codes). The calibration folder is ``<root>/calibration`` o
 
 from __future__ import annotations
 
-import functools
 from pathlib import Path
 
 from .grouping import group_sequences
-from .imageio import read_png12
+from .imageio import PngLoader
 from .model import Dataset, DatasetError, Frame
 
 SIDE_FOLDERS = {"left": "camera_left", "right": "camera_right"}
@@ -49,7 +48,7 @@ def scan_side(side_dir: Path, side: str, problems: list[str]) -> list[Frame]:
             if png.stat().st_size == 0:
                 problems.append(f"{side}: skipped empty file {png}")
                 continue
-            frames.append(Frame(side, exposure_us, t_ns, str(png), functools.partial(read_png12, png)))
+            frames.append(Frame(side, exposure_us, t_ns, str(png), PngLoader(png)))
     return frames
 
 

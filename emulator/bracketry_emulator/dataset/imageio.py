@@ -1,8 +1,20 @@
-"""Read and write 16-bit single-channel PNGs of 12-bit raw Bayer codes."""
+"""Read and write 16-bit single-channel PNGs of 12-bit raw Bayer codes.
+
+Every bracket is read by :func:`read_png12`. Gray 8- and 16-bit non-interlaced PNGs (what the cameras' recordings,
+the BorealHDR sample and the synthetic worlds hold) are decoded by the ``_pngread`` extension (``_pngread.c`` next
+to this file, linked with libdeflate, built with the package; about 3x faster than OpenCV here, and it writes
+straight into the caller's array, e.g. a slot of the shared frame buffer). Any other PNG, and any file that is not
+valid in every respect the extension checks (CRCs, zlib checksum, sizes), is read by OpenCV as before, so images and
+errors are OpenCV's. Where the extension was not built, or with ``BRACKETRY_NO_CKERNEL=1``, OpenCV reads every file.
+"""
 
 from __future__ import annotations
 
+import importlib
+import os
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -12,23 +24,92 @@ from .model import DatasetError
 #: Largest code of a 12-bit image.
 MAX_CODE_12BIT = 4095
 
+_DECODER: Callable[[str, Any], Any] | None = None
+_DECODER_TRIED = False
 
-def read_png12(path: Path) -> np.ndarray:
+
+def png_decoder() -> Callable[[str, Any], Any] | None:
+    """The compiled ``decode(path, out)`` of the ``_pngread`` extension, or None when it was not built (or
+    ``BRACKETRY_NO_CKERNEL=1``)."""
+    global _DECODER, _DECODER_TRIED
+    if not _DECODER_TRIED:
+        _DECODER_TRIED = True
+        if os.environ.get("BRACKETRY_NO_CKERNEL") != "1":
+            try:
+                _DECODER = importlib.import_module(f"{__package__}._pngread").decode
+            except ImportError:
+                _DECODER = None
+    return _DECODER
+
+
+def read_png(path: Path, out: np.ndarray | None = None) -> np.ndarray | None:
+    """A PNG's samples as ``cv2.imread(path, cv2.IMREAD_UNCHANGED)`` returns them (None when it cannot read it).
+
+    ``out``: a C-contiguous array to decode into; used (and returned) when the image has its shape and dtype,
+    else left untouched and a new array is returned. Raises OSError when the file cannot be read."""
+    return _read_png(path, out)[0]
+
+
+def _read_png(path: Path, out: np.ndarray | None) -> tuple[np.ndarray | None, int | None]:
+    """(:func:`read_png`, the bitwise OR of every sample when the extension decoded it, else None)."""
+    fits = out is not None and out.ndim == 2 and out.dtype in (np.uint8, np.uint16) and out.flags.c_contiguous \
+        and out.flags.writeable
+    decode = png_decoder()
+    got = decode(str(path), out if fits else None) if decode is not None else None
+    if got is not None:
+        h, w, depth, or_samples, buf = got
+        if buf is out:
+            return out, or_samples
+        return np.frombuffer(buf, np.uint16 if depth == 16 else np.uint8).reshape(h, w), or_samples
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is not None and out is not None and img.shape == out.shape and img.dtype == out.dtype:
+        out[...] = img
+        return out, None
+    return img, None
+
+
+def read_png12(path: Path, out: np.ndarray | None = None) -> np.ndarray:
     """Read one 16-bit gray PNG holding 12-bit codes -> np.ndarray uint16 HxW.
+
+    ``out``: a uint16 HxW C-contiguous array (e.g. a slot of a frame buffer) to decode into: returned filled when
+    the image has its shape; an image of another shape comes back as a new array and ``out`` is left as it was.
 
     Raises DatasetError (one clear line) when the file is missing, corrupt, not single-channel 16-bit, or holds
     values above 4095 (e.g. codes shifted to the high bits).
     """
     if not path.is_file():
         raise DatasetError(f"missing image file: {path}")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:
+        img, or_samples = _read_png(path, out)
+    except OSError as exc:
+        raise DatasetError(f"cannot read {path}: {exc.strerror or exc}") from exc
     if img is None:
         raise DatasetError(f"corrupt or unreadable PNG: {path}")
     if img.ndim != 2 or img.dtype != np.uint16:
         raise DatasetError(f"expected a single-channel 16-bit PNG, got {img.dtype} shape {img.shape}: {path}")
-    if int(img.max(initial=0)) > MAX_CODE_12BIT:
+    # a sample above 4095 has a bit above the 12th set: the OR of the samples is above 4095 exactly then
+    if (or_samples if or_samples is not None else int(img.max(initial=0))) > MAX_CODE_12BIT:
         raise DatasetError(f"values above 4095 (not 12-bit LSB-aligned codes): {path}")
     return img
+
+
+class PngLoader:
+    """Loads one bracket PNG (a :data:`~.model.FrameLoader`): called, :func:`read_png12` of ``path``;
+    :meth:`into` decodes it into a given array (:meth:`~.model.Frame.load_into`)."""
+
+    __slots__ = ("path",)
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+
+    def __call__(self) -> np.ndarray:
+        return read_png12(self.path)
+
+    def into(self, out: np.ndarray) -> np.ndarray:
+        return read_png12(self.path, out)
+
+    def __repr__(self) -> str:
+        return f"PngLoader({str(self.path)!r})"
 
 
 def write_png16(path: Path, image: np.ndarray) -> None:

@@ -38,6 +38,19 @@ class Frame:
         """The frame's image: np.ndarray uint16 HxW, raw RGGB Bayer 12-bit codes."""
         return self.loader()
 
+    def load_into(self, out: np.ndarray) -> np.ndarray:
+        """The frame's image in ``out`` (uint16 HxW, C-contiguous; e.g. a slot of a frame buffer): decoded straight
+        into it when the loader can (``loader.into(out)``, the PNG files' loader), else loaded and copied. Returns
+        ``out``; an image of another shape is returned as it is, ``out`` left untouched."""
+        into = getattr(self.loader, "into", None)
+        if into is not None:
+            return into(out)
+        img = self.loader()
+        if img.shape != out.shape:
+            return img
+        out[...] = img
+        return out
+
 
 @dataclass(frozen=True)
 class BracketSequence:

@@ -1,0 +1,467 @@
+/*
+ * _pngread: a decoder for the PNGs the brackets are stored in (gray, 8 or 16 bits a sample, not interlaced), built
+ * with the package (see pyproject.toml) and linked with libdeflate. imageio.py calls it and falls back to OpenCV
+ * for everything else.
+ *
+ * decode(path, out) reads the whole file, checks every chunk's CRC, inflates the concatenated IDAT data in one call
+ * (libdeflate, which also checks the zlib Adler-32), undoes the five row filters and writes the samples in native
+ * byte order straight into ``out`` (a writable C-contiguous buffer of exactly height x width samples), or into a
+ * new bytearray when ``out`` is None. The GIL is released while it works.
+ *
+ * It only succeeds on a file that is valid in every respect it looks at; for anything else (another colour type or
+ * depth, interlacing, a bad CRC or checksum, a truncated or malformed file, not a PNG at all) it returns None and
+ * decides nothing, so that the caller's fallback (OpenCV) gives the same image, or the same failure, as before.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <errno.h>
+#include <fcntl.h>
+#include <libdeflate.h>
+#include <pthread.h>
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#ifdef __SSE2__
+#include <emmintrin.h>
+#endif
+
+/* Per-thread scratch buffers (the file and the inflated rows), kept between calls: no fresh pages per frame. */
+typedef struct {
+    uint8_t *file;
+    size_t file_cap;
+    uint8_t *raw;
+    size_t raw_cap;
+    struct libdeflate_decompressor *inflater;
+} scratch_t;
+
+static pthread_key_t scratch_key;
+
+static void scratch_free(void *p)
+{
+    scratch_t *s = (scratch_t *)p;
+    if (s == NULL) {
+        return;
+    }
+    free(s->file);
+    free(s->raw);
+    if (s->inflater != NULL) {
+        libdeflate_free_decompressor(s->inflater);
+    }
+    free(s);
+}
+
+static scratch_t *scratch_get(void)
+{
+    scratch_t *s = (scratch_t *)pthread_getspecific(scratch_key);
+    if (s == NULL) {
+        s = (scratch_t *)calloc(1, sizeof(scratch_t));
+        if (s == NULL) {
+            return NULL;
+        }
+        s->inflater = libdeflate_alloc_decompressor();
+        if (s->inflater == NULL || pthread_setspecific(scratch_key, s) != 0) {
+            scratch_free(s);
+            return NULL;
+        }
+    }
+    return s;
+}
+
+static int reserve(uint8_t **buf, size_t *cap, size_t n)
+{
+    if (*cap >= n) {
+        return 0;
+    }
+    uint8_t *p = (uint8_t *)malloc(n);
+    if (p == NULL) {
+        return -1;
+    }
+    free(*buf);
+    *buf = p;
+    *cap = n;
+    return 0;
+}
+
+static inline uint32_t be32(const uint8_t *p)
+{
+    return ((uint32_t)p[0] << 24) | ((uint32_t)p[1] << 16) | ((uint32_t)p[2] << 8) | (uint32_t)p[3];
+}
+
+/* --- row filters (PNG specification, filter method 0); ``bpp`` bytes a pixel (1 or 2) --- */
+
+static void unfilter_sub(uint8_t *row, size_t n, size_t bpp)
+{
+    size_t i = bpp;
+#ifdef __SSE2__
+    if (bpp == 2 && n >= 16) {
+        /* prefix sums of each byte lane over the pixels, 8 pixels a vector, carried from vector to vector */
+        __m128i carry = _mm_setzero_si128();
+        for (i = 0; i + 16 <= n; i += 16) {
+            __m128i x = _mm_loadu_si128((const __m128i *)(row + i));
+            x = _mm_add_epi8(x, _mm_slli_si128(x, 2));
+            x = _mm_add_epi8(x, _mm_slli_si128(x, 4));
+            x = _mm_add_epi8(x, _mm_slli_si128(x, 8));
+            x = _mm_add_epi8(x, carry);
+            _mm_storeu_si128((__m128i *)(row + i), x);
+            __m128i last = _mm_shufflehi_epi16(x, _MM_SHUFFLE(3, 3, 3, 3));
+            carry = _mm_unpackhi_epi64(last, last);
+        }
+        if (i == 0) {
+            i = bpp;
+        }
+    }
+#endif
+    for (; i < n; i++) {
+        row[i] = (uint8_t)(row[i] + row[i - bpp]);
+    }
+}
+
+static void unfilter_up(uint8_t *row, const uint8_t *prior, size_t n)
+{
+    for (size_t i = 0; i < n; i++) {
+        row[i] = (uint8_t)(row[i] + prior[i]);
+    }
+}
+
+static void unfilter_avg(uint8_t *row, const uint8_t *prior, size_t n, size_t bpp)
+{
+    for (size_t i = 0; i < bpp && i < n; i++) {
+        row[i] = (uint8_t)(row[i] + (prior[i] >> 1));
+    }
+    for (size_t i = bpp; i < n; i++) {
+        row[i] = (uint8_t)(row[i] + (((unsigned)row[i - bpp] + prior[i]) >> 1));
+    }
+}
+
+static void unfilter_paeth(uint8_t *row, const uint8_t *prior, size_t n, size_t bpp)
+{
+    for (size_t i = 0; i < bpp && i < n; i++) {
+        row[i] = (uint8_t)(row[i] + prior[i]);  /* a = c = 0: the predictor is b */
+    }
+    for (size_t i = bpp; i < n; i++) {
+        int a = row[i - bpp], b = prior[i], c = prior[i - bpp];
+        int p = a + b - c;
+        int pa = abs(p - a), pb = abs(p - b), pc = abs(p - c);
+        int pred = (pa <= pb && pa <= pc) ? a : (pb <= pc ? b : c);
+        row[i] = (uint8_t)(row[i] + pred);
+    }
+}
+
+/* big-endian 16-bit samples -> native uint16; returns the OR of the samples */
+static uint32_t swap_row16(const uint8_t *src, uint16_t *dst, size_t w)
+{
+    uint16_t acc = 0;
+    for (size_t j = 0; j < w; j++) {
+        uint16_t v;
+        memcpy(&v, src + 2 * j, 2);
+        v = __builtin_bswap16(v);
+        dst[j] = v;
+        acc |= v;
+    }
+    return acc;
+}
+
+static uint32_t copy_row8(const uint8_t *src, uint8_t *dst, size_t w)
+{
+    uint8_t acc = 0;
+    for (size_t j = 0; j < w; j++) {
+        dst[j] = src[j];
+        acc |= src[j];
+    }
+    return acc;
+}
+
+typedef struct {
+    uint32_t width, height;
+    int depth;
+} header_t;
+
+/* Outcome of the work done without the GIL. */
+enum { OK = 0, FALLBACK = 1, NO_MEMORY = 2, OS_ERROR = 3 };
+
+static int read_file(const char *path, scratch_t *s, size_t *size, int *err)
+{
+    int fd = open(path, O_RDONLY | O_CLOEXEC);
+    if (fd < 0) {
+        *err = errno;
+        return OS_ERROR;
+    }
+    struct stat st;
+    if (fstat(fd, &st) != 0) {
+        *err = errno;
+        close(fd);
+        return OS_ERROR;
+    }
+    size_t n = (size_t)st.st_size;
+    if (reserve(&s->file, &s->file_cap, n + 1) != 0) {
+        close(fd);
+        return NO_MEMORY;
+    }
+    size_t got = 0;
+    while (got < n) {
+        ssize_t r = read(fd, s->file + got, n - got);
+        if (r < 0) {
+            if (errno == EINTR) {
+                continue;
+            }
+            *err = errno;
+            close(fd);
+            return OS_ERROR;
+        }
+        if (r == 0) {
+            break;
+        }
+        got += (size_t)r;
+    }
+    close(fd);
+    *size = got;
+    return OK;
+}
+
+static const uint8_t SIGNATURE[8] = {0x89, 'P', 'N', 'G', '\r', '\n', 0x1a, '\n'};
+
+/* Checks the chunks and moves the IDAT payloads together at the start of the file buffer. */
+static int parse(uint8_t *f, size_t n, header_t *hdr, size_t *idat_len)
+{
+    if (n < 8 || memcmp(f, SIGNATURE, 8) != 0) {
+        return FALLBACK;
+    }
+    size_t pos = 8, packed = 0;
+    int seen_ihdr = 0, seen_iend = 0, idat_state = 0; /* 0 before, 1 inside, 2 after the IDAT run */
+    while (!seen_iend) {
+        if (n - pos < 12) {
+            return FALLBACK;
+        }
+        uint32_t len = be32(f + pos);
+        const uint8_t *tag = f + pos + 4;
+        if (len > 0x7fffffffu || n - pos - 12 < len) {
+            return FALLBACK;
+        }
+        const uint8_t *data = tag + 4;
+        uint32_t crc = be32(data + len);
+        if ((uint32_t)libdeflate_crc32(0, tag, (size_t)len + 4) != crc) {
+            return FALLBACK;
+        }
+        for (int k = 0; k < 4; k++) {
+            uint8_t c = tag[k];
+            if (!((c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z'))) {
+                return FALLBACK;
+            }
+        }
+        int critical = !(tag[0] & 0x20);
+        if (!seen_ihdr) {
+            if (memcmp(tag, "IHDR", 4) != 0 || len != 13) {
+                return FALLBACK;
+            }
+            hdr->width = be32(data);
+            hdr->height = be32(data + 4);
+            hdr->depth = data[8];
+            /* gray, deflate, filter method 0, not interlaced; 8 or 16 bits */
+            if (hdr->width == 0 || hdr->height == 0 || hdr->width > 0x7fffffffu || hdr->height > 0x7fffffffu
+                || (hdr->depth != 8 && hdr->depth != 16) || data[9] != 0 || data[10] != 0 || data[11] != 0
+                || data[12] != 0) {
+                return FALLBACK;
+            }
+            seen_ihdr = 1;
+        } else if (memcmp(tag, "IDAT", 4) == 0) {
+            if (idat_state == 2) {
+                return FALLBACK;
+            }
+            idat_state = 1;
+            memmove(f + packed, data, len); /* packed <= pos: the payloads move down, in order */
+            packed += len;
+        } else if (memcmp(tag, "IEND", 4) == 0) {
+            if (len != 0) {
+                return FALLBACK;
+            }
+            seen_iend = 1;
+        } else {
+            if (critical || memcmp(tag, "IHDR", 4) == 0) {
+                return FALLBACK; /* PLTE (or anything critical we do not know) in a gray image, a second IHDR */
+            }
+            if (idat_state == 1) {
+                idat_state = 2;
+            }
+        }
+        pos += (size_t)len + 12;
+    }
+    if (idat_state == 0) {
+        return FALLBACK;
+    }
+    *idat_len = packed;
+    return OK;
+}
+
+/* Reads and checks the file, without the GIL: the packed IDAT data is at the start of the scratch file buffer. */
+static int load(const char *path, scratch_t *s, header_t *hdr, size_t *idat_len, int *err)
+{
+    size_t size = 0;
+    int rc = read_file(path, s, &size, err);
+    if (rc != OK) {
+        return rc;
+    }
+    return parse(s->file, size, hdr, idat_len);
+}
+
+/* Inflates and unfilters the loaded image into ``out`` (exactly height x width samples), without the GIL. */
+static int unpack(scratch_t *s, const header_t *hdr, size_t idat_len, uint8_t *out, size_t out_len,
+                  uint32_t *or_samples)
+{
+    size_t bpp = (size_t)hdr->depth / 8;
+    size_t w = hdr->width, h = hdr->height;
+    size_t row_bytes = w * bpp, stride = row_bytes + 1;
+    if (h > SIZE_MAX / stride) {
+        return FALLBACK;
+    }
+    if (out_len != w * h * bpp) {
+        return NO_MEMORY; /* cannot happen: the caller sized it */
+    }
+    if (reserve(&s->raw, &s->raw_cap, h * stride) != 0) {
+        return NO_MEMORY;
+    }
+    size_t actual_in = 0;
+    enum libdeflate_result r = libdeflate_zlib_decompress_ex(s->inflater, s->file, idat_len, s->raw, h * stride,
+                                                             &actual_in, NULL);
+    if (r != LIBDEFLATE_SUCCESS || actual_in != idat_len) {
+        return FALLBACK; /* corrupt, too little or too much data, or bytes after the zlib stream */
+    }
+    uint32_t acc = 0;
+    const uint8_t *prior = NULL;
+    for (size_t y = 0; y < h; y++) {
+        uint8_t *row = s->raw + y * stride + 1;
+        switch (row[-1]) {
+        case 0:
+            break;
+        case 1:
+            unfilter_sub(row, row_bytes, bpp);
+            break;
+        case 2:
+            if (prior != NULL) {
+                unfilter_up(row, prior, row_bytes);
+            }
+            break;
+        case 3:
+            if (prior != NULL) {
+                unfilter_avg(row, prior, row_bytes, bpp);
+            } else {
+                for (size_t i = bpp; i < row_bytes; i++) {
+                    row[i] = (uint8_t)(row[i] + (row[i - bpp] >> 1));
+                }
+            }
+            break;
+        case 4:
+            if (prior != NULL) {
+                unfilter_paeth(row, prior, row_bytes, bpp);
+            } else {
+                unfilter_sub(row, row_bytes, bpp); /* b = c = 0: the predictor is a */
+            }
+            break;
+        default:
+            return FALLBACK;
+        }
+        if (bpp == 2) {
+            acc |= swap_row16(row, (uint16_t *)(void *)(out + y * row_bytes), w);
+        } else {
+            acc |= copy_row8(row, out + y * row_bytes, w);
+        }
+        prior = row;
+    }
+    *or_samples = acc;
+    return OK;
+}
+
+static PyObject *decode(PyObject *self, PyObject *args)
+{
+    PyObject *path_obj = NULL, *out_obj = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "O&O", PyUnicode_FSConverter, &path_obj, &out_obj)) {
+        return NULL;
+    }
+    const char *path = PyBytes_AS_STRING(path_obj);
+    Py_buffer out = {0};
+    int given = out_obj != Py_None, have_out = given;
+    if (given && PyObject_GetBuffer(out_obj, &out, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) != 0) {
+        Py_DECREF(path_obj);
+        return NULL;
+    }
+    header_t hdr = {0, 0, 0};
+    uint32_t acc = 0;
+    size_t idat_len = 0;
+    int err = 0, rc;
+    PyObject *fresh = NULL;
+    uint8_t *dst = have_out ? (uint8_t *)out.buf : NULL;
+    size_t dst_len = have_out ? (size_t)out.len : 0;
+    Py_BEGIN_ALLOW_THREADS
+    scratch_t *s = scratch_get();
+    rc = s == NULL ? NO_MEMORY : load(path, s, &hdr, &idat_len, &err);
+    if (rc == OK && have_out
+        && (out.ndim != 2 || out.shape == NULL || out.shape[0] != (Py_ssize_t)hdr.height
+            || out.shape[1] != (Py_ssize_t)hdr.width || out.itemsize != hdr.depth / 8)) {
+        have_out = 0; /* ``out`` is not of the image's shape and sample size: leave it alone */
+    }
+    if (rc == OK && !have_out) {
+        /* no destination (or not a fitting one): a new one of the image's size */
+        size_t n = (size_t)hdr.width * hdr.height * (size_t)(hdr.depth / 8);
+        Py_BLOCK_THREADS
+        fresh = n <= (size_t)PY_SSIZE_T_MAX ? PyByteArray_FromStringAndSize(NULL, (Py_ssize_t)n) : NULL;
+        Py_UNBLOCK_THREADS
+        if (fresh == NULL) {
+            rc = NO_MEMORY;
+        } else {
+            dst = (uint8_t *)PyByteArray_AS_STRING(fresh);
+            dst_len = n;
+        }
+    }
+    if (rc == OK) {
+        rc = unpack(s, &hdr, idat_len, dst, dst_len, &acc);
+    }
+    Py_END_ALLOW_THREADS
+    if (given) {
+        PyBuffer_Release(&out);
+    }
+    PyObject *result = NULL;
+    if (rc == OK) {
+        result = Py_BuildValue("(IIiIO)", hdr.height, hdr.width, hdr.depth, acc, have_out ? out_obj : fresh);
+    } else if (rc == FALLBACK) {
+        result = Py_NewRef(Py_None);
+    } else if (rc == OS_ERROR) {
+        errno = err;
+        result = PyErr_SetFromErrnoWithFilenameObject(PyExc_OSError, path_obj);
+    } else if (!PyErr_Occurred()) {
+        PyErr_NoMemory();
+    }
+    Py_XDECREF(fresh);
+    Py_DECREF(path_obj);
+    return result;
+}
+
+static PyMethodDef methods[] = {
+    {"decode", decode, METH_VARARGS,
+     "decode(path, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
+     "Decode a gray 8- or 16-bit non-interlaced PNG into ``out`` (a writable C-contiguous 2-D buffer; written only\n"
+     "when its shape is (height, width) and its item size the sample size; native byte order), else (also when\n"
+     "``out`` is None) into a new bytearray. ``buffer`` is the one written. None when the file is anything else or\n"
+     "not valid in every respect (the caller falls back to another decoder). OSError when it cannot be read."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_pngread", "A decoder for gray 8/16-bit PNGs.", -1,
+                                    methods, NULL, NULL, NULL, NULL};
+
+PyMODINIT_FUNC PyInit__pngread(void)
+{
+    static int key_made = 0;
+    if (!key_made) {
+        if (pthread_key_create(&scratch_key, scratch_free) != 0) {
+            PyErr_SetString(PyExc_RuntimeError, "cannot create the decoder's thread-local key");
+            return NULL;
+        }
+        key_made = 1;
+    }
+    return PyModule_Create(&module);
+}
