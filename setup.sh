@@ -41,12 +41,12 @@ stamp=.venv/.bracketry-installed
 # (re)install when pyproject.toml or a C extension's source changed, or a built extension is missing
 lut12_src=emulator/bracketry_emulator/emulation/_lut12.c
 zhang_src=emulator/bracketry_emulator/ae/_zhang_terms.c
-pngread_src=emulator/bracketry_emulator/dataset/_pngread.c
+pngcodec_src=emulator/bracketry_emulator/dataset/_pngcodec.c
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$lut12_src" -nt "$stamp" ] \
-   || [ "$zhang_src" -nt "$stamp" ] || [ "$pngread_src" -nt "$stamp" ] \
+   || [ "$zhang_src" -nt "$stamp" ] || [ "$pngcodec_src" -nt "$stamp" ] \
    || ! ls emulator/bracketry_emulator/emulation/_lut12*.so >/dev/null 2>&1 \
    || ! ls emulator/bracketry_emulator/ae/_zhang_terms*.so >/dev/null 2>&1 \
-   || ! ls emulator/bracketry_emulator/dataset/_pngread*.so >/dev/null 2>&1; then
+   || ! ls emulator/bracketry_emulator/dataset/_pngcodec*.so >/dev/null 2>&1; then
   .venv/bin/python -m pip install -q -e '.[all]'
   touch "$stamp"
 else

@@ -1,7 +1,7 @@
 """Read and write 16-bit single-channel PNGs of 12-bit raw Bayer codes.
 
 Every bracket is read by :func:`read_png12`. Gray 8- and 16-bit non-interlaced PNGs (what the cameras' recordings,
-the BorealHDR sample and the synthetic worlds hold) are decoded by the ``_pngread`` extension (``_pngread.c`` next
+the BorealHDR sample and the synthetic worlds hold) are decoded by the ``_pngcodec`` extension (``_pngcodec.c`` next
 to this file, linked with libdeflate, built with the package; about 3x faster than OpenCV here, and it writes
 straight into the caller's array, e.g. a slot of the shared frame buffer). Any other PNG, and any file that is not
 valid in every respect the extension checks (CRCs, zlib checksum, sizes), is read by OpenCV as before, so images and
@@ -24,22 +24,28 @@ from .model import DatasetError
 #: Largest code of a 12-bit image.
 MAX_CODE_12BIT = 4095
 
-_DECODER: Callable[[str, Any], Any] | None = None
-_DECODER_TRIED = False
+_CODEC: Any = None
+_CODEC_TRIED = False
+
+
+def png_codec() -> Any:
+    """The compiled ``_pngcodec`` extension (``decode``, ``encode_stored``), or None when it was not built (or
+    ``BRACKETRY_NO_CKERNEL=1``)."""
+    global _CODEC, _CODEC_TRIED
+    if not _CODEC_TRIED:
+        _CODEC_TRIED = True
+        if os.environ.get("BRACKETRY_NO_CKERNEL") != "1":
+            try:
+                _CODEC = importlib.import_module(f"{__package__}._pngcodec")
+            except ImportError:
+                _CODEC = None
+    return _CODEC
 
 
 def png_decoder() -> Callable[[str, Any], Any] | None:
-    """The compiled ``decode(path, out)`` of the ``_pngread`` extension, or None when it was not built (or
-    ``BRACKETRY_NO_CKERNEL=1``)."""
-    global _DECODER, _DECODER_TRIED
-    if not _DECODER_TRIED:
-        _DECODER_TRIED = True
-        if os.environ.get("BRACKETRY_NO_CKERNEL") != "1":
-            try:
-                _DECODER = importlib.import_module(f"{__package__}._pngread").decode
-            except ImportError:
-                _DECODER = None
-    return _DECODER
+    """The compiled ``decode(path, out)`` (:func:`png_codec`), or None."""
+    codec = png_codec()
+    return None if codec is None else codec.decode  # type: ignore[no-any-return]
 
 
 def read_png(path: Path, out: np.ndarray | None = None) -> np.ndarray | None:

@@ -13,7 +13,9 @@ PNG encoding (``png_compression``, every choice a lossless gray PNG that any rea
 included, decodes to exactly the same codes; time and size of each on this project's machine: emulator/DATASET.md):
 
 - ``stored``: deflate without compression (:func:`encode_png`, level 0): the fastest, the largest (2 bytes a pixel;
-  the noisy 12-bit raw mosaic compresses poorly anyway);
+  the noisy 12-bit raw mosaic compresses poorly anyway). Built in one pass by the compiled ``_pngcodec`` extension
+  (the bytes Python's ``zlib.compress(raw, 0)`` makes, blocks, Adler-32 and CRC included), by zlib where it was not
+  built;
 - ``fast``: deflate with Huffman coding only (zlib level 1, ``Z_HUFFMAN_ONLY``);
 - ``small``: deflate with string matching (zlib level 1): the smallest of the four, the slowest;
 - ``opencv``: ``cv2.imwrite``'s defaults, as the authors' script writes its images (the default of
@@ -23,6 +25,7 @@ included, decodes to exactly the same codes; time and size of each on this proje
 from __future__ import annotations
 
 import csv
+import functools
 import struct
 import zlib
 from pathlib import Path
@@ -34,6 +37,7 @@ import numpy as np
 
 from bracketry.errors import BracketryError
 
+from ..dataset.imageio import png_codec
 from ..dataset.model import BracketSequence
 from .emulator import EmulatedImage
 
@@ -53,6 +57,26 @@ _DEFLATE = {"stored": (0, zlib.Z_DEFAULT_STRATEGY), "fast": (1, zlib.Z_HUFFMAN_O
             "small": (1, zlib.Z_DEFAULT_STRATEGY)}
 
 
+@functools.lru_cache(maxsize=8)
+def _stored_blocks(raw_bytes: int) -> bytes:
+    """The sizes (native uint16 each) of the stored deflate blocks that ``zlib.compress(raw, 0)`` makes of
+    ``raw_bytes`` bytes: the layout depends on zlib (its version) and the length only, never on the bytes, so the
+    compiled encoder reproduces zlib's stream exactly (learnt once per length from zeros)."""
+    z = zlib.compress(bytes(raw_bytes), 0)
+    sizes, pos = [], 2
+    while True:
+        final, size = z[pos] & 1, int.from_bytes(z[pos + 1:pos + 3], "little")
+        if z[pos] & 6:
+            raise RuntimeError("zlib level 0 did not write stored blocks")
+        sizes.append(size)
+        pos += 5 + size
+        if final:
+            break
+    if z[:2] != b"\x78\x01" or pos + 4 != len(z) or sum(sizes) != raw_bytes:
+        raise RuntimeError("unexpected zlib stored stream")
+    return np.array(sizes, np.uint16).tobytes()
+
+
 def encode_png(image: np.ndarray, compression: str = "stored") -> bytes:
     """A lossless gray PNG of ``image`` (uint16 HxW -> 16-bit, uint8 HxW -> 8-bit), no row filter, deflated as
     ``compression`` says (``stored``, ``fast`` or ``small``, see the module docstring). Any PNG reader returns
@@ -64,10 +88,15 @@ def encode_png(image: np.ndarray, compression: str = "stored") -> bytes:
     level, strategy = _DEFLATE[compression]
     h, w = image.shape
     nbytes = image.dtype.itemsize
+    ihdr = struct.pack(">IIBBBBB", w, h, 8 * nbytes, 0, 0, 0, 0)  # gray, deflate, no filter, no interlace
+    codec = png_codec()
+    if level == 0 and codec is not None:  # the same bytes, built in one pass without the copies
+        head = _PNG_SIGNATURE + _png_chunk(b"IHDR", ihdr)
+        blocks = _stored_blocks(h * (1 + nbytes * w))
+        return codec.encode_stored(np.ascontiguousarray(image), h, w, nbytes, head, blocks)
     raw = np.empty((h, 1 + nbytes * w), np.uint8)
     raw[:, 0] = 0  # filter type None
     raw[:, 1:].view(">u2" if nbytes == 2 else np.uint8)[...] = image  # PNG samples are big-endian
-    ihdr = struct.pack(">IIBBBBB", w, h, 8 * nbytes, 0, 0, 0, 0)  # gray, deflate, no filter, no interlace
     if level == 0:
         data = zlib.compress(raw.data, 0)
     else:

@@ -28,6 +28,13 @@ class CountingFrame:
             self.counter.value += 1
         return frame_value(*self.key)
 
+    def load_into(self, out: np.ndarray) -> np.ndarray:  # as Frame.load_into
+        img = self.load()
+        if img.shape != out.shape:
+            return img
+        out[...] = img
+        return out
+
 
 def sequences(counter: Any, n_seq: int = 2, exps: tuple[int, ...] = (1000, 2000, 4000)) -> list[Any]:
     return [SimpleNamespace(index=q, exposures_us=exps,

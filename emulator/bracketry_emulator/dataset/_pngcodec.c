@@ -1,7 +1,8 @@
 /*
- * _pngread: a decoder for the PNGs the brackets are stored in (gray, 8 or 16 bits a sample, not interlaced), built
- * with the package (see pyproject.toml) and linked with libdeflate. imageio.py calls it and falls back to OpenCV
- * for everything else.
+ * _pngcodec: a decoder for the PNGs the brackets are stored in (gray, 8 or 16 bits a sample, not interlaced) and an
+ * encoder of the emulator's ``stored`` PNGs, built with the package (see pyproject.toml) and linked with libdeflate.
+ * imageio.py calls the decoder and falls back to OpenCV for everything else; emulation/writer.py calls the encoder
+ * and falls back to Python's zlib (same bytes).
  *
  * decode(path, out) reads the whole file, checks every chunk's CRC, inflates the concatenated IDAT data in one call
  * (libdeflate, which also checks the zlib Adler-32), undoes the five row filters and writes the samples in native
@@ -440,6 +441,142 @@ static PyObject *decode(PyObject *self, PyObject *args)
     return result;
 }
 
+
+/* --- encoder of stored (uncompressed deflate) gray PNGs --- */
+
+/* Bytes [b0, b0 + n) of a row of big-endian samples, from native ``src`` samples of ``bpp`` bytes. */
+static void put_samples(uint8_t *dst, const uint8_t *src, size_t b0, size_t n, size_t bpp)
+{
+    if (bpp == 1) {
+        memcpy(dst, src + b0, n);
+        return;
+    }
+    const uint16_t *s16 = (const uint16_t *)(const void *)src;
+    size_t b = b0, end = b0 + n;
+    if ((b & 1) && b < end) { /* the low byte of a sample */
+        *dst++ = (uint8_t)(s16[b >> 1] & 0xff);
+        b++;
+    }
+    size_t pairs = (end - b) / 2;
+    const uint16_t *p = s16 + (b >> 1);
+    for (size_t j = 0; j < pairs; j++) {
+        uint16_t v = __builtin_bswap16(p[j]);
+        memcpy(dst + 2 * j, &v, 2);
+    }
+    dst += 2 * pairs;
+    b += 2 * pairs;
+    if (b < end) { /* the high byte of a sample */
+        *dst = (uint8_t)(s16[b >> 1] >> 8);
+    }
+}
+
+/* The raw (filtered) stream's bytes [off, off + n): each row is filter byte 0 then its big-endian samples. */
+static void put_raw(uint8_t *dst, const uint8_t *img, size_t row_bytes, size_t bpp, size_t off, size_t n)
+{
+    size_t stride = row_bytes + 1;
+    while (n > 0) {
+        size_t y = off / stride, col = off % stride;
+        if (col == 0) {
+            *dst++ = 0;
+            off++;
+            n--;
+            continue;
+        }
+        size_t k = stride - col < n ? stride - col : n;
+        put_samples(dst, img + y * row_bytes, col - 1, k, bpp);
+        dst += k;
+        off += k;
+        n -= k;
+    }
+}
+
+static inline void put_be32(uint8_t *p, uint32_t v)
+{
+    p[0] = (uint8_t)(v >> 24);
+    p[1] = (uint8_t)(v >> 16);
+    p[2] = (uint8_t)(v >> 8);
+    p[3] = (uint8_t)v;
+}
+
+static PyObject *encode_stored(PyObject *self, PyObject *args)
+{
+    Py_buffer img, head, blocks;
+    Py_ssize_t height, width, bpp;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*nnny*y*", &img, &height, &width, &bpp, &head, &blocks)) {
+        return NULL;
+    }
+    const char *error = NULL;
+    size_t raw_len = 0, n_blocks = (size_t)blocks.len / 2, sum = 0;
+    if (height <= 0 || width <= 0 || (bpp != 1 && bpp != 2)
+        || img.len != height * width * bpp || blocks.len % 2 != 0 || n_blocks == 0) {
+        error = "image must hold height x width samples of bpp (1 or 2) bytes; blocks uint16 sizes";
+    } else {
+        raw_len = (size_t)height * ((size_t)width * (size_t)bpp + 1);
+        for (size_t i = 0; i < n_blocks; i++) {
+            uint16_t L;
+            memcpy(&L, (const uint8_t *)blocks.buf + 2 * i, 2);
+            sum += L;
+        }
+        if (sum != raw_len) {
+            error = "the stored blocks' sizes do not add up to the raw image";
+        }
+    }
+    PyObject *result = NULL;
+    if (error == NULL) {
+        /* head (signature + IHDR chunk), IDAT length + tag, zlib header, blocks, Adler-32, IDAT CRC, IEND chunk */
+        size_t zlen = 2 + 5 * n_blocks + raw_len + 4;
+        size_t total = (size_t)head.len + 8 + zlen + 4 + 12;
+        if (zlen > 0x7fffffffu) {
+            error = "image too large for one PNG chunk";
+        } else {
+            result = PyBytes_FromStringAndSize(NULL, (Py_ssize_t)total);
+        }
+        if (result != NULL) {
+            uint8_t *o = (uint8_t *)PyBytes_AS_STRING(result);
+            Py_BEGIN_ALLOW_THREADS
+            memcpy(o, head.buf, (size_t)head.len);
+            uint8_t *chunk = o + head.len;
+            put_be32(chunk, (uint32_t)zlen);
+            memcpy(chunk + 4, "IDAT", 4);
+            uint8_t *z = chunk + 8, *w = z;
+            *w++ = 0x78;
+            *w++ = 0x01;
+            uint32_t adler = 1;
+            size_t off = 0;
+            for (size_t i = 0; i < n_blocks; i++) {
+                uint16_t L;
+                memcpy(&L, (const uint8_t *)blocks.buf + 2 * i, 2);
+                w[0] = i + 1 == n_blocks ? 1 : 0;
+                w[1] = (uint8_t)(L & 0xff);
+                w[2] = (uint8_t)(L >> 8);
+                w[3] = (uint8_t)(~L & 0xff);
+                w[4] = (uint8_t)((uint16_t)~L >> 8);
+                w += 5;
+                put_raw(w, (const uint8_t *)img.buf, (size_t)width * (size_t)bpp, (size_t)bpp, off, L);
+                adler = (uint32_t)libdeflate_adler32(adler, w, L);
+                w += L;
+                off += L;
+            }
+            put_be32(w, adler);
+            w += 4;
+            put_be32(w, (uint32_t)libdeflate_crc32(0, chunk + 4, zlen + 4));
+            w += 4;
+            static const uint8_t iend[12] = {0, 0, 0, 0, 'I', 'E', 'N', 'D', 0xae, 0x42, 0x60, 0x82};
+            memcpy(w, iend, 12);
+            Py_END_ALLOW_THREADS
+        }
+    }
+    PyBuffer_Release(&img);
+    PyBuffer_Release(&head);
+    PyBuffer_Release(&blocks);
+    if (error != NULL) {
+        PyErr_SetString(PyExc_ValueError, error);
+        return NULL;
+    }
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"decode", decode, METH_VARARGS,
      "decode(path, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
@@ -447,13 +584,20 @@ static PyMethodDef methods[] = {
      "when its shape is (height, width) and its item size the sample size; native byte order), else (also when\n"
      "``out`` is None) into a new bytearray. ``buffer`` is the one written. None when the file is anything else or\n"
      "not valid in every respect (the caller falls back to another decoder). OSError when it cannot be read."},
+    {"encode_stored", encode_stored, METH_VARARGS,
+     "encode_stored(image, height, width, bpp, head, blocks) -> bytes\n\n"
+     "A whole PNG file: ``head`` (signature and IHDR chunk), one IDAT chunk holding the zlib stream of stored\n"
+     "deflate blocks of the sizes in ``blocks`` (native uint16 each; they add up to the raw image: each row its\n"
+     "filter byte 0 and its big-endian samples) with its Adler-32, then IEND. ``image``: C-contiguous native\n"
+     "samples of ``bpp`` (1 or 2) bytes. The GIL is released while it works."},
     {NULL, NULL, 0, NULL},
 };
 
-static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_pngread", "A decoder for gray 8/16-bit PNGs.", -1,
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_pngcodec",
+                                    "A decoder for gray 8/16-bit PNGs, an encoder of stored ones.", -1,
                                     methods, NULL, NULL, NULL, NULL};
 
-PyMODINIT_FUNC PyInit__pngread(void)
+PyMODINIT_FUNC PyInit__pngcodec(void)
 {
     static int key_made = 0;
     if (!key_made) {

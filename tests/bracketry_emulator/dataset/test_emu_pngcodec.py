@@ -51,13 +51,13 @@ def filtered_png(image: np.ndarray, filters: list[int], idat_size: int = 5000, l
     return SIGNATURE + _chunk(b"IHDR", ihdr) + text + idats + _chunk(b"IEND", b"")
 
 
-def test_pngread_extension_is_built() -> None:
-    assert png_decoder() is not None, "the _pngread extension was not built (setup.sh builds it; libdeflate-dev)"
+def test_pngcodec_extension_is_built() -> None:
+    assert png_decoder() is not None, "the _pngcodec extension was not built (setup.sh builds it; libdeflate-dev)"
 
 
 @pytest.mark.parametrize("dtype", [np.uint16, np.uint8])
 @pytest.mark.parametrize("shape", [(9, 1), (7, 7), (13, 37), (24, 160)])
-def test_pngread_every_filter_equals_opencv(tmp_path: Path, dtype: type, shape: tuple[int, int]) -> None:
+def test_pngcodec_every_filter_equals_opencv(tmp_path: Path, dtype: type, shape: tuple[int, int]) -> None:
     rng = np.random.default_rng(sum(shape))
     top = np.iinfo(dtype).max
     # smooth + noise, then uniform noise, extremes: every filter's carries and Paeth's ties happen
@@ -80,7 +80,7 @@ def test_pngread_every_filter_equals_opencv(tmp_path: Path, dtype: type, shape: 
 
 
 @pytest.mark.realdata
-def test_pngread_real_frames_equal_opencv_into_a_buffer(borealhdr_sequence: Path) -> None:
+def test_pngcodec_real_frames_equal_opencv_into_a_buffer(borealhdr_sequence: Path) -> None:
     frames = sorted((borealhdr_sequence / "camera_left").rglob("*.png"))[::7][:3]
     frames += sorted((borealhdr_sequence / "camera_right").rglob("*.png"))[::11][:2]
     buffer = np.zeros((2, 1200, 1920), np.uint16)
@@ -93,7 +93,7 @@ def test_pngread_real_frames_equal_opencv_into_a_buffer(borealhdr_sequence: Path
         assert np.array_equal(read_png12(png), ref)
 
 
-def test_pngread_out_of_another_shape_is_untouched(tmp_path: Path) -> None:
+def test_pngcodec_out_of_another_shape_is_untouched(tmp_path: Path) -> None:
     image = np.arange(12 * 20, dtype=np.uint16).reshape(12, 20)
     path = tmp_path / "a.png"
     path.write_bytes(filtered_png(image, [1]))
@@ -104,7 +104,7 @@ def test_pngread_out_of_another_shape_is_untouched(tmp_path: Path) -> None:
     assert read_png(path, out8) is not out8 and (out8 == 9).all()
 
 
-def test_pngread_other_pngs_are_read_by_opencv(tmp_path: Path) -> None:
+def test_pngcodec_other_pngs_are_read_by_opencv(tmp_path: Path) -> None:
     rng = np.random.default_rng(1)
     color = rng.integers(0, 4096, (10, 14, 3), dtype=np.uint16)
     path = tmp_path / "rgb.png"
@@ -142,7 +142,7 @@ def _corruptions(good: bytes) -> dict[str, bytes]:
             "signature only": SIGNATURE}
 
 
-def test_pngread_invalid_files_fall_back_and_fail_as_before(tmp_path: Path) -> None:
+def test_pngcodec_invalid_files_fall_back_and_fail_as_before(tmp_path: Path) -> None:
     image = (np.arange(30 * 40, dtype=np.uint16).reshape(30, 40) * 3) % 4096
     good = filtered_png(image, [1, 2, 3, 4, 0], idat_size=300)
     for name, data in _corruptions(good).items():
@@ -159,13 +159,13 @@ def test_pngread_invalid_files_fall_back_and_fail_as_before(tmp_path: Path) -> N
         read_png12(tmp_path / "nope.png")
 
 
-def test_pngread_no_ckernel_reads_with_opencv(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_pngcodec_no_ckernel_reads_with_opencv(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     image = np.arange(6 * 9, dtype=np.uint16).reshape(6, 9)
     path = tmp_path / "a.png"
     path.write_bytes(filtered_png(image, [4]))
     monkeypatch.setenv("BRACKETRY_NO_CKERNEL", "1")
-    monkeypatch.setattr(imageio, "_DECODER_TRIED", False)
-    monkeypatch.setattr(imageio, "_DECODER", None)
+    monkeypatch.setattr(imageio, "_CODEC_TRIED", False)
+    monkeypatch.setattr(imageio, "_CODEC", None)
     assert png_decoder() is None
     out = np.zeros_like(image)
     assert read_png12(path, out) is out and np.array_equal(out, image)
