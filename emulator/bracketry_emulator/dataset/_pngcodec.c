@@ -24,8 +24,13 @@
 #include <stdint.h>
 #include <stdlib.h>
 #include <string.h>
+#include <sys/mman.h>
 #include <sys/stat.h>
 #include <unistd.h>
+
+#ifndef MADV_POPULATE_WRITE
+#define MADV_POPULATE_WRITE 23 /* Linux >= 5.14 */
+#endif
 
 #ifdef __SSE2__
 #include <emmintrin.h>
@@ -330,6 +335,16 @@ static int unpack(scratch_t *s, const header_t *hdr, size_t idat_len, uint8_t *o
                                                              &actual_in, NULL);
     if (r != LIBDEFLATE_SUCCESS || actual_in != idat_len) {
         return FALLBACK; /* corrupt, too little or too much data, or bytes after the zlib stream */
+    }
+    /* map the destination's pages in one call (a fresh shared frame buffer slot: one fault per page otherwise);
+       older kernels refuse, then the pages fault in as they are written */
+    long page = sysconf(_SC_PAGESIZE);
+    if (page > 0 && out_len >= 4 * (size_t)page) {
+        uintptr_t first = ((uintptr_t)out + (uintptr_t)page - 1) & ~((uintptr_t)page - 1);
+        uintptr_t last = ((uintptr_t)out + out_len) & ~((uintptr_t)page - 1);
+        if (last > first) {
+            (void)madvise((void *)first, last - first, MADV_POPULATE_WRITE);
+        }
     }
     uint32_t acc = 0;
     const uint8_t *prior = NULL;

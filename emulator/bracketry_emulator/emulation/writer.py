@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import csv
 import functools
+import os
 import struct
 import zlib
 from pathlib import Path
@@ -110,6 +111,24 @@ def encode_png_stored(image: np.ndarray) -> bytes:
     return encode_png(image, "stored")
 
 
+#: bytes per ``write()`` of :func:`write_file`: on this project's machine (ext4, Linux 6.18) one write() of 2 MB or
+#: more costs 7-10x the time of the same bytes in pieces of 64 KB-1 MB (4.6 MB: ~10 ms against ~1 ms)
+WRITE_PIECE_BYTES = 1 << 18
+
+
+def write_file(path: Path, data: bytes) -> None:
+    """Write ``data`` to a new (or truncated) file at ``path``, in pieces of :data:`WRITE_PIECE_BYTES` (no copies).
+    Raises OSError."""
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o666)
+    try:
+        view = memoryview(data)
+        done = 0
+        while done < len(view):
+            done += os.write(fd, view[done:done + WRITE_PIECE_BYTES])
+    finally:
+        os.close(fd)
+
+
 def write_png(path: Path, image: np.ndarray, compression: str = "stored") -> None:
     """Write ``image`` as a lossless PNG (``compression``: one of :data:`PNG_COMPRESSIONS`). Raises OSError when the
     file cannot be written (BracketryError for OpenCV's encoder, which gives no reason)."""
@@ -117,7 +136,7 @@ def write_png(path: Path, image: np.ndarray, compression: str = "stored") -> Non
         if not cv2.imwrite(str(path), image):
             raise BracketryError(f"cannot write {path}")
         return
-    path.write_bytes(encode_png(image, compression))
+    write_file(path, encode_png(image, compression))
 
 
 def write_png_stored(path: Path, image: np.ndarray) -> None:
