@@ -117,6 +117,11 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     cameras, the images are written, and the method picks the next target from the --ae-camera image. Each decoded
     bracket sequence is shared by all methods; methods run in parallel worker processes.
     """
+    import os
+
+    # the work is spread over processes: BLAS threads (OpenBLAS's, read when numpy/scipy load it, i.e. just below)
+    # would only wait on each other for the methods' tiny matrices (a GP fit spent 2/3 of its time there)
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from bracketry_emulator.ae import LoopConfig, expand_methods, run_methods
 
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))

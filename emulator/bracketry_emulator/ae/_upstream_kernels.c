@@ -1,0 +1,347 @@
+/*
+ * _upstream_kernels: per-pixel passes of the authors' Shim and Kim metrics (``--parity upstream``, see upstream.py),
+ * reduced to small tables that numpy finishes; numpy computes the same values where this was not built.
+ *
+ * shim_buckets: for every gamma k of a table T[code][k] (float64, the authors' (gray - lo) / (hi - lo) ** gamma of
+ *   each code), the two 3x3 Sobel gradients with an unsigned 16-bit output exactly as cv2.Sobel(img, CV_16U, ...)
+ *   computes them on the float64 image (BORDER_REFLECT_101; row filter then column filter in float64, in OpenCV's
+ *   order: x: 2 d(y) + (d(y+1) + d(y-1)) of the row differences d = v(x+1) - v(x-1); y: s(y+1) - s(y-1) of the
+ *   row sums s = (v(x-1) + 2 v(x)) + v(x+1); then rounded half to even and saturated to [0, 65535]), stored as one
+ *   byte per pixel and gamma: gx * 5 + gy (the gradients of a [0, 1] image are 0..4).
+ * kim_code_sums: for the 8-bit image c = gray >> 4, the pixel count of each code and the sum over its pixels of
+ *   (gx^2 + gy^2) mod 65536, gx, gy the integer 3x3 Sobel gradients with negatives clipped to 0 (cv2.Sobel on
+ *   uint8 with a CV_16U output, BORDER_REFLECT_101), as the authors square them in uint16.
+ *
+ * Built with -ffp-contract=off (no fused multiply-add: every float64 operation rounds as OpenCV's do).
+ * The GIL is released while they run.
+ */
+#define PY_SSIZE_T_CLEAN
+#include <Python.h>
+
+#include <stddef.h>
+#include <stdint.h>
+#include <stdlib.h>
+#include <string.h>
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+/* compiled for AVX2 and for the baseline, chosen at load time (no FMA: the same IEEE operations in both) */
+#define MULTIVERSION __attribute__((target_clones("avx2", "default")))
+#else
+#define MULTIVERSION
+#endif
+
+static inline Py_ssize_t refl101(Py_ssize_t i, Py_ssize_t n)
+{
+    return i < 0 ? -i : (i >= n ? 2 * n - 2 - i : i);
+}
+
+/* row r of one gamma: v = table[code], d = v(x+1) - v(x-1), s = (v(x-1) + 2 v(x)) + v(x+1), BORDER_REFLECT_101 */
+MULTIVERSION
+static void shim_row(const uint16_t *restrict g, const double *restrict table, Py_ssize_t w, double *restrict v,
+                     double *restrict d, double *restrict s)
+{
+    for (Py_ssize_t x = 0; x < w; x++) {
+        v[x] = table[g[x]];
+    }
+    d[0] = v[1] - v[1];
+    s[0] = (v[1] + 2.0 * v[0]) + v[1];
+    for (Py_ssize_t x = 1; x < w - 1; x++) {
+        d[x] = v[x + 1] - v[x - 1];
+        double t = v[x - 1] + 2.0 * v[x];
+        s[x] = t + v[x + 1];
+    }
+    d[w - 1] = v[w - 2] - v[w - 2];
+    s[w - 1] = (v[w - 2] + 2.0 * v[w - 1]) + v[w - 2];
+}
+
+/* one output row: bucket gx * 6 + gy of every pixel, gx, gy = cv::saturate_cast<ushort> of the column filter
+   (round half to even, negatives and NaN -> 0) counted by comparisons up to 5 (5: above 4, out of the table);
+   returns the largest gx or gy (5: out of range) in *top and the min / max of gx^2 + gy^2 in m2[0], m2[1] */
+MULTIVERSION
+static void shim_out_row(const double *restrict du, const double *restrict dm, const double *restrict dd,
+                         const double *restrict su, const double *restrict sd, Py_ssize_t n, uint8_t *restrict o,
+                         int *top, int *m2)
+{
+    int tp = *top, lo = m2[0], hi = m2[1];
+    for (Py_ssize_t x = 0; x < n; x++) {
+        double vx = 2.0 * dm[x] + (dd[x] + du[x]);
+        double vy = sd[x] - su[x];
+        int gx = (vx > 0.5) + (vx >= 1.5) + (vx > 2.5) + (vx >= 3.5) + (vx > 4.5);
+        int gy = (vy > 0.5) + (vy >= 1.5) + (vy > 2.5) + (vy >= 3.5) + (vy > 4.5);
+        int q = gx * gx + gy * gy;
+        int t = gx > gy ? gx : gy;
+        tp = t > tp ? t : tp;
+        lo = q < lo ? q : lo;
+        hi = q > hi ? q : hi;
+        o[x] = (uint8_t)(gx * 6 + gy);
+    }
+    *top = tp;
+    m2[0] = lo;
+    m2[1] = hi;
+}
+
+/* one gamma; returns 0, 1 when a gradient rounds above 4 (the buckets are then incomplete), or -1 when a code is
+   outside the table; m2: min and max of gx^2 + gy^2 */
+static int shim_image(const uint16_t *g, const double *table, Py_ssize_t n_codes, Py_ssize_t h, Py_ssize_t w,
+                      uint8_t *out, double *buf, int *m2)
+{
+    uint16_t top_code = 0;
+    for (Py_ssize_t i = 0; i < h * w; i++) {
+        top_code = g[i] > top_code ? g[i] : top_code;
+    }
+    if (top_code >= n_codes) {
+        return -1;
+    }
+    double *v = buf, *d[3], *s[3];
+    Py_ssize_t held[3] = {-1, -1, -1};
+    for (int i = 0; i < 3; i++) {
+        d[i] = buf + (size_t)(2 * i + 1) * w;
+        s[i] = buf + (size_t)(2 * i + 2) * w;
+    }
+    int top = 0;
+    m2[0] = 1 << 30;
+    m2[1] = 0;
+    for (Py_ssize_t y = 0; y < h; y++) {
+        Py_ssize_t rows[3] = {refl101(y - 1, h), y, refl101(y + 1, h)};
+        for (int i = 0; i < 3; i++) {
+            int slot = (int)(rows[i] % 3);
+            if (held[slot] != rows[i]) {
+                shim_row(g + rows[i] * w, table, w, v, d[slot], s[slot]);
+                held[slot] = rows[i];
+            }
+        }
+        shim_out_row(d[rows[0] % 3], d[rows[1] % 3], d[rows[2] % 3], s[rows[0] % 3], s[rows[2] % 3], w,
+                     out + (size_t)y * w, &top, m2);
+    }
+    return top > 4 ? 1 : 0;
+}
+
+static PyObject *shim_buckets(PyObject *self, PyObject *args)
+{
+    Py_buffer gray, table, out;
+    Py_ssize_t h, w;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*nnw*", &gray, &table, &h, &w, &out)) {
+        return NULL;
+    }
+    const char *error = NULL;
+    size_t n = (size_t)h * (size_t)w;
+    Py_ssize_t n_codes = table.len / (Py_ssize_t)sizeof(double);
+    if (h < 2 || w < 2) {
+        error = "the image must be at least 2x2";
+    } else if (gray.len != (Py_ssize_t)(n * sizeof(uint16_t))) {
+        error = "gray must be a C-contiguous uint16 HxW buffer";
+    } else if (n_codes < 1 || table.len != n_codes * (Py_ssize_t)sizeof(double)) {
+        error = "table must be a C-contiguous float64 buffer";
+    } else if (out.len != (Py_ssize_t)n) {
+        error = "out must be a uint8 HxW buffer";
+    }
+    int result = 0, failed = 0;
+    int m2[2] = {0, 0};
+    if (error == NULL) {
+        Py_BEGIN_ALLOW_THREADS
+        double *buf = (double *)malloc((size_t)7 * w * sizeof(double));
+        if (buf == NULL) {
+            failed = 1;
+        } else {
+            result = shim_image((const uint16_t *)gray.buf, (const double *)table.buf, n_codes, h, w,
+                                (uint8_t *)out.buf, buf, m2);
+            free(buf);
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&gray);
+    PyBuffer_Release(&table);
+    PyBuffer_Release(&out);
+    if (error != NULL) {
+        PyErr_SetString(PyExc_ValueError, error);
+        return NULL;
+    }
+    if (failed) {
+        return PyErr_NoMemory();
+    }
+    return Py_BuildValue("iii", result, m2[0], m2[1]);
+}
+
+/* numpy's pairwise sum (float32 accumulators: blocks of at most 128 summed by 8 accumulators, halves at multiples
+   of 8) of values[b[i]], i < n; a block of zero codes adds nothing when values[0] is +0 */
+static float pairwise_sum(const uint8_t *b, Py_ssize_t n, const float *values, int zero0)
+{
+    if (n < 8) {
+        float res = 0.0f;
+        for (Py_ssize_t i = 0; i < n; i++) {
+            res += values[b[i]];
+        }
+        return res;
+    }
+    if (n <= 128) {
+        if (zero0) {
+            uint64_t any = 0;
+            Py_ssize_t i = 0;
+            for (; i + 8 <= n; i += 8) {
+                uint64_t word;
+                memcpy(&word, b + i, 8);
+                any |= word;
+            }
+            for (; i < n; i++) {
+                any |= b[i];
+            }
+            if (any == 0) {
+                return 0.0f;
+            }
+        }
+        float r[8];
+        for (int j = 0; j < 8; j++) {
+            r[j] = values[b[j]];
+        }
+        Py_ssize_t i = 8;
+        for (; i < n - (n % 8); i += 8) {
+            for (int j = 0; j < 8; j++) {
+                r[j] += values[b[i + j]];
+            }
+        }
+        float res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+        for (; i < n; i++) {
+            res += values[b[i]];
+        }
+        return res;
+    }
+    Py_ssize_t n2 = n / 2;
+    n2 -= n2 % 8;
+    return pairwise_sum(b, n2, values, zero0) + pairwise_sum(b + n2, n - n2, values, zero0);
+}
+
+static PyObject *shim_sum(PyObject *self, PyObject *args)
+{
+    Py_buffer codes, values;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*", &codes, &values)) {
+        return NULL;
+    }
+    if (values.len != (Py_ssize_t)(256 * sizeof(float))) {
+        PyBuffer_Release(&codes);
+        PyBuffer_Release(&values);
+        PyErr_SetString(PyExc_ValueError, "values must be float32 (256,)");
+        return NULL;
+    }
+    const float *v = (const float *)values.buf;
+    uint32_t bits0;
+    memcpy(&bits0, v, sizeof bits0);
+    float res;
+    Py_BEGIN_ALLOW_THREADS
+    res = pairwise_sum((const uint8_t *)codes.buf, codes.len, v, bits0 == 0);
+    Py_END_ALLOW_THREADS
+    PyBuffer_Release(&codes);
+    PyBuffer_Release(&values);
+    return PyFloat_FromDouble((double)res);
+}
+
+/* returns 0, or -1 when a pixel is above 4095 */
+static int kim_image(const uint16_t *g, Py_ssize_t h, Py_ssize_t w, int64_t *counts, int64_t *gsum, int32_t *rows3)
+{
+    int32_t *c[3];
+    Py_ssize_t held[3] = {-1, -1, -1};
+    for (int i = 0; i < 3; i++) {
+        c[i] = rows3 + (size_t)i * w;
+    }
+    for (Py_ssize_t y = 0; y < h; y++) {
+        Py_ssize_t rows[3] = {refl101(y - 1, h), y, refl101(y + 1, h)};
+        for (int i = 0; i < 3; i++) {
+            int slot = (int)(rows[i] % 3);
+            if (held[slot] != rows[i]) {
+                const uint16_t *src = g + rows[i] * w;
+                int32_t *dst = c[slot];
+                uint16_t hi = 0;
+                for (Py_ssize_t x = 0; x < w; x++) {
+                    hi |= src[x];
+                    dst[x] = src[x] >> 4;
+                }
+                if (hi > 4095) {
+                    return -1;
+                }
+                held[slot] = rows[i];
+            }
+        }
+        const int32_t *u = c[rows[0] % 3], *m = c[rows[1] % 3], *d = c[rows[2] % 3];
+        for (Py_ssize_t x = 0; x < w; x++) {
+            Py_ssize_t xm = refl101(x - 1, w), xp = refl101(x + 1, w);
+            int32_t gx = (u[xp] + 2 * m[xp] + d[xp]) - (u[xm] + 2 * m[xm] + d[xm]);
+            int32_t gy = (d[xm] + 2 * d[x] + d[xp]) - (u[xm] + 2 * u[x] + u[xp]);
+            gx = gx > 0 ? gx : 0;
+            gy = gy > 0 ? gy : 0;
+            uint32_t g2 = ((uint32_t)(gx * gx) + (uint32_t)(gy * gy)) & 0xFFFFu;
+            counts[m[x]] += 1;
+            gsum[m[x]] += g2;
+        }
+    }
+    return 0;
+}
+
+static PyObject *kim_code_sums(PyObject *self, PyObject *args)
+{
+    Py_buffer gray, counts, gsum;
+    Py_ssize_t h, w;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*nnw*w*", &gray, &h, &w, &counts, &gsum)) {
+        return NULL;
+    }
+    const char *error = NULL;
+    size_t n = (size_t)h * (size_t)w;
+    if (h < 2 || w < 2) {
+        error = "the image must be at least 2x2";
+    } else if (gray.len != (Py_ssize_t)(n * sizeof(uint16_t))) {
+        error = "gray must be a C-contiguous uint16 HxW buffer";
+    } else if (counts.len != (Py_ssize_t)(256 * sizeof(int64_t)) || gsum.len != (Py_ssize_t)(256 * sizeof(int64_t))) {
+        error = "counts and sums must be int64 (256,) buffers";
+    }
+    int result = 0;
+    int failed = 0;
+    if (error == NULL) {
+        Py_BEGIN_ALLOW_THREADS
+        int32_t *rows3 = (int32_t *)malloc((size_t)3 * w * sizeof(int32_t));
+        if (rows3 == NULL) {
+            failed = 1;
+        } else {
+            memset(counts.buf, 0, 256 * sizeof(int64_t));
+            memset(gsum.buf, 0, 256 * sizeof(int64_t));
+            result = kim_image((const uint16_t *)gray.buf, h, w, (int64_t *)counts.buf, (int64_t *)gsum.buf, rows3);
+            free(rows3);
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&gray);
+    PyBuffer_Release(&counts);
+    PyBuffer_Release(&gsum);
+    if (error != NULL) {
+        PyErr_SetString(PyExc_ValueError, error);
+        return NULL;
+    }
+    if (failed) {
+        return PyErr_NoMemory();
+    }
+    return PyLong_FromLong(result);
+}
+
+static PyMethodDef methods[] = {
+    {"shim_buckets", shim_buckets, METH_VARARGS,
+     "shim_buckets(gray, table, h, w, out) -> (status, min, max): the authors' CV_16U Sobel gradients of table[gray], "
+     "gx * 6 + gy into out (uint8 HxW); status 0, 1 when a gradient is above 4 (out incomplete), -1 when a code is "
+     "outside the table; min, max of gx^2 + gy^2; gray: C-contiguous uint16 HxW codes, table: float64 (codes,)."},
+    {"shim_sum", shim_sum, METH_VARARGS,
+     "shim_sum(codes, values) -> float: np.sum(values[codes]) of a uint8 buffer and float32 (256,) values, bit for "
+     "bit (numpy's pairwise float32 summation)."},
+    {"kim_code_sums", kim_code_sums, METH_VARARGS,
+     "kim_code_sums(gray, h, w, counts, sums) -> 0 (-1: a code above 4095): per 8-bit code (gray >> 4) the pixel "
+     "count and the sum of (gx^2 + gy^2) mod 65536 of the clipped integer Sobel gradients; counts, sums: int64 "
+     "(256,)."},
+    {NULL, NULL, 0, NULL},
+};
+
+static struct PyModuleDef module = {PyModuleDef_HEAD_INIT, "_upstream_kernels",
+                                    "Per-pixel passes of the authors' Shim and Kim metrics.", -1, methods, NULL, NULL,
+                                    NULL, NULL};
+
+PyMODINIT_FUNC PyInit__upstream_kernels(void)
+{
+    return PyModule_Create(&module);
+}
