@@ -1,19 +1,20 @@
 /*
  * _upstream_kernels: per-pixel passes of the authors' Shim and Kim metrics (``--parity upstream``, see upstream.py),
- * reduced to small tables that numpy finishes; numpy computes the same values where this was not built.
+ * reduced to what numpy finishes on small tables; upstream.py computes the same values where this was not built.
  *
- * shim_buckets: for every gamma k of a table T[code][k] (float64, the authors' (gray - lo) / (hi - lo) ** gamma of
- *   each code), the two 3x3 Sobel gradients with an unsigned 16-bit output exactly as cv2.Sobel(img, CV_16U, ...)
- *   computes them on the float64 image (BORDER_REFLECT_101; row filter then column filter in float64, in OpenCV's
- *   order: x: 2 d(y) + (d(y+1) + d(y-1)) of the row differences d = v(x+1) - v(x-1); y: s(y+1) - s(y-1) of the
- *   row sums s = (v(x-1) + 2 v(x)) + v(x+1); then rounded half to even and saturated to [0, 65535]), stored as one
- *   byte per pixel and gamma: gx * 5 + gy (the gradients of a [0, 1] image are 0..4).
- * kim_code_sums: for the 8-bit image c = gray >> 4, the pixel count of each code and the sum over its pixels of
+ * shim_buckets: for a table T[code] (float64: the authors' ((gray - lo) / (hi - lo)) ** gamma of each code), the two
+ *   3x3 Sobel gradients with an unsigned 16-bit output exactly as cv2.Sobel(T[gray], CV_16U, ...) computes them on
+ *   the float64 image (BORDER_REFLECT_101; row filter then column filter in float64, in OpenCV's order:
+ *   x: 2 d(y) + (d(y+1) + d(y-1)) of the row differences d = v(x+1) - v(x-1); y: s(y+1) - s(y-1) of the row sums
+ *   s = (v(x-1) + 2 v(x)) + v(x+1); then saturate_cast<ushort>: rounded half to even, negatives and NaN to 0),
+ *   stored as one byte per pixel, gx * 6 + gy (the gradients of a [0, 1] image are 0..4; 5 flags "above 4").
+ * shim_sum: np.sum(values[codes]) of those bytes and a float32 table, in numpy's pairwise order (float32).
+ * kim_code_sums: for the 8-bit image c = gray >> 4, the pixel count of each value and the sum over its pixels of
  *   (gx^2 + gy^2) mod 65536, gx, gy the integer 3x3 Sobel gradients with negatives clipped to 0 (cv2.Sobel on
- *   uint8 with a CV_16U output, BORDER_REFLECT_101), as the authors square them in uint16.
+ *   uint8 with a CV_16U output, BORDER_REFLECT_101), squared and added in uint16 as the authors do.
  *
- * Built with -ffp-contract=off (no fused multiply-add: every float64 operation rounds as OpenCV's do).
- * The GIL is released while they run.
+ * Built with -ffp-contract=off (no fused multiply-add: every float64 operation rounds as OpenCV's do); the hot loops
+ * are compiled for AVX2 and the baseline (same IEEE operations). The GIL is released while they run.
  */
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>

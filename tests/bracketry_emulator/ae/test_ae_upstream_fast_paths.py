@@ -1,14 +1,19 @@
-"""The upstream methods' fast paths (Zhang's compiled kernel and numpy fallback, Kim's per-value tables) give exactly
-the values of the authors' formulas as written."""
+"""The upstream methods' fast paths (Zhang's compiled kernel and numpy fallback, Kim's per-value tables and code sums,
+Shim's per-code tables and compiled gradients, the GP's direct LAPACK / L-BFGS-B calls) give the values of the
+authors' formulas as written: bit for bit, Kim's code sums to float64 rounding."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
+import scipy.optimize
 from scipy import signal
+from scipy.linalg import cho_factor, cho_solve
 
+from bracketry_emulator.ae import gp as GP
 from bracketry_emulator.ae import upstream as U
 from bracketry_emulator.ae.base import bayer_gray
 from bracketry_emulator.dataset import open_dataset
@@ -83,16 +88,169 @@ def test_zhang_equals_the_formula_as_written_on_the_sample(borealhdr_sample: Pat
     assert z.next_exposure_us(img, 8000.0, meta) == want
 
 
-@pytest.mark.realdata
-def test_kim_metric_tables_equal_the_per_pixel_formula(borealhdr_sample: Path, borealhdr_sequence: Path) -> None:
+def _sample_grays(borealhdr_sample: Path, borealhdr_sequence: Path, exposures_us: tuple[float, ...]
+                  ) -> list[np.ndarray]:
     pcalib = borealhdr_sample / "calibration" / "pcalib_inside1.txt"
     emu = Emulator(EmulatorConfig(selection="upstream", parity="upstream", crf=str(pcalib)))
     brackets = open_dataset(borealhdr_sequence).sequences()[0].load("left")
-    for t_us in (1500.0, 8000.0, 30000.0):
-        gray = bayer_gray(emu.emulate(brackets, t_us).image)
-        assert U.upstream_kim_metric(gray) == U._upstream_kim_metric_direct(gray, 16.0, 4.0, 0.6), t_us
+    return [bayer_gray(emu.emulate(brackets, t_us).image) for t_us in exposures_us]
+
+
+@pytest.mark.realdata
+def test_kim_metric_tables_and_code_sums_equal_the_per_pixel_formula(borealhdr_sample: Path,
+                                                                      borealhdr_sequence: Path) -> None:
+    grays = _sample_grays(borealhdr_sample, borealhdr_sequence, (1500.0, 8000.0, 30000.0))
     rng = np.random.default_rng(1)
-    for high in (2, 300, 4096):  # 2: one 8-bit value, a constant entropy: NaN (0/0) in both
-        gray = rng.integers(0, high, (37, 51)).astype(np.uint16)
-        fast, direct = U.upstream_kim_metric(gray), U._upstream_kim_metric_direct(gray, 16.0, 4.0, 0.6)
-        assert fast == direct or (high == 2 and np.isnan(fast) and np.isnan(direct)), high
+    grays += [rng.integers(0, high, (37, 51)).astype(np.uint16) for high in (2, 300, 4096)]
+    for i, gray in enumerate(grays):
+        direct = U._upstream_kim_metric_direct(gray, 16.0, 4.0, 0.6)
+        exact, fast = U.upstream_kim_metric_exact(gray), U.upstream_kim_metric(gray)
+        if i == 3:  # one 8-bit value, a constant entropy: NaN (0/0) in all three
+            assert np.isnan(direct) and np.isnan(exact) and np.isnan(fast)
+            continue
+        assert exact == direct, i  # per-value tables: bit for bit
+        assert fast == pytest.approx(direct, rel=1e-12, abs=0), i  # per-value sums: float64 rounding
+
+
+def test_kim_code_sums_kernel_equals_opencv() -> None:
+    kernels = U._upstream_kernels()
+    assert kernels is not None, "the _upstream_kernels extension was not built (setup.sh builds it)"
+    rng = np.random.default_rng(2)
+    for shape in [(2, 2), (3, 7), (40, 33)]:
+        gray = rng.integers(0, 4096, shape).astype(np.uint16)
+        img = (gray >> 4).astype(np.uint8)
+        gx = cv2.Sobel(img, ddepth=cv2.CV_16U, dx=1, dy=0, ksize=3).ravel()
+        gy = cv2.Sobel(img, ddepth=cv2.CV_16U, dx=0, dy=1, ksize=3).ravel()
+        g = gx**2 + gy**2  # uint16: wraps
+        counts, sums = np.empty(256, np.int64), np.empty(256, np.int64)
+        assert kernels.kim_code_sums(gray, shape[0], shape[1], counts, sums) == 0
+        assert np.array_equal(counts, np.bincount(img.ravel(), minlength=256))
+        assert np.array_equal(sums, np.bincount(img.ravel(), weights=g, minlength=256).astype(np.int64))
+    over = np.full((3, 3), 4096, np.uint16)
+    assert kernels.kim_code_sums(over, 3, 3, counts, sums) == -1  # not 12-bit: the caller uses the formula
+
+
+def _shim_reference(gray: np.ndarray) -> list[np.float32]:
+    lo, hi = np.min(gray), np.max(gray)
+    img01 = (gray - lo) / (hi - lo)
+    return [U.upstream_shim_metric(img01**g) for g in U.SHIM_GAMMAS_UPSTREAM]
+
+
+@pytest.mark.realdata
+def test_shim_scores_equal_the_per_pixel_formula(borealhdr_sample: Path, borealhdr_sequence: Path) -> None:
+    grays = _sample_grays(borealhdr_sample, borealhdr_sequence, (1500.0, 8000.0, 30000.0))
+    rng = np.random.default_rng(4)
+    grays += [rng.integers(0, 4096, (2, 2)).astype(np.uint16), rng.integers(100, 104, (31, 17)).astype(np.uint16),
+              np.minimum(rng.integers(0, 4096, (64, 80)), 4095).astype(np.uint16)]
+    for i, gray in enumerate(grays):
+        got, want = U.upstream_shim_scores(gray), _shim_reference(gray)
+        assert [type(v) for v in got] == [type(v) for v in want]
+        assert [v.tobytes() for v in got] == [v.tobytes() for v in want], i
+    flat = np.full((5, 6), 700, np.uint16)  # hi == lo: the formula (NaN image, zero scores)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        assert [v.tobytes() for v in U.upstream_shim_scores(flat)] == [v.tobytes() for v in _shim_reference(flat)]
+
+
+def test_shim_gradient_kernel_rounds_as_opencv() -> None:
+    """CV_16U Sobel of a float64 image: the kernel's gradients equal cv2.Sobel's on values where the order of the
+    float64 operations and the rounding of halves decide (dyadic values, values a few ulps off halves)."""
+    kernels = U._upstream_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(6)
+    for trial in range(40):
+        n_codes = 64
+        if trial % 2:
+            table = rng.integers(0, 17, n_codes) / 16.0
+        else:
+            table = np.clip(rng.integers(0, 9, n_codes) / 8.0 + rng.choice([0, 1e-16, -1e-16, 2.2e-16], n_codes), 0, 1)
+        h, w = (int(v) for v in rng.integers(2, 30, 2))
+        gray = rng.integers(0, n_codes, (h, w)).astype(np.uint16)
+        img = table[gray]
+        gx = cv2.Sobel(img, ddepth=cv2.CV_16U, dx=1, dy=0, ksize=3)
+        gy = cv2.Sobel(img, ddepth=cv2.CV_16U, dx=0, dy=1, ksize=3)
+        out = np.empty((h, w), np.uint8)
+        status, m2_min, m2_max = kernels.shim_buckets(gray, table, h, w, out)
+        assert status == 0
+        assert np.array_equal(out // 6, gx) and np.array_equal(out % 6, gy), trial
+        m2 = gx.astype(int) ** 2 + gy.astype(int) ** 2
+        assert (m2_min, m2_max) == (m2.min(), m2.max())
+    gray = np.array([[0, 0, 1], [0, 0, 1], [0, 0, 1]], np.uint16)
+    assert kernels.shim_buckets(gray, np.array([0.0, 2.0]), 3, 3, np.empty((3, 3), np.uint8))[0] == 1  # above 4
+    assert kernels.shim_buckets(gray, np.array([0.0]), 3, 3, np.empty((3, 3), np.uint8))[0] == -1  # not in table
+
+
+def test_shim_sum_is_numpys_pairwise_sum() -> None:
+    kernels = U._upstream_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(8)
+    for n in (1, 7, 8, 9, 127, 128, 129, 1000, 4099, 100_003, 2_304_000):
+        values = (rng.random(256) * rng.choice([1.0, 1e3, 1e-3], 256)).astype(np.float32)
+        for zeros in (False, True):
+            if zeros:
+                values[0] = 0.0
+                codes = np.where(rng.random(n) < 0.97, 0, rng.integers(1, 36, n)).astype(np.uint8)
+            else:
+                codes = rng.integers(0, 256, n).astype(np.uint8)
+            got = np.float32(kernels.shim_sum(codes, values))
+            assert got.tobytes() == np.sum(values[codes]).tobytes(), (n, zeros)
+
+
+# --- Kim's GP: the fit as formulated with scipy.linalg and scipy.optimize.minimize --------------------------------
+
+
+def _neg_lml_formula(log_theta: np.ndarray, x: np.ndarray, y: np.ndarray, noise: float) -> tuple[float, np.ndarray]:
+    c, length = np.exp(log_theta)
+    d2 = (x[:, None] - x[None, :]) ** 2
+    r = np.exp(-0.5 * d2 / length**2)
+    k = c * r + noise * np.eye(len(x))
+    try:
+        cf = cho_factor(k, lower=True)
+    except np.linalg.LinAlgError:
+        return 1e25, np.zeros(2)
+    alpha = cho_solve(cf, y)
+    lml = -0.5 * float(y @ alpha) - float(np.sum(np.log(np.diag(cf[0])))) - 0.5 * len(x) * np.log(2 * np.pi)
+    inner = np.outer(alpha, alpha) - cho_solve(cf, np.eye(len(x)))
+    grad = np.array([0.5 * np.sum(inner * (c * r)), 0.5 * np.sum(inner * (c * r * d2 / length**2))])
+    return -lml, -grad
+
+
+def _fit_formula(x: np.ndarray, y: np.ndarray, noise: float, rng: np.random.Generator) -> np.ndarray:
+    lo, hi = GP.LOG_BOUNDS
+    starts = [np.zeros(2)] + [rng.uniform(lo, hi, 2) for _ in range(10)]
+    best = None
+    for s in starts:
+        res = scipy.optimize.minimize(_neg_lml_formula, s, args=(x, y, noise), jac=True, method="L-BFGS-B",
+                                      bounds=[GP.LOG_BOUNDS, GP.LOG_BOUNDS])
+        if best is None or res.fun < best[0]:
+            best = (float(res.fun), np.asarray(res.x))
+    assert best is not None
+    return best[1]
+
+
+def _gp_problems() -> list[tuple[np.ndarray, np.ndarray]]:
+    rng = np.random.default_rng(9)
+    problems = [(np.array([4.0]), np.array([1200.0])),  # Kim's first step
+                (np.array([4.0, 4.0, 6.2]), np.array([900.0, 905.0, 1500.0])),  # a repeated exposure
+                (np.array([0.5, 35.0]), np.array([0.0, 0.0]))]  # zero targets
+    for n in (2, 3, 4, 5, 5, 5):
+        problems.append((rng.uniform(0.5, 35.0, n), rng.uniform(300.0, 15000.0, n)))
+    return problems
+
+
+def test_gp_objective_equals_the_formula_bit_for_bit() -> None:
+    rng = np.random.default_rng(10)
+    for x, y in _gp_problems():
+        obj = GP._Objective(x, y, 0.2)
+        for theta in [np.zeros(2), np.array(GP.LOG_BOUNDS), np.array(GP.LOG_BOUNDS[::-1]),
+                      *rng.uniform(*GP.LOG_BOUNDS, (6, 2))]:
+            f, g = obj(theta)
+            f_ref, g_ref = _neg_lml_formula(theta, x, y, 0.2)
+            assert f == f_ref and np.array_equal(g, g_ref), (x, theta)
+
+
+def test_gp_fit_equals_minimize_on_the_formula_bit_for_bit() -> None:
+    GP._minimizer()
+    assert GP._Minimizer._checked, "scipy's L-BFGS-B routine is not driven directly (another scipy?)"
+    for i, (x, y) in enumerate(_gp_problems()):
+        gp = GP.GaussianProcess1D(0.2, 10, np.random.default_rng(i)).fit(x, y)
+        assert np.array_equal(gp.log_theta, _fit_formula(x, y, 0.2, np.random.default_rng(i))), i
