@@ -167,6 +167,12 @@ class FrameBuffer:
                 out.append(_Elsewhere(self, task))
         return out
 
+    def wait(self, task: DecodeTask) -> None:
+        """Return once a claimed frame is in the buffer (decoded by any thread or worker; decoded here when its
+        claim was released unfinished). Raises BracketryError when its decode failed. Never call it on a decode
+        thread for a frame that may be queued behind the caller."""
+        _Elsewhere(self, task).result()
+
     def _release_if_cancelled(self, task: DecodeTask, fut: Future[None]) -> None:
         if fut.cancelled():
             i = self.state_index(task)

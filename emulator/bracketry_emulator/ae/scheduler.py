@@ -24,7 +24,7 @@ import os
 import threading
 import traceback
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -35,9 +35,9 @@ import numpy as np
 from bracketry.errors import BracketryError
 
 from ..dataset import BracketSequence
-from ..emulation import EmulatedImage, EmulatorConfig, RunWriter
+from ..emulation import EmulatedImage, Emulator, EmulatorConfig, RunWriter
 from ..stages import StageTimes
-from .decode import FrameBuffer, frame_shape
+from .decode import DecodeTask, FrameBuffer, frame_shape
 from .emulation_cache import EmulationCache, needed_brackets
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
 from .registry import MethodTraits, get_method
@@ -109,6 +109,13 @@ class Worker:
         #: set: decode on demand (only the brackets the methods' targets need) on this pool's threads
         self.decode_pool: ThreadPoolExecutor | None = None
         self._decoded: dict[tuple[int, int, int], Any] = {}  # (slot, side, exposure index): future-like
+        # --parity upstream, single-bracket selections: the AE camera alone decides each step's source bracket, so
+        # the other cameras need only that bracket of a pair: a decode thread picks it once the AE camera's pair is
+        # decoded (:meth:`_decode_picked`). (slot, target us): future of the other cameras' decode tasks.
+        self._ae_i = s.emulate_sides.index(s.ae_camera)
+        self._pick_alone = (s.emulator.parity == "upstream" and s.emulator.selection in ("upstream", "highernosat")
+                            and len(s.emulate_sides) > 1)
+        self._picks: dict[tuple[int, float], Future[list[DecodeTask]]] = {}
         self.sequences = sequences
         self.frames = frames
         frames.stages = self.stages
@@ -140,6 +147,7 @@ class Worker:
         next sequence's frames decode while the other methods run."""
         self.emu.clear()
         self._decoded.clear()
+        self._picks.clear()
         try:
             for slot, seq_i in enumerate(seq_indices):
                 seq = self.sequences[seq_i]
@@ -147,8 +155,7 @@ class Worker:
                 if self.decode_pool is not None:
                     for t in self.targets.values():
                         self._prefetch(slot, seq_i, t)
-                    for key in self._needed_keys(seq, list(self.targets.values())):
-                        self._decoded[(slot, *key)].result()
+                    self._wait_needed(slot, seq_i)
                 self._seq_i = seq_i
                 self._brackets = {side: {e: self.frames.view(slot, si, ei) for ei, e in enumerate(seq.exposures_us)}
                                   for si, side in enumerate(self.settings.emulate_sides)}
@@ -162,9 +169,10 @@ class Worker:
                     progress(1)
         finally:
             self._brackets = {}
-            for f in self._decoded.values():
+            handles = [*self._picks.values(), *self._decoded.values()]
+            for f in handles:
                 f.cancel()
-            for f in self._decoded.values():
+            for f in handles:
                 if not f.cancelled():
                     f.exception()  # wait: no decode may write into the buffer after this chunk
         self.emu.clear()
@@ -207,13 +215,53 @@ class Worker:
                 if e in exps]
 
     def _prefetch(self, slot: int, seq_i: int, target_us: float) -> None:
-        """Start decoding (on the pool's threads) the frames of ``seq_i`` that ``target_us`` needs, once each."""
+        """Start decoding (on the pool's threads) the frames of ``seq_i`` that ``target_us`` needs, once each; with
+        :attr:`_pick_alone` and a pair of brackets, the other cameras' frame once the AE camera's pair tells which."""
         assert self.decode_pool is not None
-        tasks = [(slot, seq_i, si, ei) for si, ei in self._needed_keys(self.sequences[seq_i], [target_us])
-                 if (slot, si, ei) not in self._decoded]
+        keys = self._needed_keys(self.sequences[seq_i], [target_us])
+        pick = self._pick_alone and len({ei for _, ei in keys}) > 1
+        if pick:
+            keys = [(si, ei) for si, ei in keys if si == self._ae_i]
+        tasks = [(slot, seq_i, si, ei) for si, ei in keys if (slot, si, ei) not in self._decoded]
         futures = self.frames.ensure(tasks, self.decode_pool)
         for (_, _, si, ei), f in zip(tasks, futures, strict=True):
             self._decoded[(slot, si, ei)] = f
+        if pick and (slot, float(target_us)) not in self._picks:
+            pair = [self._decoded[(slot, si, ei)] for si, ei in keys]  # submitted before: no decode thread waits
+            self._picks[(slot, float(target_us))] = self.decode_pool.submit(  # on a task queued after it
+                self._decode_picked, slot, seq_i, target_us, pair)
+
+    def _decode_picked(self, slot: int, seq_i: int, target_us: float, pair: list[Any]) -> list[DecodeTask]:
+        """On a decode thread: wait for the AE camera's pair of brackets, decide the step's source bracket as
+        :meth:`_images` does (the AE camera alone), decode the other cameras' frame of it unless another thread or
+        worker has claimed it. Returns those frames' tasks."""
+        for handle in pair:
+            handle.result()
+        s = self.settings
+        seq = self.sequences[seq_i]
+        exps = needed_brackets(seq.exposures_us, target_us, s.emulator.selection)
+        views = {s.ae_camera: {e: self.frames.view(slot, self._ae_i, seq.exposures_us.index(e)) for e in exps}}
+        # a new emulator (the worker's caches belong to its main thread), the same decision
+        source = Emulator(s.emulator, self.emu.emulator.response).select_stereo(views, target_us, (s.ae_camera,))
+        ei = seq.exposures_us.index(source)
+        tasks = [(slot, seq_i, si, ei) for si in range(len(s.emulate_sides)) if si != self._ae_i]
+        for task in tasks:
+            if self.frames.claim(task):
+                self.frames.run_claimed(task)
+        return tasks
+
+    def _wait_needed(self, slot: int, seq_i: int) -> None:
+        """Wait until every frame the current targets need is in the buffer (decoded here or by another worker)."""
+        seq = self.sequences[seq_i]
+        for t in self.targets.values():
+            keys = self._needed_keys(seq, [t])
+            pick = self._picks.get((slot, float(t)))
+            for si, ei in keys:
+                if pick is None or si == self._ae_i:
+                    self._decoded[(slot, si, ei)].result()
+            if pick is not None:
+                for task in pick.result():
+                    self.frames.wait(task)
 
     def close(self) -> tuple[dict[str, MethodRun], dict[str, dict[str, float]]]:
         """Finish the writes and the feeds; returns (the runs, this worker's stage times)."""

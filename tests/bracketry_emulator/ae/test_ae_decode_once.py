@@ -1,14 +1,19 @@
-"""The shared frame buffer decodes each frame once for every worker process, and only when asked."""
+"""The shared frame buffer decodes each frame once for every worker process, and only when asked (with
+``--parity upstream``, only the other camera's bracket the AE camera picks)."""
 
 from __future__ import annotations
 
+import csv
 import multiprocessing as mp
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
+from ae_scenes import irradiance, render
 
 from bracketry_emulator.ae.decode import FrameBuffer
 
@@ -87,3 +92,80 @@ def test_a_failed_decode_is_reported_to_the_waiting_worker() -> None:
         with pytest.raises(Exception, match="failed"):
             theirs.result()
     fb.close()
+
+
+def _bracket_tree(root: Path, n_seq: int) -> Path:
+    """A BorealHDR tree of 40x56 frames, the right camera brighter than the left (saturated at other brackets), a
+    dark half (black at 1 ms): the upstream selection takes the longer bracket of some pairs, the shorter of others."""
+    irr = irradiance(40, 56, seed=4, dynamic_range=30.0)
+    irr[:, :28] *= 0.001
+    t_ns = 1_700_000_000_000_000_000
+    for _ in range(n_seq):
+        for ms in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0):
+            for side, gain in (("left", 1.0), ("right", 2.5)):
+                d = root / f"camera_{side}" / f"{ms:.1f}"
+                d.mkdir(parents=True, exist_ok=True)
+                cv2.imwrite(str(d / f"{t_ns}.png"), render(irr * gain, ms * 1000))
+            t_ns += 46_000_000
+    return root
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_upstream_parity_decodes_only_the_source_bracket_of_the_other_camera(
+        tmp_path: Path, workers: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """--parity upstream: the AE camera alone picks each step's source bracket, so the right camera decodes just
+    the picked bracket of each pair (each once); the outputs equal those of a run decoding both brackets."""
+    from bracketry_emulator.ae import LoopConfig, run_methods
+    from bracketry_emulator.ae import scheduler as sch
+    from bracketry_emulator.ae.emulation_cache import needed_brackets
+    from bracketry_emulator.emulation.settings import emulator_config
+
+    rec = _bracket_tree(tmp_path / "rec", 3)
+    log = tmp_path / "decodes.txt"
+    load = FrameBuffer._load
+
+    def counted(fb: FrameBuffer, task: tuple[int, int, int, int]) -> None:
+        with open(log, "a") as f:  # one line per decode, from every worker process
+            f.write(f"{task[1]} {fb.sides[task[2]]} {fb.sequences[task[1]].exposures_us[task[3]]}\n")
+        load(fb, task)
+
+    monkeypatch.setattr(FrameBuffer, "_load", counted)
+    methods = ["fix", "ae30", "ae50", "ae70", "shim"]
+
+    def run(out: Path) -> list[tuple[int, str, int]]:
+        log.write_text("")
+        cfg = LoopConfig(emulator=emulator_config("upstream", "srgb", "upstream"), init_exposure_us=3000.0)
+        run_methods(rec, methods, out, workers=workers, config=cfg, progress=False)
+        return [(int(q), side, int(e)) for q, side, e in (line.split() for line in log.read_text().splitlines())]
+
+    picked = run(tmp_path / "picked")
+    assert len(picked) == len(set(picked))  # each frame decoded once
+    exps = (1000, 2000, 4000, 8000, 16000, 32000)
+    kinds = set()
+    for q in range(3):
+        steps = [row for m in methods
+                 for row in csv.DictReader((tmp_path / "picked" / m / "steps.csv").read_text().splitlines())
+                 if int(row["step"]) == q]
+        sources = {round(float(r["source_exposure_ms"]) * 1000) for r in steps}
+        for r in steps:
+            pair = needed_brackets(exps, float(r["target_exposure_ms"]) * 1000, "upstream")
+            if len(pair) == 2:
+                kinds.add("shorter" if round(float(r["source_exposure_ms"]) * 1000) == pair[0] else "longer")
+        needed = {e for r in steps for e in needed_brackets(exps, float(r["target_exposure_ms"]) * 1000, "upstream")}
+        assert {e for s, side, e in picked if s == q and side == "right"} == sources
+        assert {e for s, side, e in picked if s == q and side == "left"} == needed
+    assert sum(side == "right" for _, side, _ in picked) < sum(side == "left" for _, side, _ in picked)
+    assert {"shorter", "longer"} <= kinds  # the AE camera picked each bracket of a pair somewhere
+
+    init = sch.Worker.__init__
+
+    def both_brackets(self: sch.Worker, *args: Any, **kwargs: Any) -> None:
+        init(self, *args, **kwargs)
+        self._pick_alone = False
+
+    monkeypatch.setattr(sch.Worker, "__init__", both_brackets)
+    everything = run(tmp_path / "both")
+    assert set(picked) < set(everything)
+    for f in sorted((tmp_path / "both").rglob("*")):
+        if f.is_file() and f.name not in ("summary.json", "ae.csv", "exposure_times.png"):
+            assert f.read_bytes() == (tmp_path / "picked" / f.relative_to(tmp_path / "both")).read_bytes(), f
