@@ -299,6 +299,12 @@ static int parse(uint8_t *f, size_t n, header_t *hdr, size_t *idat_len)
     if (idat_state == 0) {
         return FALLBACK;
     }
+    /* deflate expands at most ~1032x: a header claiming more than the data can hold is not decoded here (and no
+       memory is asked for it) */
+    uint64_t raw = (uint64_t)hdr->height * ((uint64_t)hdr->width * (uint64_t)(hdr->depth / 8) + 1);
+    if (raw / 1032 > (uint64_t)packed + 64) {
+        return FALLBACK;
+    }
     *idat_len = packed;
     return OK;
 }
