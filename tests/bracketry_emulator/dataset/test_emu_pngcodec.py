@@ -140,8 +140,8 @@ def _corruptions(good: bytes) -> dict[str, bytes]:
     huge = bytearray(good)  # a header claiming 2^31 x 2^31 samples over the same few bytes of data
     huge[16:24] = struct.pack(">II", 0x7FFFFFFF, 0x7FFFFFFF)
     huge[29:33] = struct.pack(">I", zlib.crc32(bytes(huge[12:29])))
-    return {"truncated": good[: len(good) * 2 // 3], "huge header": bytes(huge), "no IEND": good[:-12], "bad CRC": bytes(flipped),
-            "bad Adler-32": bytes(adler), "interlace flag": bytes(interlaced), "not a PNG": b"GIF89a" + good[6:],
+    return {"truncated": good[: len(good) * 2 // 3], "huge header": bytes(huge), "no IEND": good[:-12],
+            "bad CRC": bytes(flipped), "bad Adler-32": bytes(adler), "interlace flag": bytes(interlaced), "not a PNG": b"GIF89a" + good[6:],
             "signature only": SIGNATURE}
 
 
