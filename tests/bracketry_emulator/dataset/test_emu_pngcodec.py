@@ -141,8 +141,8 @@ def _corruptions(good: bytes) -> dict[str, bytes]:
     huge[16:24] = struct.pack(">II", 0x7FFFFFFF, 0x7FFFFFFF)
     huge[29:33] = struct.pack(">I", zlib.crc32(bytes(huge[12:29])))
     return {"truncated": good[: len(good) * 2 // 3], "huge header": bytes(huge), "no IEND": good[:-12],
-            "bad CRC": bytes(flipped), "bad Adler-32": bytes(adler), "interlace flag": bytes(interlaced), "not a PNG": b"GIF89a" + good[6:],
-            "signature only": SIGNATURE}
+            "bad CRC": bytes(flipped), "bad Adler-32": bytes(adler), "interlace flag": bytes(interlaced),
+            "not a PNG": b"GIF89a" + good[6:], "signature only": SIGNATURE}
 
 
 def test_pngcodec_invalid_files_fall_back_and_fail_as_before(tmp_path: Path) -> None:
