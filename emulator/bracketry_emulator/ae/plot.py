@@ -21,7 +21,8 @@ def plot_exposures(series: dict[str, tuple[list[float], list[float]]], path: Pat
     ax.set_yscale("log")
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="best", fontsize=8, ncol=2)
-    ax.set_title("Exposure chosen by each AE method")
+    # a fixed title position (y given): matplotlib's automatic one measures every tick label first (~40 % of a draw)
+    ax.set_title("Exposure chosen by each AE method", y=1.0)
     fig.subplots_adjust(left=0.09, right=0.98, bottom=0.12, top=0.93)  # fixed margins: tight_layout costs ~0.3 s
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(str(path))

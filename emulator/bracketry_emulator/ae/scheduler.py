@@ -43,8 +43,9 @@ from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
 from .registry import MethodTraits, get_method
 from .writers import ImageSink, LinkingRunWriter, method_folder
 
-#: Estimated cost of emulating and writing one step, in the unit of the methods' ``step_cost``.
-EMULATION_COST = 20
+#: Estimated cost of emulating and writing one step (both cameras, stored PNGs; ~ms of CPU per 1920x1200 step here),
+#: in the unit of the methods' ``step_cost``.
+EMULATION_COST = 30
 
 
 @dataclass(frozen=True)
@@ -320,6 +321,9 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
         if len(groups) == 1:
             runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), n_seq, chunk, progress, times))
         else:
+            # the camera response once here: the workers inherit what loading it imports (scipy.interpolate for the
+            # authors' pcalib lifting, ~0.3 s of CPU per process) instead of each importing it
+            Emulator(settings.emulator)
             runs.update(_run_forked(groups, make, n_seq, chunk, frames, progress, times))
     finally:
         frames.close()  # on an error path the traceback may still hold views of the buffer: freed with them

@@ -119,8 +119,9 @@ def upstream_shim_scores(gray: np.ndarray, gammas: np.ndarray = SHIM_GAMMAS_UPST
 class UpstreamShimAE:
     """Shim as the authors' code runs it (see the module docstring; id ``shim`` with ``--parity upstream``)."""
 
-    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 215
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
+    #: 1920x1200 step here
+    step_cost = 50
 
     def __init__(self, delta: float = 0.06, lam: float = 1e3, kp: float = 0.2, name: str = "shim") -> None:
         self.delta, self.lam, self.kp = delta, lam, kp
@@ -256,8 +257,9 @@ class UpstreamKimAE:
     the GP mean on linspace(0.5, 35, 1000)). Output always in [0.5, 35] ms.
     """
 
-    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 150
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
+    #: 1920x1200 step here (metric ~9, GP fit ~3, scipy's import on the first step)
+    step_cost = 20
 
     def __init__(self, seed: int = 0, name: str = "kim") -> None:
         self.seed = seed
@@ -393,8 +395,9 @@ class UpstreamZhangAE:
     what their Zhang loads); another response is used through its per-code table.
     """
 
-    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
-    step_cost = 170
+    #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
+    #: 1920x1200 step here
+    step_cost = 140
 
     _SCHARR_X = np.array([[3, 0, -3], [10, 0, -10], [3, 0, -3]], dtype=np.float64)
     _SCHARR_Y = np.array([[3, 10, 3], [0, 0, 0], [-3, -10, -3]], dtype=np.float64)
