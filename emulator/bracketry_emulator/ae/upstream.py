@@ -28,9 +28,13 @@ Quirks reproduced (the default implementations fix them; see their docstrings):
   ITSELF (not ranked by gradient magnitude); soft-percentile weights (p = 0.8, k = 5) in float32, divided by their
   L2 norm (not their sum); t_next = t + 1e-6 M (ms), floored at 0.02 ms; outside a gray mean of
   (1120, 3040) DN the classical-50 step. The authors size the weights for 1920x1200 images only; here for any size.
-  Computed ~5x faster than their code with the same values bit for bit: h per 12-bit code (a table), the float64
-  gradients summed in scipy's order, the long-double terms sorted by a radix sort (the compiled ``_zhang_terms``,
-  ``_zhang_terms.c``; numpy does the same where it was not built or with ``BRACKETRY_NO_CKERNEL=1``).
+  Computed ~10x faster than their code with the same values bit for bit: h per 12-bit code (a table), the float64
+  gradients summed in scipy's order, the long-double terms sorted by a radix sort and summed with their weights in
+  numpy's pairwise order (the compiled ``_zhang_terms``, ``_zhang_terms.c``; numpy does the same where it was not
+  built or with ``BRACKETRY_NO_CKERNEL=1``).
+- Speed of Shim and Kim (same results): Shim's per-pixel values are per-code tables and its gradients, bucketed
+  and summed by the compiled ``_upstream_kernels`` (``_upstream_kernels.c``), bit for bit; Kim's metric from
+  per-8-bit-value sums (float64 rounding), its GP fit (:mod:`.gp`) bit for bit with direct LAPACK / L-BFGS-B calls.
 """
 
 from __future__ import annotations
@@ -357,14 +361,14 @@ _KERNEL_TRIED = False
 
 
 def _zhang_kernel() -> Any:
-    """``sorted_terms`` of the compiled ``_zhang_terms`` extension (``_zhang_terms.c``, built with the package), or
-    None when it was not built or ``BRACKETRY_NO_CKERNEL=1`` (then numpy computes the same values)."""
+    """The compiled ``_zhang_terms`` extension (``_zhang_terms.c``, built with the package), or None when it was not
+    built or ``BRACKETRY_NO_CKERNEL=1`` (then numpy computes the same values)."""
     global _KERNEL, _KERNEL_TRIED
     if not _KERNEL_TRIED:
         _KERNEL_TRIED = True
         if os.environ.get("BRACKETRY_NO_CKERNEL") != "1":
             try:
-                _KERNEL = importlib.import_module(f"{__package__}._zhang_terms").sorted_terms
+                _KERNEL = importlib.import_module(f"{__package__}._zhang_terms")
             except ImportError:
                 _KERNEL = None
     return _KERNEL
@@ -454,15 +458,33 @@ class UpstreamZhangAE:
     def sorted_terms(self, gray: np.ndarray, t_ms: float, meta: dict[str, Any]) -> np.ndarray:
         """The terms sorted ascending (long double (H*W,)): the compiled kernel ``_zhang_terms`` when it was built
         (the same values, ~5x faster), else numpy (:meth:`_terms` and :func:`sort_longdouble`)."""
-        fn = _zhang_kernel()
-        if fn is None or gray.ndim != 2 or int(gray.max(initial=0)) > 4095:
+        kernel = _zhang_kernel()
+        if kernel is None or gray.ndim != 2 or int(gray.max(initial=0)) > 4095:
             return sort_longdouble(self._terms(gray, t_ms, meta))
+        g, jlut = self._kernel_inputs(gray, t_ms, meta)
+        out = np.empty(g.size, dtype=np.longdouble)
+        kernel.sorted_terms(g, jlut, g.shape[0], g.shape[1], out)
+        return out
+
+    def _kernel_inputs(self, gray: np.ndarray, t_ms: float, meta: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
         jlut = np.zeros(65536, dtype=np.float64)
         jlut[:4096] = 1.0 / (self._slope_table(meta) * t_ms)
-        g = np.ascontiguousarray(gray, dtype=np.uint16)
-        out = np.empty(g.size, dtype=np.longdouble)
-        fn(g, jlut, g.shape[0], g.shape[1], out)
-        return out
+        return np.ascontiguousarray(gray, dtype=np.uint16), jlut
+
+    def weighted_sum(self, gray: np.ndarray, t_ms: float, meta: dict[str, Any]) -> np.longdouble:
+        """``np.sum(w * sorted_terms)`` with the soft-percentile weights w (float32) in long double, bit for bit:
+        the compiled kernel sums the products in numpy's pairwise order without writing the terms out (where it was
+        built), else numpy."""
+        w = self._weights.get(gray.size)
+        if w is None:
+            w = self._weights[gray.size] = upstream_zhang_weights(gray.size)
+        kernel = _zhang_kernel()
+        if kernel is None or gray.ndim != 2 or int(gray.max(initial=0)) > 4095:
+            return np.sum(w * self.sorted_terms(gray, t_ms, meta))
+        g, jlut = self._kernel_inputs(gray, t_ms, meta)
+        out = np.empty(1, dtype=np.longdouble)
+        kernel.weighted_sum(g, jlut, g.shape[0], g.shape[1], w, out)
+        return out[0]
 
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         check_input(image, exposure_us)
@@ -472,9 +494,5 @@ class UpstreamZhangAE:
         if mean <= (70 / 256) * 4096 or mean >= (190 / 256) * 4096:
             nxt = classical_step_ms(float(mean), t_ms, 50.0)
         else:
-            terms = self.sorted_terms(gray, t_ms, meta)
-            w = self._weights.get(terms.size)
-            if w is None:
-                w = self._weights[terms.size] = upstream_zhang_weights(terms.size)
-            nxt = float(t_ms + 1e-6 * np.sum(w * terms))
+            nxt = float(t_ms + 1e-6 * self.weighted_sum(gray, t_ms, meta))
         return max(nxt, 0.02) * 1000.0

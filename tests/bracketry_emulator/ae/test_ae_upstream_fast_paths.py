@@ -74,6 +74,19 @@ def test_compiled_kernel_is_built_and_equals_numpy() -> None:
             assert np.array_equal(c, ref), (shape, t_ms)
 
 
+def test_compiled_weighted_sum_equals_numpys_sum_of_the_sorted_terms() -> None:
+    z = U.UpstreamZhangAE()
+    meta = {"response": None}
+    rng = np.random.default_rng(11)
+    for shape in [(1, 2), (2, 3), (3, 5), (9, 17), (33, 47), (120, 90)]:
+        gray = rng.integers(0, 4096, shape).astype(np.uint16)
+        gray[: shape[0] // 2] = gray[0, 0]  # flat rows: many equal terms
+        for t_ms in (0.5, 8.0):
+            got = z.weighted_sum(gray, t_ms, meta)
+            want = np.sum(U.upstream_zhang_weights(gray.size) * np.sort(z._terms(gray, t_ms, meta)))
+            assert isinstance(got, np.longdouble) and got == want, (shape, t_ms)
+
+
 @pytest.mark.realdata
 def test_zhang_equals_the_formula_as_written_on_the_sample(borealhdr_sample: Path, borealhdr_sequence: Path) -> None:
     pcalib = borealhdr_sample / "calibration" / "pcalib_inside1.txt"
