@@ -321,9 +321,6 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
         if len(groups) == 1:
             runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), n_seq, chunk, progress, times))
         else:
-            # the camera response once here: the workers inherit what loading it imports (scipy.interpolate for the
-            # authors' pcalib lifting, ~0.3 s of CPU per process) instead of each importing it
-            Emulator(settings.emulator)
             runs.update(_run_forked(groups, make, n_seq, chunk, frames, progress, times))
     finally:
         frames.close()  # on an error path the traceback may still hold views of the buffer: freed with them

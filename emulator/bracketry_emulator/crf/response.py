@@ -10,8 +10,8 @@ Three implementations:
   of the integer linear level k), ``icrf`` = mean linear level of each code, forward = round to the linear level
   then the exact camera encoding (so emulated codes stay in the camera's code set);
 - :class:`UpstreamResponse`: the authors' lifting of ``pcalib.txt`` (knots linspace(0, 4095, 256), irradiance 16 x
-  pcalib, ends forced to 0 and 4095) evaluated with the same ``scipy.interpolate.interp1d`` arithmetic, for
-  ``--parity upstream`` bit-exactness.
+  pcalib, ends forced to 0 and 4095) evaluated with the same arithmetic as ``scipy.interpolate.interp1d``
+  (:class:`LinearInterp`), for ``--parity upstream`` bit-exactness.
 """
 
 from __future__ import annotations
@@ -132,6 +132,26 @@ class SrgbResponse(Response):
         return np.take(self.code_of_level, np.rint(x).astype(np.intp))
 
 
+class LinearInterp:
+    """``scipy.interpolate.interp1d(x, y, kind="linear", fill_value=...)`` as the authors call it, with the same
+    values without importing scipy (~0.3 s per process): interp1d sorts the knots by x (stable), evaluates float64
+    data with ``np.interp`` and, its ``bounds_error`` being on for a fill value that is not "extrapolate", refuses
+    points outside [x_0, x_-1] with a ValueError."""
+
+    def __init__(self, x: np.ndarray, y: np.ndarray) -> None:
+        order = np.argsort(x, kind="mergesort")
+        self.x = np.asarray(x, dtype=np.float64)[order]
+        self.y = np.asarray(y, dtype=np.float64)[order]
+
+    def __call__(self, x_new: np.ndarray | float) -> np.ndarray:
+        x = np.asarray(x_new)
+        if not np.issubdtype(x.dtype, np.inexact):
+            x = x.astype(np.float64)
+        if np.any(x < self.x[0]) or np.any(x > self.x[-1]):
+            raise ValueError(f"a value in x_new is outside the interpolation range [{self.x[0]}, {self.x[-1]}]")
+        return np.interp(x, self.x, self.y)
+
+
 class UpstreamResponse(Response):
     """The authors' 12-bit lifting of a TUM ``pcalib.txt`` with their interp1d arithmetic (``--parity upstream``).
 
@@ -140,8 +160,6 @@ class UpstreamResponse(Response):
     """
 
     def __init__(self, pcalib: np.ndarray, name: str = "upstream") -> None:
-        from scipy.interpolate import interp1d
-
         pcalib = np.asarray(pcalib, dtype=np.float64)
         if pcalib.shape != (256,):
             raise ValueError(f"the upstream lifting needs 256 pcalib values, got {pcalib.shape}")
@@ -149,8 +167,8 @@ class UpstreamResponse(Response):
         y = 16.0 * pcalib
         y[0] = 0.0
         y[-1] = 4095.0
-        self._icrf_fn = interp1d(x, y, kind="linear", fill_value=(0, 4095))
-        self._crf_fn = interp1d(y, x, kind="linear", fill_value=(0, 4095))
+        self._icrf_fn = LinearInterp(x, y)
+        self._crf_fn = LinearInterp(y, x)
         self.icrf = np.asarray(self._icrf_fn(np.arange(N_CODES, dtype=np.float64)), dtype=np.float64)
         self.name = name
         self.linear_max = 4095.0

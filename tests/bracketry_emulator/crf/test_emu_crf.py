@@ -104,3 +104,30 @@ def test_emu_calibrate_crf_command(tmp_path: Path, capsys: pytest.CaptureFixture
     assert main(["calibrate-crf", str(tmp_path / "nope"), "--out", str(tmp_path / "x.txt")]) == 2
     err = capsys.readouterr().err
     assert "exists" in err and "does not exist" in err and "Traceback" not in err
+
+
+def test_emu_upstream_interpolation_equals_scipy_interp1d(borealhdr_sample: Path) -> None:
+    """The authors' lifting is evaluated without scipy: the same values as their interp1d calls, bit for bit, and the
+    same refusal of points outside the knots."""
+    from scipy.interpolate import interp1d
+
+    from bracketry_emulator.crf.response import LinearInterp
+
+    pcalib = np.loadtxt(borealhdr_sample / "calibration" / "pcalib_inside1.txt").ravel()
+    x = np.linspace(0, 4095, 256)
+    y = 16.0 * pcalib
+    y[0], y[-1] = 0.0, 4095.0
+    rng = np.random.default_rng(0)
+    unsorted = rng.permutation(256)
+    for a, b in ((x, y), (y, x), (x[unsorted], y[unsorted])):
+        ref, mine = interp1d(a, b, kind="linear", fill_value=(0, 4095)), LinearInterp(a, b)
+        for q in (np.arange(4096), np.linspace(0, 4095, 4097), rng.uniform(0, 4095, (40, 30)).astype(np.float32),
+                  np.array(17.5), np.array([4095.0, 0.0, np.nan])):
+            got, want = mine(q), ref(q)
+            assert got.dtype == want.dtype and got.shape == want.shape
+            np.testing.assert_array_equal(got, want)
+        for outside in (-0.5, 4095.5):
+            with pytest.raises(ValueError):
+                ref(np.array([outside]))
+            with pytest.raises(ValueError):
+                mine(np.array([outside]))
