@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from bracketry.errors import BracketryError
+from bracketry_emulator.synth.kernels import synth_kernels
 
 N_LEVELS = 4096
 SATURATED_CODE = 4094
@@ -191,6 +192,12 @@ class CameraModel:
         read_var = f32(self.read_noise_e ** 2)
         inv_gain = f32(1.0 / self.gain_e_per_dn)
         offset = f32(self.black_level_dn + 0.5)
+        kernels = synth_kernels() if normal is not None else None
+        if kernels is not None:  # the same codes, compiled (one pass, no temporaries)
+            kernels.expose_gaussian(flat, np.ascontiguousarray(normal, np.float32), float(f32(exposure_us)),
+                                    float(f32(2.0 * self.full_well_e)), float(read_var), float(inv_gain),
+                                    float(offset), np.ascontiguousarray(self._lut, np.uint16), out)
+            return out.reshape(rate.shape)
         for s0 in range(0, flat.size, _CHUNK):  # cache-sized chunks; the noise is drawn in pixel order
             mean_e = flat[s0:s0 + _CHUNK] * f32(exposure_us)
             np.minimum(mean_e, f32(2.0 * self.full_well_e), out=mean_e)

@@ -25,6 +25,7 @@ import numpy as np
 
 from bracketry_emulator.synth.calibration import CameraIntrinsics
 from bracketry_emulator.synth.camera_model import BAYER_RGGB
+from bracketry_emulator.synth.kernels import synth_kernels
 from bracketry_emulator.synth.scene import Scene
 
 _NEAR_M = 0.05
@@ -335,16 +336,33 @@ class SideRenderer:
         e3 = np.column_stack([np.zeros((m, 2)), pieces[:, 4] - pieces[:, 3]])
         corners = (base[:, None, :] + _CORNER_SIGNS[None, :, 0:1] * e1[:, None, :]
                    + _CORNER_SIGNS[None, :, 1:2] * e2[:, None, :] + _CORNER_SIGNS[None, :, 2:3] * e3[:, None, :])
-        pix, piece = self._pairs(self._rects_of_boxes(corners, R, o))
-        if pix.size == 0:
-            return None
-        piece = keep[piece]
+        rects = self._rects_of_boxes(corners, R, o)
         f32 = np.float32
         cols = self.cyl_cols
         # per piece: camera-to-axis offset and the constant term of the quadratic
         ocx_p = f32(o[0]) - cols[0]
         ocy_p = f32(o[1]) - cols[1]
         c_p = ocx_p * ocx_p + ocy_p * ocy_p - cols[2] * cols[2]
+        kernels = synth_kernels()
+        if kernels is not None:  # the same nearest hits, compiled, without listing the (pixel, piece) pairs
+            live = np.nonzero((rects[:, 1] > rects[:, 0]) & (rects[:, 3] > rects[:, 2]))[0]
+            if live.size == 0:
+                return None
+            n = self.shape[0] * self.shape[1]
+            best_t = np.full(n, np.inf, f32)
+            best_piece = np.full(n, -1, np.int32)
+            kernels.nearest_trunks(d[0], d[1], d[2], self.shape[1], np.ascontiguousarray(rects[live], dtype=np.int64),
+                   np.ascontiguousarray(keep[live], dtype=np.int64), ocx_p, ocy_p, c_p, cols[3], cols[4],
+                   float(f32(o[2])), best_t, best_piece)
+            pix = np.flatnonzero(best_piece >= 0).astype(np.int32)
+            if pix.size == 0:
+                return None
+            piece = best_piece[pix].astype(np.int64)
+            return pix, self.cyl_parent[piece], best_t[pix], (piece, d, o)
+        pix, piece = self._pairs(rects)
+        if pix.size == 0:
+            return None
+        piece = keep[piece]
         t_all = np.empty(pix.size, f32)
         for s0 in range(0, pix.size, _BLOCK_PIXELS):  # cache-sized chunks of (pixel, piece) pairs
             pp, pc = pix[s0:s0 + _BLOCK_PIXELS], piece[s0:s0 + _BLOCK_PIXELS]
@@ -369,8 +387,20 @@ class SideRenderer:
     def _shade_cylinders(self, win: np.ndarray, pix: np.ndarray, obj: np.ndarray, t: np.ndarray,
                          aux: tuple) -> np.ndarray:
         piece, d, o = aux
-        pw, pcw, tw = pix[win], piece[win], t[win]
         cols = self.cyl_cols
+        kernels = synth_kernels()
+        if kernels is not None:
+            f32 = np.float32
+            out = np.empty(win.size, f32)
+            kernels.shade_trunks(np.ascontiguousarray(pix[win], np.int32), np.ascontiguousarray(piece[win], np.int64),
+                                 np.ascontiguousarray(t[win], f32), d[0], d[1], d[2], cols[0], cols[1], cols[2],
+                                 self.cyl_parent, self.chan, np.ascontiguousarray(self.scene.prims.cyl_kind, np.int32),
+                                 self.bark_flat,
+                                 self.cyl_albedo_flat, self.chan_maps["sun"], self.chan_maps["sky"], float(f32(o[0])),
+                                 float(f32(o[1])), float(f32(o[2])), float(self.sun[0]), float(self.sun[1]),
+                                 self.scene.bark.shape[1], self.scene.bark.shape[0], out)
+            return out
+        pw, pcw, tw = pix[win], piece[win], t[win]
         r = cols[2][pcw]
         nx = (np.float32(o[0]) - cols[0][pcw] + tw * d[0][pw]) / r
         ny = (np.float32(o[1]) - cols[1][pcw] + tw * d[1][pw]) / r

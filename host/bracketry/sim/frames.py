@@ -325,6 +325,24 @@ def _pattern(side: str, k: int, exposure_us: float, width: int, height: int) -> 
     return np.clip(pattern * exposure_us / 8.0, 0, 4094).astype(np.uint16)
 
 
+def noise_bank(world: Any, side_index: int) -> np.ndarray:
+    """The standard normal variates of one side's frames (float32, (NOISE_BANK_FRAMES + 1) * W * H): drawn once,
+    each frame's noise is a window of them (see :func:`world_frame`)."""
+    w, h = world.resolution
+    rng = np.random.default_rng(np.random.SeedSequence([world.seed, side_index, NOISE_BANK_FRAMES]))
+    return rng.standard_normal((NOISE_BANK_FRAMES + 1) * w * h, dtype=np.float32)
+
+
+def world_frame(world: Any, bank: np.ndarray, side: str, t_s: float, exposure_us: float) -> np.ndarray:
+    """The rig's frame of ``side`` (a ``bracketry_emulator.synth.World``) at world time ``t_s`` exposed
+    ``exposure_us``: uint16 (H, W) 12-bit codes, its noise the window of ``bank`` (see :func:`noise_bank`) at a place
+    drawn from the frame's own generator."""
+    w, h = world.resolution
+    at = int(world.frame_rng(side, t_s, exposure_us).integers(0, NOISE_BANK_FRAMES * w * h))
+    return world.camera.expose(world.rate_e_per_us(side, t_s, exposure_us), exposure_us, None,
+                               normal=bank[at:at + w * h])
+
+
 def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[int], fps: float, n_frames: int,
                   resolution: tuple[int, int], sides: list[str], all_sides: list[str] | None = None) -> None:
     """A renderer process: frame k of each of ``sides``, k = 0, 1, ..., into the shared files, counting as it goes
@@ -348,18 +366,14 @@ def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[i
         banks = {}
         if world is not None:  # standard normal variates drawn once: each frame's noise is a window of them
             for side in sides:
-                rng = np.random.default_rng(np.random.SeedSequence([world.seed, (all_sides or sides).index(side),
-                                                                    NOISE_BANK_FRAMES]))
-                banks[side] = rng.standard_normal((NOISE_BANK_FRAMES + 1) * w * h, dtype=np.float32)
+                banks[side] = noise_bank(world, (all_sides or sides).index(side))
         for k in range(n_frames):
             if k % 64 == 0 and os.getppid() != parent:
                 return  # the rig process is gone (killed): outside its process group, nobody else ends us
             t_s, exp_us = cycle_time_s(k, len(brackets_us), fps), float(brackets_us[k % len(brackets_us)])
             for side in sides:
                 if world is not None:
-                    at = int(world.frame_rng(side, t_s, exp_us).integers(0, NOISE_BANK_FRAMES * w * h))
-                    img = world.camera.expose(world.rate_e_per_us(side, t_s, exp_us), exp_us, None,
-                                              normal=banks[side][at:at + w * h])
+                    img = world_frame(world, banks[side], side, t_s, exp_us)
                 else:
                     img = _pattern(side, k, exp_us, w, h)
                 embed_frame_id(img, k)

@@ -1,0 +1,97 @@
+"""The simulated rig's renderer, per side and bracket cycle: numpy paths vs the compiled loops, side by side.
+
+Usage: .venv/bin/python benchmarks/bench_sim_render.py [--resolution 640x400] [--cycles 40] [--preset forest-winter]
+
+What one renderer process of ``bracketry simulate`` does per side and bracket cycle (one scene render, then the
+cycle's exposures with the rig's pre-drawn noise, ``bracketry.sim.frames.world_frame``), timed on consecutive cycles
+of the walk at the rig's default 22 fps and 6 brackets, once with the numpy paths (``BRACKETRY_NO_CKERNEL=1``) and
+once with the compiled ``bracketry_emulator.synth._kernels``, alternating cycle by cycle so both see the same load.
+Checks both give the same codes, and prints medians (ms per side per cycle, radiance ms, ms per exposure) and the
+ratio. The cameras need 22 / 6 cycles per second per side: a cycle's CPU time x 3.67 is the share of a core each
+renderer needs.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"
+
+import argparse  # noqa: E402
+import statistics  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+from bracketry.sim.frames import cycle_time_s, noise_bank, world_frame  # noqa: E402
+from bracketry_emulator.synth import World  # noqa: E402
+from bracketry_emulator.synth.kernels import synth_kernels, use_kernels  # noqa: E402
+from bracketry_emulator.synth.world import parse_resolution  # noqa: E402
+
+BRACKETS_US = (1000, 2000, 4000, 8000, 16000, 32000)
+FPS = 22.0
+
+
+def _cycle(world: World, bank: np.ndarray, side: str, c: int) -> tuple[float, float, float, list[np.ndarray]]:
+    """(cycle CPU s, radiance CPU s, exposures CPU s, frames) of bracket cycle ``c`` of ``side``."""
+    n = len(BRACKETS_US)
+    t_s = cycle_time_s(c * n, n, FPS)
+    world._cache.clear()  # a new cycle renders its scene (as in the rig: each cycle is a new world time)
+    c0 = time.process_time()
+    world.radiance(side, t_s)
+    c1 = time.process_time()
+    frames = [world_frame(world, bank, side, t_s, float(e)) for e in BRACKETS_US]
+    c2 = time.process_time()
+    return c2 - c0, c1 - c0, c2 - c1, frames
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--resolution", default="640x400")
+    ap.add_argument("--cycles", type=int, default=40, help="bracket cycles per side and path")
+    ap.add_argument("--preset", default="forest-winter")
+    args = ap.parse_args()
+    import cv2
+
+    cv2.setNumThreads(1)
+    if synth_kernels() is None:
+        raise SystemExit("error: bracketry_emulator.synth._kernels is not built (run ./setup.sh)")
+    res = parse_resolution(args.resolution)
+    world = World(args.preset, seed=0, resolution=res)
+    stats: dict[str, dict[str, list[float]]] = {p: {"cycle": [], "radiance": [], "expose": []} for p in ("numpy", "C")}
+    different = 0
+    load0 = os.getloadavg()[0]
+    for side in ("left", "right"):
+        bank = noise_bank(world, ("left", "right").index(side))
+        for c in range(-1, args.cycles):
+            got = {}
+            for path in ("numpy", "C"):
+                use_kernels(path == "C")
+                cyc, rad, exp, frames = _cycle(world, bank, side, max(c, 0))
+                got[path] = frames
+                if c >= 0:  # cycle -1: warm-up (per-side precomputation)
+                    stats[path]["cycle"].append(cyc)
+                    stats[path]["radiance"].append(rad)
+                    stats[path]["expose"].append(exp / len(BRACKETS_US))
+            different += any(not np.array_equal(a, b) for a, b in zip(got["numpy"], got["C"]))
+    use_kernels(True)
+    med = {p: {k: 1000 * statistics.median(v) for k, v in s.items()} for p, s in stats.items()}
+    w, h = res
+    print(f"bench_sim_render ({args.preset} {w}x{h}, {len(BRACKETS_US)} brackets at {FPS:g} fps, both sides, "
+          f"{args.cycles} cycles each; CPU ms, medians)")
+    print(f"{'path':>6} {'cycle ms':>9} {'radiance ms':>12} {'exposure ms':>12} {'core share at 22 fps':>21}")
+    for p, m in med.items():
+        share = m["cycle"] / 1000 * FPS / len(BRACKETS_US)
+        print(f"{p:>6} {m['cycle']:>9.1f} {m['radiance']:>12.1f} {m['expose']:>12.2f} {share:>20.0%}")
+    ratio = {k: med["numpy"][k] / med["C"][k] for k in ("cycle", "radiance", "expose")}
+    print(f"ratio numpy / C per side per cycle: {ratio['cycle']:.2f}x (radiance {ratio['radiance']:.2f}x, "
+          f"exposure {ratio['expose']:.2f}x)")
+    print(f"frames differing between the paths: {different} of {2 * args.cycles} cycles")
+    print(f"load average: {load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end (2 cores shared)")
+    if different:
+        raise SystemExit(1)
+
+
+if __name__ == "__main__":
+    main()
