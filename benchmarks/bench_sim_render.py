@@ -1,33 +1,48 @@
-"""The simulated rig's renderer, per side and bracket cycle: numpy paths vs the compiled loops, side by side.
+"""The simulated rig's renderer, per side and bracket cycle: before (numpy paths, a BLAS thread pool) vs now (the
+compiled loops, one BLAS thread), side by side.
 
 Usage: .venv/bin/python benchmarks/bench_sim_render.py [--resolution 640x400] [--cycles 40] [--preset forest-winter]
+       [--process-cycles 165] [--repeats 3]
 
-What one renderer process of ``bracketry simulate`` does per side and bracket cycle (one scene render, then the
-cycle's exposures with the rig's pre-drawn noise, ``bracketry.sim.frames.world_frame``), timed on consecutive cycles
-of the walk at the rig's default 22 fps and 6 brackets, once with the numpy paths (``BRACKETRY_NO_CKERNEL=1``) and
-once with the compiled ``bracketry_emulator.synth._kernels``, alternating cycle by cycle so both see the same load.
-Checks both give the same codes, and prints medians (ms per side per cycle, radiance ms, ms per exposure) and the
+1. In this process (one BLAS thread for both), what one renderer process of ``bracketry simulate`` does per side and
+bracket cycle (one scene render, then the cycle's exposures with the rig's pre-drawn noise,
+``bracketry.sim.frames.world_frame``), timed on consecutive cycles of the walk at the rig's default 22 fps and 6
+brackets, once with the numpy paths (``BRACKETRY_NO_CKERNEL=1``) and once with the compiled
+``bracketry_emulator.synth._kernels``, alternating cycle by cycle so both see the same load. Checks both give the
+same codes, and prints medians (ms per side per cycle, radiance ms, ms per exposure) and the
 ratio. The cameras need 22 / 6 cycles per second per side: a cycle's CPU time x 3.67 is the share of a core each
 renderer needs.
+
+2. The renderer processes as ``bracketry simulate`` starts them (``FrameSchedule.start``: both sides at once,
+``--process-cycles`` cycles each, start-up included), before (``BRACKETRY_NO_CKERNEL=1`` and
+``OPENBLAS_NUM_THREADS=2``, numpy's default pool here) and now, alternating: their CPU seconds per side and cycle and
+their wall time (medians of ``--repeats``). The pool's threads spin waiting for each other when the other core is
+busy, so the gap is widest on a loaded machine: quote the load average.
 """
 
 from __future__ import annotations
 
 import os
+import sys
 
-for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ[_var] = "1"
+if "--child" not in sys.argv:  # the process comparison's children keep the environment they are given
+    for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ[_var] = "1"
 
-import argparse  # noqa: E402
-import statistics  # noqa: E402
-import time  # noqa: E402
+import argparse
+import resource
+import shutil
+import statistics
+import subprocess
+import tempfile
+import time
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from bracketry.sim.frames import cycle_time_s, noise_bank, world_frame  # noqa: E402
-from bracketry_emulator.synth import World  # noqa: E402
-from bracketry_emulator.synth.kernels import synth_kernels, use_kernels  # noqa: E402
-from bracketry_emulator.synth.world import parse_resolution  # noqa: E402
+from bracketry.sim.frames import cycle_time_s, noise_bank, world_frame
+from bracketry_emulator.synth import World
+from bracketry_emulator.synth.kernels import synth_kernels, use_kernels
+from bracketry_emulator.synth.world import parse_resolution
 
 BRACKETS_US = (1000, 2000, 4000, 8000, 16000, 32000)
 FPS = 22.0
@@ -46,12 +61,63 @@ def _cycle(world: World, bank: np.ndarray, side: str, c: int) -> tuple[float, fl
     return c2 - c0, c1 - c0, c2 - c1, frames
 
 
+def _processes(res: tuple[int, int], preset: str, cycles: int) -> None:
+    """Child mode: start the rig's renderer processes for ``cycles`` cycles per side, wait, print CPU and wall s."""
+    from bracketry.sim.frames import FrameSchedule, WorldSpec
+
+    folder = tempfile.mkdtemp(prefix="bench-sim-render-")
+    try:
+        sched = FrameSchedule(folder, WorldSpec(preset), BRACKETS_US, FPS, cycles * len(BRACKETS_US), resolution=res)
+        t0 = time.perf_counter()
+        sched.start()
+        sched.wait(timeout_s=1800)
+        wall_s = time.perf_counter() - t0
+        for proc in sched._procs:
+            proc.join(60)
+        ru = resource.getrusage(resource.RUSAGE_CHILDREN)
+        print(f"{ru.ru_utime + ru.ru_stime} {wall_s}")
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
+def _compare_processes(args: argparse.Namespace) -> None:
+    env_now = {k: v for k, v in os.environ.items()  # as the rig starts them (it sets the renderers' own BLAS threads)
+               if k not in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS", "BRACKETRY_NO_CKERNEL")}
+    envs = {"before": dict(env_now, BRACKETRY_NO_CKERNEL="1", OPENBLAS_NUM_THREADS=str(os.cpu_count() or 2)),
+            "now": env_now}
+    got: dict[str, dict[str, list[float]]] = {k: {"cpu": [], "wall": []} for k in envs}
+    load0 = os.getloadavg()[0]
+    for _ in range(args.repeats):
+        for name, env in envs.items():
+            out = subprocess.run([sys.executable, __file__, "--child", "--resolution", args.resolution, "--preset",
+                                  args.preset, "--process-cycles", str(args.process_cycles)], env=env, check=True,
+                                 capture_output=True, text=True).stdout.split()
+            got[name]["cpu"].append(float(out[0]) / 2 / args.process_cycles)  # per side and cycle
+            got[name]["wall"].append(float(out[1]))
+    med = {k: {m: statistics.median(v) for m, v in d.items()} for k, d in got.items()}
+    print(f"renderer processes as the rig starts them: both sides, {args.process_cycles} cycles each, start-up "
+          f"included, medians of {args.repeats}")
+    print(f"{'':>7} {'CPU ms per side per cycle':>26} {'wall s':>7}")
+    for k, m in med.items():
+        print(f"{k:>7} {1000 * m['cpu']:>26.1f} {m['wall']:>7.1f}")
+    print(f"ratio before / now: CPU {med['before']['cpu'] / med['now']['cpu']:.2f}x, wall "
+          f"{med['before']['wall'] / med['now']['wall']:.2f}x")
+    print(f"load average: {load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end (2 cores shared)")
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--resolution", default="640x400")
     ap.add_argument("--cycles", type=int, default=40, help="bracket cycles per side and path")
     ap.add_argument("--preset", default="forest-winter")
+    ap.add_argument("--process-cycles", type=int, default=165,
+                    help="cycles per side of the process comparison (165: the default demo's 45 s of world)")
+    ap.add_argument("--repeats", type=int, default=3, help="runs of each process set-up (0: skip the comparison)")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.child:
+        _processes(parse_resolution(args.resolution), args.preset, args.process_cycles)
+        return
     import cv2
 
     cv2.setNumThreads(1)
@@ -91,6 +157,9 @@ def main() -> None:
     print(f"load average: {load0:.2f} at the start, {os.getloadavg()[0]:.2f} at the end (2 cores shared)")
     if different:
         raise SystemExit(1)
+    if args.repeats > 0:
+        print()
+        _compare_processes(args)
 
 
 if __name__ == "__main__":
