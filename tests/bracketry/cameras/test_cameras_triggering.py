@@ -84,3 +84,41 @@ def test_software_trigger_writes_exposures_first_spaces_pulses_and_skips_a_faile
     assert [c for c in calls if c[0] == "right"] == [("right", "exposure", 2000)]
     trig.remove("left")
     assert trig.fire(event(4)) == () and trig.frames_expected == 5
+
+
+class SlowCam(Cam):
+    """A camera that takes each software trigger only after ``reads`` polls of ``software_trigger_pending`` (None:
+    never), as the fake camera takes it at its next trigger poll."""
+
+    def __init__(self, side: str, calls: list[tuple[str, str, float | None]], reads: int | None) -> None:
+        super().__init__(side, calls)
+        self.reads, self.left = reads, 0
+
+    def software_trigger(self) -> None:
+        super().software_trigger()
+        self.left = -1 if self.reads is None else self.reads
+
+    def software_trigger_pending(self) -> bool:
+        if self.left > 0:
+            self.left -= 1
+            if self.left == 0:
+                self.calls.append((self.side, "taken", None))
+        return self.left != 0
+
+
+def test_software_trigger_writes_the_next_exposure_only_after_the_cameras_took_the_previous_trigger() -> None:
+    calls: list[tuple[str, str, float | None]] = []
+    cams = {"left": SlowCam("left", calls, 3), "right": Cam("right", calls)}  # the right camera cannot tell
+    trig = SoftwareTrigger(cams, min_interval_s=0.0)
+    trig.fire(event(0, 1000))
+    trig.fire(event(1, 2000))
+    assert calls == [("left", "exposure", 1000), ("right", "exposure", 1000), ("left", "trigger", None),
+                     ("right", "trigger", None), ("left", "taken", None), ("left", "exposure", 2000),
+                     ("right", "exposure", 2000), ("left", "trigger", None), ("right", "trigger", None)]
+    assert trig.untaken == 0
+    # a camera that never takes it holds the next pulse up for taken_timeout_s at most, and is counted
+    stuck = SoftwareTrigger({"left": SlowCam("left", calls, None)}, min_interval_s=0.0, taken_timeout_s=0.05)
+    stuck.fire(event(0))
+    t0 = time.monotonic()
+    stuck.fire(event(1))
+    assert 0.05 <= time.monotonic() - t0 < 1.0 and stuck.untaken == 1
