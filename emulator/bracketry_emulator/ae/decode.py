@@ -29,13 +29,15 @@ from ..dataset import BracketSequence
 #: (slot, sequence index, side index, exposure index) of one frame to decode
 DecodeTask = tuple[int, int, int, int]
 
-#: states of a frame in the shared table
-_FREE, _CLAIMED, _DONE, _FAILED = 0, 1, 2, 3
+#: states of a frame in the shared table: free, claimed (queued on a decode thread, not started), done, failed,
+#: being decoded
+_FREE, _CLAIMED, _DONE, _FAILED, _RUNNING = 0, 1, 2, 3, 4
 
 
 class _Elsewhere:
-    """A frame that another process (or an earlier call) decodes: :meth:`result` waits until it is in the buffer.
-    Future-like (``result``, ``exception``, ``cancel``, ``cancelled``) for the scheduler."""
+    """A frame that another process (or an earlier call) decodes: :meth:`result` waits until it is in the buffer,
+    decoding it in the calling thread when its decode has not started (claimed, still queued behind other frames on
+    some decode thread) or was released. Future-like (``result``, ``exception``, ``cancel``, ``cancelled``)."""
 
     def __init__(self, frames: FrameBuffer, task: DecodeTask) -> None:
         self.frames, self.task = frames, task
@@ -53,8 +55,8 @@ class _Elsewhere:
                 seq = fb.sequences[seq_i]
                 source = getattr(seq.frames[fb.sides[side_i]][seq.exposures_us[exp_i]], "source", "?")
                 raise BracketryError(f"cannot decode {source} (failed in another worker process)")
-            if state == _FREE and fb.claim(self.task):  # released unfinished (cancelled): decode it here
-                fb.run_claimed(self.task)
+            if state in (_FREE, _CLAIMED) and fb.take(self.task):  # not started anywhere: decode it here
+                fb.run_taken(self.task)
                 return
             time.sleep(delay)
             delay = min(delay * 2, 0.005)
@@ -143,8 +145,18 @@ class FrameBuffer:
             self.state[i] = _CLAIMED
             return True
 
-    def run_claimed(self, task: DecodeTask) -> None:
-        """Decode a frame the caller claimed; its state becomes done (or failed, then the error is raised)."""
+    def take(self, task: DecodeTask) -> bool:
+        """Start decoding a frame that is free or claimed but not started (the caller then calls
+        :meth:`run_taken`); False when it is being decoded, decoded or failed."""
+        i = self.state_index(task)
+        with self.lock:
+            if self.state[i] not in (_FREE, _CLAIMED):
+                return False
+            self.state[i] = _RUNNING
+            return True
+
+    def run_taken(self, task: DecodeTask) -> None:
+        """Decode a frame the caller took; its state becomes done (or failed, then the error is raised)."""
         i = self.state_index(task)
         try:
             self._decode_one(task)
@@ -152,6 +164,14 @@ class FrameBuffer:
             self.state[i] = _FAILED
             raise
         self.state[i] = _DONE
+
+    def run_claimed(self, task: DecodeTask) -> None:
+        """Decode a frame the caller claimed, unless a thread waiting for it took it over meanwhile (then wait until
+        that one has decoded it); raises when the decode failed."""
+        if self.take(task):
+            self.run_taken(task)
+        else:
+            _Elsewhere(self, task).result()
 
     def ensure(self, tasks: list[DecodeTask], pool: ThreadPoolExecutor) -> list[Any]:
         """Each frame decoded once for every process: the frames nobody has claimed are decoded on ``pool``'s
@@ -168,9 +188,9 @@ class FrameBuffer:
         return out
 
     def wait(self, task: DecodeTask) -> None:
-        """Return once a claimed frame is in the buffer (decoded by any thread or worker; decoded here when its
-        claim was released unfinished). Raises BracketryError when its decode failed. Never call it on a decode
-        thread for a frame that may be queued behind the caller."""
+        """Return once a claimed frame is in the buffer, decoded by any thread or worker, or here when its decode
+        has not started yet (instead of waiting for the decode threads' queue). Raises BracketryError when its
+        decode failed elsewhere (a decode that fails here raises its own error)."""
         _Elsewhere(self, task).result()
 
     def _release_if_cancelled(self, task: DecodeTask, fut: Future[None]) -> None:

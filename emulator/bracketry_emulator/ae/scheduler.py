@@ -116,7 +116,7 @@ class Worker:
         self._ae_i = s.emulate_sides.index(s.ae_camera)
         self._pick_alone = (s.emulator.parity == "upstream" and s.emulator.selection in ("upstream", "highernosat")
                             and len(s.emulate_sides) > 1)
-        self._picks: dict[tuple[int, float], Future[list[DecodeTask]]] = {}
+        self._picks: dict[tuple[int, float], tuple[Future[list[DecodeTask]], list[DecodeTask]]] = {}
         self.sequences = sequences
         self.frames = frames
         frames.stages = self.stages
@@ -170,7 +170,7 @@ class Worker:
                     progress(1)
         finally:
             self._brackets = {}
-            handles = [*self._picks.values(), *self._decoded.values()]
+            handles = [*(f for f, _ in self._picks.values()), *self._decoded.values()]
             for f in handles:
                 f.cancel()
             for f in handles:
@@ -228,16 +228,16 @@ class Worker:
         for (_, _, si, ei), f in zip(tasks, futures, strict=True):
             self._decoded[(slot, si, ei)] = f
         if pick and (slot, float(target_us)) not in self._picks:
-            pair = [self._decoded[(slot, si, ei)] for si, ei in keys]  # submitted before: no decode thread waits
-            self._picks[(slot, float(target_us))] = self.decode_pool.submit(  # on a task queued after it
-                self._decode_picked, slot, seq_i, target_us, pair)
+            pair = [(slot, seq_i, si, ei) for si, ei in keys]  # claimed before: no decode thread waits on a task
+            fut = self.decode_pool.submit(self._decode_picked, slot, seq_i, target_us, pair)  # queued after it
+            self._picks[(slot, float(target_us))] = (fut, pair)
 
-    def _decode_picked(self, slot: int, seq_i: int, target_us: float, pair: list[Any]) -> list[DecodeTask]:
-        """On a decode thread: wait for the AE camera's pair of brackets, decide the step's source bracket as
-        :meth:`_images` does (the AE camera alone), decode the other cameras' frame of it unless another thread or
-        worker has claimed it. Returns those frames' tasks."""
-        for handle in pair:
-            handle.result()
+    def _decode_picked(self, slot: int, seq_i: int, target_us: float, pair: list[DecodeTask]) -> list[DecodeTask]:
+        """On a decode thread (or the worker's thread when it has not started): wait for the AE camera's pair of
+        brackets, decide the step's source bracket as :meth:`_images` does (the AE camera alone), decode the other
+        cameras' frame of it unless another thread or worker has claimed it. Returns those frames' tasks."""
+        for task in pair:
+            self.frames.wait(task)
         s = self.settings
         seq = self.sequences[seq_i]
         exps = needed_brackets(seq.exposures_us, target_us, s.emulator.selection)
@@ -252,17 +252,36 @@ class Worker:
         return tasks
 
     def _wait_needed(self, slot: int, seq_i: int) -> None:
-        """Wait until every frame the current targets need is in the buffer (decoded here or by another worker)."""
+        """Wait until every frame the current targets need is in the buffer (decoded by any worker; the frames whose
+        decode has not started are decoded by this thread first, instead of waiting for the decode thread's
+        queue)."""
         seq = self.sequences[seq_i]
-        for t in self.targets.values():
-            keys = self._needed_keys(seq, [t])
-            pick = self._picks.get((slot, float(t)))
-            for si, ei in keys:
-                if pick is None or si == self._ae_i:
-                    self._decoded[(slot, si, ei)].result()
+        targets = list(dict.fromkeys(float(t) for t in self.targets.values()))
+        frames: list[tuple[int, int]] = []
+        for t in targets:
+            pick = self._picks.get((slot, t))
+            frames += [(si, ei) for si, ei in self._needed_keys(seq, [t]) if pick is None or si == self._ae_i]
+        frames = list(dict.fromkeys(frames))
+        for si, ei in frames:
+            if self.frames.take((slot, seq_i, si, ei)):
+                self.frames.run_taken((slot, seq_i, si, ei))
+        for si, ei in frames:
+            self._wait_frame(slot, seq_i, si, ei)
+        for t in targets:
+            pick = self._picks.get((slot, t))
             if pick is not None:
-                for task in pick.result():
+                fut, pair = pick
+                # not started on the decode thread (queued behind other frames): pick and decode here
+                tasks = self._decode_picked(slot, seq_i, t, pair) if fut.cancel() else fut.result()
+                for task in tasks:
                     self.frames.wait(task)
+
+    def _wait_frame(self, slot: int, seq_i: int, si: int, ei: int) -> None:
+        try:
+            self.frames.wait((slot, seq_i, si, ei))
+        except BracketryError:
+            self._decoded[(slot, si, ei)].result()  # a decode of this worker failed: raise its own error
+            raise
 
     def close(self) -> tuple[dict[str, MethodRun], dict[str, dict[str, float]]]:
         """Finish the writes and the feeds; returns (the runs, this worker's stage times)."""
