@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import csv
 import multiprocessing as mp
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
@@ -91,6 +92,33 @@ def test_a_failed_decode_is_reported_to_the_waiting_worker() -> None:
             mine.result()
         with pytest.raises(Exception, match="failed"):
             theirs.result()
+    fb.close()
+
+
+def test_a_waiting_thread_decodes_a_frame_still_queued() -> None:
+    """The decode thread is busy (blocked here): a thread that needs a frame queued behind decodes it itself, and
+    the decode thread, when it gets there, does not decode it again."""
+    counter = mp.Value("i", 0)
+    seqs = sequences(counter)
+    gate = threading.Event()
+    first = seqs[0].frames["left"][1000]
+    slow = first.load
+
+    def blocked() -> np.ndarray:
+        gate.wait(30)
+        return slow()
+
+    first.load = blocked
+    fb = FrameBuffer(seqs, ("left", "right"), SHAPE, 3, slots=1)
+    with ThreadPoolExecutor(1) as pool:
+        busy, queued = fb.ensure([(0, 0, 0, 0), (0, 0, 1, 2)], pool)
+        fb.wait((0, 0, 1, 2))  # decoded here while the decode thread is blocked on the first frame
+        assert np.array_equal(fb.view(0, 1, 2), frame_value(0, 1, 2)) and counter.value == 1
+        assert not busy.done()
+        gate.set()
+        busy.result()
+        queued.result()
+    assert counter.value == 2  # the queued frame was not decoded a second time
     fb.close()
 
 
