@@ -66,7 +66,7 @@ class _Objective:
         # L = cholesky(K), alpha = K^-1 y, lml = -y.alpha / 2 - sum(log diag L) - n log(2 pi) / 2,
         # d lml / d log(c, l) = sum((alpha alpha^T - K^-1) * (c r, c r d2 / l^2)) / 2
         add = np.add.reduce  # = np.sum
-        c, length = np.exp(log_theta)
+        c, length = np.exp(log_theta).tolist()  # Python floats: the same float64 products
         l2 = length**2
         r = np.exp(self.minus_half_d2 / l2)
         cr = c * r
@@ -76,9 +76,10 @@ class _Objective:
         alpha, _ = self.potrs(low, self.y, 1)
         lml = -0.5 * float(self.y @ alpha) - float(add(np.log(low.diagonal()), axis=None)) - self.half_n_log_2pi
         kinv, _ = self.potrs(low, self.eye, 1)
-        inner = alpha[:, None] * alpha[None, :] - kinv  # = np.outer(alpha, alpha) - kinv
-        grad = np.array([0.5 * add(inner * cr, axis=None), 0.5 * add(inner * (cr * self.d2 / l2), axis=None)])
-        return -lml, -grad
+        inner = np.multiply.outer(alpha, alpha) - kinv  # = np.outer(alpha, alpha) - kinv
+        g_c = 0.5 * float(add(inner * cr, axis=None))
+        g_l = 0.5 * float(add(inner * (cr * self.d2 / l2), axis=None))
+        return -lml, np.array([-g_c, -g_l])
 
 
 class _Minimizer:
