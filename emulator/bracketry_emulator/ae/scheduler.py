@@ -412,7 +412,10 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
             child.close()
             procs.append(p)
             conns.append(parent)
-        preload_plotting()  # the parent is idle while the workers start: import matplotlib now
+        # the parent only relays messages while the workers run: import matplotlib for the final plot meanwhile, on a
+        # thread (the workers must not wait for it to be told to start)
+        preload = threading.Thread(target=preload_plotting, name="bracketry-mpl-import", daemon=True)
+        preload.start()
         _collect(conns, "ready", progress)
         for c0 in range(0, n_seq, chunk):
             idx = list(range(c0, min(n_seq, c0 + chunk)))
@@ -425,6 +428,7 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
         for res, times in _collect(conns, "closed", progress):
             runs.update(res)
             stages.merge(times)
+        preload.join()
     finally:
         for conn in conns:
             conn.close()
