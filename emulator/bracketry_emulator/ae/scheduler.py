@@ -404,6 +404,7 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
     procs: list[Any] = []
     conns: list[Connection] = []
     runs: dict[str, MethodRun] = {}
+    done = False
     try:
         for group in groups:
             parent, child = ctx.Pipe()
@@ -429,15 +430,24 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
             runs.update(res)
             stages.merge(times)
         preload.join()
+        done = True
     finally:
         for conn in conns:
             conn.close()
-        for p in procs:
-            p.join(timeout=10)
-            if p.is_alive():
-                p.terminate()
-                p.join(timeout=5)
+        if done:  # every file is written: the workers' exit (freeing ~1 GB) is not waited for here
+            threading.Thread(target=_reap, args=(procs,), name="bracketry-reap", daemon=True).start()
+        else:
+            _reap(procs)
     return runs
+
+
+def _reap(procs: list[Any]) -> None:
+    """Wait for the worker processes to end (terminated after 10 s)."""
+    for p in procs:
+        p.join(timeout=10)
+        if p.is_alive():
+            p.terminate()
+            p.join(timeout=5)
 
 
 def preload_plotting() -> None:
