@@ -45,7 +45,7 @@ from .writers import ImageSink, LinkingRunWriter, method_folder
 
 #: Estimated cost of emulating and writing one step (both cameras, stored PNGs; ~ms of CPU per 1920x1200 step here),
 #: in the unit of the methods' ``step_cost``.
-EMULATION_COST = 30
+EMULATION_COST = 16
 
 
 @dataclass(frozen=True)

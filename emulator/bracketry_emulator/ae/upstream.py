@@ -125,7 +125,7 @@ class UpstreamShimAE:
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
     #: 1920x1200 step here
-    step_cost = 50
+    step_cost = 40
 
     def __init__(self, delta: float = 0.06, lam: float = 1e3, kp: float = 0.2, name: str = "shim") -> None:
         self.delta, self.lam, self.kp = delta, lam, kp
@@ -262,8 +262,8 @@ class UpstreamKimAE:
     """
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
-    #: 1920x1200 step here (metric ~9, GP fit ~3, scipy's import on the first step)
-    step_cost = 20
+    #: 1920x1200 step here (metric ~9, GP fit ~3, scipy's import on the first step: ~15 per step of 15)
+    step_cost = 30
 
     def __init__(self, seed: int = 0, name: str = "kim") -> None:
         self.seed = seed
@@ -400,8 +400,8 @@ class UpstreamZhangAE:
     """
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
-    #: 1920x1200 step here
-    step_cost = 140
+    #: 1920x1200 step here (~100 on the gradient branch, ~1 on the classical one)
+    step_cost = 90
 
     _SCHARR_X = np.array([[3, 0, -3], [10, 0, -10], [3, 0, -3]], dtype=np.float64)
     _SCHARR_Y = np.array([[3, 10, 3], [0, 0, 0], [-3, -10, -3]], dtype=np.float64)
