@@ -112,7 +112,7 @@ class Worker:
         self._decoded: dict[tuple[int, int, int], Any] = {}  # (slot, side, exposure index): future-like
         # --parity upstream, single-bracket selections: the AE camera alone decides each step's source bracket, so
         # the other cameras need only that bracket of a pair: a decode thread picks it once the AE camera's pair is
-        # decoded (:meth:`_decode_picked`). (slot, target us): future of the other cameras' decode tasks.
+        # decoded (:meth:`_decode_picked`). (slot, target us): (the pick's future, the AE camera's pair of tasks).
         self._ae_i = s.emulate_sides.index(s.ae_camera)
         self._pick_alone = (s.emulator.parity == "upstream" and s.emulator.selection in ("upstream", "highernosat")
                             and len(s.emulate_sides) > 1)
