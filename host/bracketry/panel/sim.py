@@ -27,6 +27,10 @@ from bracketry.panel.machine_shim import SimBoard
 
 SHORT_PRESS_S = 0.15
 LONG_PRESS_S = 1.5
+#: longest a simulated press waits for the firmware to take it (or its release)
+PRESS_TIMEOUT_S = 10.0
+#: the firmware's ``PanelApp.buttons`` order
+BUTTON_INDEX = {"sensors": 0, "record": 1}
 FIRMWARE_MODULES = ("pins", "main", "panel_hw", "panel_app", "panel_link", "panel_layout", "panel_buttons",
                     "panel_clock", "hd44780", "bproto", "machine")
 
@@ -91,11 +95,30 @@ class PanelSimulator:
         self._main = importlib.import_module("main")
 
     def press(self, button: str, long: bool = False) -> None:
-        """Hold ``button`` ("sensors"/"record") for a short (0.15 s) or long (1.5 s) press; blocks meanwhile."""
+        """Hold ``button`` ("sensors"/"record") for a short (0.15 s) or long (1.5 s) press; blocks meanwhile.
+
+        Like a person who holds a button until the board reacts, the button stays down at least that long AND until
+        the firmware's debounce has taken the press (for a long press: until it sent its LONG event), then stays up
+        until the firmware has seen the release, each at most ``PRESS_TIMEOUT_S``. A firmware loop slowed down by
+        a busy machine (tens of ms between scans) thus still sees every press instead of a 0.15 s blip it
+        sampled once or never."""
         assert self.board is not None
         self.board.set_button(button, True)
         self._stop.wait(LONG_PRESS_S if long else SHORT_PRESS_S)
+        self._wait_for_firmware(button, lambda b: b.pressed and (b._long_sent or not long))
         self.board.set_button(button, False)
+        self._wait_for_firmware(button, lambda b: not b.pressed)
+
+    def _wait_for_firmware(self, button: str, taken: Callable[[Any], bool]) -> None:
+        """Wait (at most ``PRESS_TIMEOUT_S``, or until stopped) until ``taken(firmware's Button object)``; returns
+        at once before the firmware's first screen (no application object to look at yet)."""
+        deadline = time.monotonic() + PRESS_TIMEOUT_S
+        index = BUTTON_INDEX[button]
+        while not self._stop.is_set() and time.monotonic() < deadline:
+            app = self.app
+            if app is None or taken(app.buttons[index]):
+                return
+            self._stop.wait(0.005)
 
     def handle_command(self, line: str) -> bool:
         """Execute one stdin command; returns False on ``quit``. Unknown commands are reported on stderr."""
