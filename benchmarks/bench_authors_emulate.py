@@ -14,6 +14,7 @@ initial 4 ms, saving images) and ``bracketry emulate -m fix,ae30,ae50,ae70,shim,
 both cameras, depth 12); it prints the median wall time of each, per (method, stereo step), and the ratio, and the
 CPU time (user + system of the process and its children) of each with its ratio, and the load average around each
 run: on a shared machine the wall-time ratio moves with the other jobs' load, the CPU-time ratio much less.
+Before each timed process the page cache is flushed (``os.sync``), so neither side pays for the other's writes.
 
 Without ``BRACKETRY_BOREALHDR_CODE`` it says so and runs ``bench_ae.py``, the RE-IMPLEMENTATION of the authors'
 architecture, as a clearly labelled fallback.
@@ -44,7 +45,9 @@ OUR_METHODS = "fix,ae30,ae50,ae70,shim,kim,zhang"
 
 def timed(cmd: list[str], cwd: Path | None = None) -> tuple[float, float]:
     """(wall s, CPU s = user + system of the process and everything it waited for) of one whole process (its
-    output kept out of ours; a failure stops the benchmark)."""
+    output kept out of ours; a failure stops the benchmark). The files the previous run wrote are flushed to disk
+    first (``os.sync``, untimed): each side starts without the other's writeback (each writes 0.7-1 GB of PNGs)."""
+    os.sync()
     r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     res = subprocess.run(cmd, cwd=cwd, stdin=subprocess.DEVNULL, capture_output=True, text=True)
