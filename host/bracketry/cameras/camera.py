@@ -88,11 +88,6 @@ class StreamStats:
                 "skipped_ids": self.skipped_ids, "pop_timeouts": self.pop_timeouts}
 
 
-#: the register behind TriggerSoftware, where a camera's description names it (the Aravis fake's): reads 1 until the
-#: camera took the trigger
-TRIGGER_COMMAND_REGISTER = "TriggerSoftwareCommandRegister"
-
-
 def rmem_max_bytes() -> int | None:
     """``net.core.rmem_max`` (largest socket receive buffer an unprivileged setsockopt gets), or None."""
     try:
@@ -147,7 +142,6 @@ class GigECamera:
         self._chunk_parser: Any = None
         self._chunks_on = False
         self._counter_names: tuple[str, ...] = ()
-        self._trigger_register: bool | None = None
 
     def _take_control(self, wait_s: float) -> None:
         """Hold the GigE Vision control privilege (writes and streaming need it), waiting up to ``wait_s`` seconds.
@@ -227,16 +221,6 @@ class GigECamera:
     def software_trigger(self) -> None:
         """Fire one software trigger (TriggerSource Software)."""
         self._device.execute_command("TriggerSoftware")
-
-    def software_trigger_pending(self) -> bool | None:
-        """Whether the camera has yet to take the last software trigger, read back from the trigger command's
-        register where the camera's description exposes it (``TriggerSoftwareCommandRegister``: the Aravis fake, whose
-        register stays 1 until its thread takes the trigger); None when the camera cannot tell."""
-        if self._trigger_register is None:
-            self._trigger_register = self._device.get_feature(TRIGGER_COMMAND_REGISTER) is not None
-        if not self._trigger_register:
-            return None
-        return bool(self._device.get_integer_feature_value(TRIGGER_COMMAND_REGISTER))
 
     def read_temperature_c(self) -> float | None:
         """DeviceTemperature in °C, or None when the camera has none (poll at ~1 Hz, not per frame)."""

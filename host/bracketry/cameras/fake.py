@@ -5,9 +5,7 @@ The camera is a real GVCP/GVSP server on ``address`` (UDP 3956 fixed per IP, so 
 IP with ``GigECamera`` exactly as a real camera.
 
 Pixels come from ``image_source(exposure_us, width, height) -> uint16 (height, width)`` called for each frame in the
-fake camera's thread with the exposure register (ExposureTimeAbs) as it is when the fake takes the trigger (at its
-next trigger poll; ``SoftwareTrigger`` writes the next exposure only after that, see ``software_trigger_pending``
-of ``GigECamera``, so the frame gets its own pulse's exposure as a latching sensor would). They are
+fake camera's thread with the exposure the camera had when the frame was triggered (its ExposureTimeAbs). They are
 written through the C function ``arv_fake_camera_set_fill_pattern`` via ctypes (the PyGObject binding of that callback
 crashes). Mono16 carries 12-bit codes unchanged (the fake has no BayerRG12 pixels); 8-bit formats get ``code >> 4``.
 Each served frame's exposure is recorded in ``served_exposures_us`` (in serving order) so tests can read it.
@@ -15,9 +13,7 @@ Each served frame's exposure is recorded in ``served_exposures_us`` (in serving 
 Quirks of the Aravis 0.8.26 fake, handled by its users: the first TriggerSoftware after AcquisitionStart is often
 lost (``bracketry.cameras.triggering.SoftwareTrigger.arm`` fires a marked priming trigger first); it polls one trigger
 flag, so on a heavily loaded machine two triggers can merge into one frame (rendered with the later exposure);
-its timestamps are host time (``Pairer(initial_alignment="host_time")``); it does not answer GVSP packet-resend
-requests (a lost packet stays lost); between trigger polls it busy-waits through the last fraction of a millisecond
-(see ``timer_slack_ns``).
+its timestamps are host time (``Pairer(initial_alignment="host_time")``).
 """
 
 from __future__ import annotations

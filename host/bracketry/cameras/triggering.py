@@ -29,14 +29,10 @@ PRIMING_EXPOSURE_US = 77
 #: shortest time between two software triggers: the fake camera polls its trigger register (every 4 ms, up to ~5.5 ms
 #: apart with its timer slack, see bracketry.cameras.fake), two triggers closer than that would merge into one frame
 SOFTWARE_TRIGGER_MIN_INTERVAL_S = 0.006
-#: longest wait, before a pulse, for a camera to take the previous pulse's software trigger (see SoftwareTrigger)
-TRIGGER_TAKEN_TIMEOUT_S = 0.05
 
 
 class TriggeredCamera(Protocol):
-    """What a camera trigger adapter needs of a camera (``bracketry.cameras.camera.GigECamera``). A camera may also
-    have ``software_trigger_pending() -> bool | None`` (whether it has yet to take its last software trigger; None:
-    it cannot tell), which :class:`SoftwareTrigger` waits on before writing the next exposure."""
+    """What a camera trigger adapter needs of a camera (``bracketry.cameras.camera.GigECamera``)."""
 
     def set_exposure_us(self, exposure_us: float) -> None: ...
 
@@ -109,26 +105,19 @@ class SoftwareTrigger:
 
     A camera that fails a GVCP write is gone (each further write would wait for GVCP timeouts and hold up the other
     camera): it is skipped until the next acquisition and listed in ``failed``. Two pulses are fired at least
-    ``min_interval_s`` apart (the fake camera would merge closer ones), and a pulse's exposure is written only once
-    every camera that can tell took the previous pulse's trigger (at most ``taken_timeout_s``; ``untaken`` counts the
-    waits that ran out): the fake camera reads its exposure when it takes a trigger, so without the wait a trigger
-    it took late (a loaded machine, the host firing late pulses in a burst) got the next pulse's exposure.
+    ``min_interval_s`` apart (the fake camera would merge closer ones).
     """
 
     initial_alignment = "host_time"
 
     def __init__(self, cameras: Mapping[str, TriggeredCamera], *,
-                 min_interval_s: float = SOFTWARE_TRIGGER_MIN_INTERVAL_S,
-                 taken_timeout_s: float = TRIGGER_TAKEN_TIMEOUT_S) -> None:
+                 min_interval_s: float = SOFTWARE_TRIGGER_MIN_INTERVAL_S) -> None:
         self._lock = threading.Lock()
         self._cameras = dict(cameras)
         self._failed: set[str] = set()
         self._fired = 0
         self._last_fire_s = 0.0
         self.min_interval_s = min_interval_s
-        self.taken_timeout_s = taken_timeout_s
-        #: times a camera had not taken its previous trigger within ``taken_timeout_s`` when the next pulse came
-        self.untaken = 0
         #: host time (``time.time_ns()``) right before the last pulse's first TriggerSoftware
         self.fired_at_ns: int | None = None
 
@@ -147,34 +136,12 @@ class SoftwareTrigger:
             return {s: c for s, c in self._cameras.items()
                     if s not in self._failed and (wanted is None or s in wanted)}
 
-    def _wait_taken(self, cams: Mapping[str, TriggeredCamera]) -> None:
-        """Wait until every camera that can tell took its last software trigger (at most ``taken_timeout_s``): a
-        camera that reads its exposure when it takes a trigger (the fake does, when it fills the frame) must not find
-        the next pulse's exposure already written. Cameras that cannot tell are not waited for."""
-        pending = {s: c for s, c in cams.items() if hasattr(c, "software_trigger_pending")}
-        deadline = time.monotonic() + self.taken_timeout_s
-        while pending:
-            for side, cam in list(pending.items()):
-                try:
-                    still = cam.software_trigger_pending()  # type: ignore[attr-defined]
-                except Exception:
-                    still = None  # a failing camera shows in the writes that follow
-                if not still:
-                    del pending[side]
-            if not pending:
-                return
-            if time.monotonic() > deadline:
-                self.untaken += len(pending)
-                return
-            time.sleep(0.0005)
-
     def fire(self, event: TriggerEvent, sides: Iterable[str] | None = None) -> tuple[str, ...]:
         wait_s = self._last_fire_s + self.min_interval_s - time.monotonic()
         if wait_s > 0:
             time.sleep(wait_s)
-        cams = self._live(sides)
-        self._wait_taken(cams)
         self._last_fire_s = time.monotonic()
+        cams = self._live(sides)
         for step in ("set_exposure_us", "software_trigger"):
             if step == "software_trigger":
                 self.fired_at_ns = time.time_ns()
