@@ -21,7 +21,7 @@ from __future__ import annotations
 import contextlib
 import ctypes
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -66,32 +66,6 @@ class _Lib:
         self.capsule_pointer = api.PyCapsule_GetPointer
 
 
-#: how often the fake polls its trigger register by default: every 4 ms (with the slack below, a trigger starts its
-#: frame within ~5.5 ms; SoftwareTrigger fires triggers further apart than that, so none merge)
-TRIGGER_POLL_HZ = 250.0
-#: the fake's thread's timer slack by default (see FakeCameraServer)
-TIMER_SLACK_NS = 1_500_000
-_PR_SET_TIMERSLACK, _PR_GET_TIMERSLACK = 29, 30
-
-
-@contextlib.contextmanager
-def _timer_slack_ns(slack_ns: int | None) -> Iterator[None]:
-    """The calling thread's timer slack set to ``slack_ns`` (Linux ``prctl``) inside the block (threads created there
-    keep it), then restored; nothing where prctl is unavailable or ``slack_ns`` is None."""
-    prctl: Any = None
-    if slack_ns is not None:
-        with contextlib.suppress(OSError, AttributeError):
-            prctl = ctypes.CDLL(None, use_errno=True).prctl
-    old = prctl(_PR_GET_TIMERSLACK, 0, 0, 0, 0) if prctl is not None else -1
-    if old >= 0:
-        prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(int(slack_ns or 0)), 0, 0, 0)
-    try:
-        yield
-    finally:
-        if old >= 0:
-            prctl(_PR_SET_TIMERSLACK, ctypes.c_ulong(old), 0, 0, 0)
-
-
 class FakeCameraServer:
     """An in-process fake GigE camera on ``address`` serving ``image_source`` pixels.
 
@@ -101,20 +75,16 @@ class FakeCameraServer:
         image_source: pixels per frame (see module doc); ``ramp_source`` by default.
         lost_packet_ratio: fraction of GVSP packets the camera drops (0..1), for loss tests.
         trigger_poll_hz: how often the fake polls its trigger register (latency ~1/rate).
-        timer_slack_ns: timer slack of the fake's thread (None: the process's). Aravis's fake waits for its next poll
-            in whole milliseconds and spins through the last fraction of one: at 1000 Hz it never sleeps (half a
-            core per camera, measured); at 250 Hz with 1.5 ms of slack its sleeps mostly end past that fraction (8 %).
     """
 
     def __init__(self, address: str = "127.0.0.1", serial: str = "BRKT0001", *,
                  image_source: ImageSource | None = None, lost_packet_ratio: float = 0.0,
-                 trigger_poll_hz: float = TRIGGER_POLL_HZ, timer_slack_ns: int | None = TIMER_SLACK_NS) -> None:
+                 trigger_poll_hz: float = 1000.0) -> None:
         self.address = address
         self.serial = serial
         self.image_source: ImageSource = image_source or ramp_source
         self.lost_packet_ratio = lost_packet_ratio
         self.trigger_poll_hz = trigger_poll_hz
-        self.timer_slack_ns = timer_slack_ns
         self.served_exposures_us: list[int] = []
         self.fill_errors = 0
         self._lock = threading.Lock()
@@ -127,8 +97,7 @@ class FakeCameraServer:
     def start(self) -> FakeCameraServer:
         Aravis = load_aravis()
         try:
-            with _timer_slack_ns(self.timer_slack_ns):  # the camera's thread, created here, inherits it
-                gv = Aravis.GvFakeCamera.new(self.address, self.serial)
+            gv = Aravis.GvFakeCamera.new(self.address, self.serial)
         except Exception as exc:
             raise CameraError(f"fake camera on {self.address}: {glib_error_message(exc)}") from exc
         if gv is None or not gv.is_running():

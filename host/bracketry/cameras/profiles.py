@@ -21,9 +21,6 @@ from typing import Any
 from bracketry.cameras.aravis_gi import CameraError, glib_error_message
 
 PROFILES = ("basler_ace2", "aravis_fake")
-#: GVSP packet size of the fake camera (its maximum): on loopback nothing fragments, and each packet costs both the
-#: fake and the receiver a system call and a socket-buffer overhead, so fewer, larger packets
-FAKE_PACKET_SIZE_BYTES = 16404
 
 
 @dataclass(frozen=True)
@@ -209,8 +206,6 @@ def aravis_fake_writes(s: CameraSettings) -> list[FeatureWrite]:
         FeatureWrite("GainRaw", 0, "int"),
         FeatureWrite("ExposureTimeAbs", float(s.exposure_us), "float"),
         FeatureWrite("PixelFormat", s.pixel_format, "enum"),
-        # it serves on loopback (MTU 64 KiB): its largest packets, a twelfth of the default 1400-byte ones' count
-        FeatureWrite("GevSCPSPacketSize", FAKE_PACKET_SIZE_BYTES, "int"),
     ]
     writes += _roi_writes(s)
     writes += _transport_writes(s)

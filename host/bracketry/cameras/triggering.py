@@ -26,9 +26,9 @@ log = logging.getLogger(__name__)
 
 #: exposure (us) of the priming trigger fired after AcquisitionStart: marks a frame that is not a bracket
 PRIMING_EXPOSURE_US = 77
-#: shortest time between two software triggers: the fake camera polls its trigger register (every 4 ms, up to ~5.5 ms
-#: apart with its timer slack, see bracketry.cameras.fake), two triggers closer than that would merge into one frame
-SOFTWARE_TRIGGER_MIN_INTERVAL_S = 0.006
+#: shortest time between two software triggers: the fake camera polls its trigger register (~1 kHz), two triggers
+#: closer than that would merge into one frame
+SOFTWARE_TRIGGER_MIN_INTERVAL_S = 0.004
 
 
 class TriggeredCamera(Protocol):
