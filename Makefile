@@ -4,8 +4,10 @@
 setup:
 	./setup.sh
 
+# A second `make demo` refuses to write into the existing demo-out (nothing is overwritten without --overwrite):
+# `make demo OVERWRITE=1` passes --overwrite and replaces the earlier demo's files.
 demo: setup
-	.venv/bin/bracketry demo
+	.venv/bin/bracketry demo $(if $(filter 1,$(OVERWRITE)),--overwrite)
 
 test: setup
 	.venv/bin/python -m pytest -q

@@ -9,7 +9,6 @@ checked), and the default sRGB/rounding kernel and fusion are timed too. Goal: L
 from __future__ import annotations
 
 import argparse
-import os
 import statistics
 import sys
 import time
@@ -22,6 +21,7 @@ from bracketry_emulator.crf import load_pcalib, response_from_pcalib
 from bracketry_emulator.dataset import open_dataset
 from bracketry_emulator.emulation import Emulator, EmulatorConfig, LutCache, apply_lut, kernel
 from bracketry_emulator.emulation.reference import UpstreamFormula
+from bracketry_emulator.extensions import extensions_disabled
 
 
 def _median_ms(fn: Callable[[], object], repeats: int, warmup: int = 2) -> float:
@@ -65,13 +65,9 @@ def main(argv: list[str] | None = None) -> int:
     t_theirs = _median_ms(lambda: theirs.radiance_emulation(src, 6.0, 8.0), reps_slow)
     out = np.empty_like(src)
     t_lut = _median_ms(lambda: apply_lut(lut, src, out), reps_fast)
-    os.environ["BRACKETRY_NO_CKERNEL"] = "1"
-    kernel._CKERNEL_TRIED, saved = True, kernel._CKERNEL
-    kernel._CKERNEL = None
-    t_np2 = _median_ms(lambda: apply_lut(lut, src, out), reps_fast)
-    t_np1 = _median_ms(lambda: apply_lut(lut, src, out, threads=False), reps_fast)
-    kernel._CKERNEL = saved
-    del os.environ["BRACKETRY_NO_CKERNEL"]
+    with extensions_disabled():
+        t_np2 = _median_ms(lambda: apply_lut(lut, src, out), reps_fast)
+        t_np1 = _median_ms(lambda: apply_lut(lut, src, out, threads=False), reps_fast)
     t_build = _median_ms(lambda: resp.lut(0.75, "trunc"), reps_fast)
     emu_h = Emulator(EmulatorConfig())
     t_emu = _median_ms(lambda: emu_h.emulate(imgs, 6000.0), reps_fast)
@@ -83,7 +79,7 @@ def main(argv: list[str] | None = None) -> int:
                             .emulate(imgs, 6000.0), max(3, reps_slow))
     print(f"{'kernel':52s} {'median ms':>10s} {'speed-up':>9s}")
     rows = [("authors' formula (2 x interp1d per pixel)", t_theirs),
-            (f"LUT kernel apply_lut ({'C gather' if saved else 'numpy'})", t_lut),
+            (f"LUT kernel apply_lut ({'C gather' if kernel.c_kernel() else 'numpy'})", t_lut),
             ("LUT kernel, numpy take, 2 threads", t_np2),
             ("LUT kernel, numpy take, 1 thread", t_np1),
             ("LUT build (4096 entries, upstream lifting)", t_build),

@@ -34,6 +34,7 @@ import numpy as np
 from bracketry import paths
 from bracketry_emulator.dataset import imageio
 from bracketry_emulator.emulation.writer import PNG_COMPRESSIONS, WRITE_PIECE_BYTES, encode_png, write_png
+from bracketry_emulator.extensions import extensions_disabled
 
 
 def sample_images(n: int) -> list[np.ndarray]:
@@ -57,12 +58,8 @@ def sample_images(n: int) -> list[np.ndarray]:
 def write_stored_before(path: Path, image: np.ndarray) -> None:
     """The ``stored`` PNG as it was written before the compiled encoder: Python's zlib, then one write() of the
     whole file (the same bytes)."""
-    prev = imageio._CODEC, imageio._CODEC_TRIED
-    imageio._CODEC, imageio._CODEC_TRIED = None, True
-    try:
+    with extensions_disabled():
         path.write_bytes(encode_png(image, "stored"))
-    finally:
-        imageio._CODEC, imageio._CODEC_TRIED = prev
 
 
 def bench_decode(repeats: int) -> None:

@@ -7,11 +7,10 @@ Usage: .venv/bin/python benchmarks/bench_sim_render.py [--resolution 640x400] [-
 1. In this process (one BLAS thread for both), what one renderer process of ``bracketry simulate`` does per side and
 bracket cycle (one scene render, then the cycle's exposures with the rig's pre-drawn noise,
 ``bracketry.sim.frames.world_frame``), timed on consecutive cycles of the walk at the rig's default 22 fps and 6
-brackets, once with the numpy paths (``BRACKETRY_NO_CKERNEL=1``) and once with the compiled
-``bracketry_emulator.synth._kernels``, alternating cycle by cycle so both see the same load. Checks both give the
-same codes, and prints medians (ms per side per cycle, radiance ms, ms per exposure) and the
-ratio. The cameras need 22 / 6 cycles per second per side: a cycle's CPU time x 3.67 is the share of a core each
-renderer needs.
+brackets, once with the numpy paths (``extensions_disabled()``, as with ``BRACKETRY_NO_CKERNEL=1``) and once with
+the compiled ``bracketry_emulator.synth._kernels``, alternating cycle by cycle so both see the same load. Checks both
+give the same codes, and prints medians (ms per side per cycle, radiance ms, ms per exposure) and the ratio. The
+cameras need 22 / 6 cycles per second per side: a cycle's CPU time x 3.67 is the share of a core each renderer needs.
 
 2. The renderer processes as ``bracketry simulate`` starts them (``FrameSchedule.start``: both sides at once,
 ``--process-cycles`` cycles each, start-up included), before (``BRACKETRY_NO_CKERNEL=1`` and
@@ -30,6 +29,7 @@ if "--child" not in sys.argv:  # the process comparison's children keep the envi
         os.environ[_var] = "1"
 
 import argparse
+import contextlib
 import resource
 import shutil
 import statistics
@@ -40,8 +40,9 @@ import time
 import numpy as np
 
 from bracketry.sim.frames import cycle_time_s, noise_bank, world_frame
+from bracketry_emulator.extensions import extensions_disabled
 from bracketry_emulator.synth import World
-from bracketry_emulator.synth.kernels import synth_kernels, use_kernels
+from bracketry_emulator.synth.kernels import synth_kernels
 from bracketry_emulator.synth.world import parse_resolution
 
 BRACKETS_US = (1000, 2000, 4000, 8000, 16000, 32000)
@@ -133,15 +134,14 @@ def main() -> None:
         for c in range(-1, args.cycles):
             got = {}
             for path in ("numpy", "C"):
-                use_kernels(path == "C")
-                cyc, rad, exp, frames = _cycle(world, bank, side, max(c, 0))
+                with extensions_disabled() if path == "numpy" else contextlib.nullcontext():
+                    cyc, rad, exp, frames = _cycle(world, bank, side, max(c, 0))
                 got[path] = frames
                 if c >= 0:  # cycle -1: warm-up (per-side precomputation)
                     stats[path]["cycle"].append(cyc)
                     stats[path]["radiance"].append(rad)
                     stats[path]["expose"].append(exp / len(BRACKETS_US))
             different += any(not np.array_equal(a, b) for a, b in zip(got["numpy"], got["C"]))
-    use_kernels(True)
     med = {p: {k: 1000 * statistics.median(v) for k, v in s.items()} for p, s in stats.items()}
     w, h = res
     print(f"bench_sim_render ({args.preset} {w}x{h}, {len(BRACKETS_US)} brackets at {FPS:g} fps, both sides, "

@@ -39,14 +39,13 @@ Quirks reproduced (the default implementations fix them; see their docstrings):
 
 from __future__ import annotations
 
-import importlib
 import math
-import os
 from typing import Any
 
 import cv2
 import numpy as np
 
+from ..extensions import optional_extension
 from .base import check_input, gray_for
 from .classical import classical_step_ms
 from .gp import GaussianProcess1D
@@ -356,40 +355,16 @@ def sort_longdouble(values: np.ndarray) -> np.ndarray:
     return out
 
 
-_KERNEL: Any = None
-_KERNEL_TRIED = False
-
-
 def _zhang_kernel() -> Any:
     """The compiled ``_zhang_terms`` extension (``_zhang_terms.c``, built with the package), or None when it was not
-    built or ``BRACKETRY_NO_CKERNEL=1`` (then numpy computes the same values)."""
-    global _KERNEL, _KERNEL_TRIED
-    if not _KERNEL_TRIED:
-        _KERNEL_TRIED = True
-        if os.environ.get("BRACKETRY_NO_CKERNEL") != "1":
-            try:
-                _KERNEL = importlib.import_module(f"{__package__}._zhang_terms")
-            except ImportError:
-                _KERNEL = None
-    return _KERNEL
-
-
-_KERNELS: Any = None
-_KERNELS_TRIED = False
+    built or ``BRACKETRY_NO_CKERNEL=1`` (then numpy computes the same values; :mod:`..extensions`)."""
+    return optional_extension(f"{__package__}._zhang_terms")
 
 
 def _upstream_kernels() -> Any:
     """The compiled ``_upstream_kernels`` extension (``_upstream_kernels.c``, built with the package), or None when it
-    was not built or ``BRACKETRY_NO_CKERNEL=1`` (then numpy computes the same values)."""
-    global _KERNELS, _KERNELS_TRIED
-    if not _KERNELS_TRIED:
-        _KERNELS_TRIED = True
-        if os.environ.get("BRACKETRY_NO_CKERNEL") != "1":
-            try:
-                _KERNELS = importlib.import_module(f"{__package__}._upstream_kernels")
-            except ImportError:
-                _KERNELS = None
-    return _KERNELS
+    was not built or ``BRACKETRY_NO_CKERNEL=1`` (then numpy computes the same values; :mod:`..extensions`)."""
+    return optional_extension(f"{__package__}._upstream_kernels")
 
 
 class UpstreamZhangAE:

@@ -10,8 +10,6 @@ errors are OpenCV's. Where the extension was not built, or with ``BRACKETRY_NO_C
 
 from __future__ import annotations
 
-import importlib
-import os
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -19,27 +17,16 @@ from typing import Any
 import cv2
 import numpy as np
 
+from ..extensions import optional_extension
 from .model import DatasetError
 
 #: Largest code of a 12-bit image.
 MAX_CODE_12BIT = 4095
 
-_CODEC: Any = None
-_CODEC_TRIED = False
-
-
 def png_codec() -> Any:
     """The compiled ``_pngcodec`` extension (``decode``, ``encode_stored``), or None when it was not built (or
-    ``BRACKETRY_NO_CKERNEL=1``)."""
-    global _CODEC, _CODEC_TRIED
-    if not _CODEC_TRIED:
-        _CODEC_TRIED = True
-        if os.environ.get("BRACKETRY_NO_CKERNEL") != "1":
-            try:
-                _CODEC = importlib.import_module(f"{__package__}._pngcodec")
-            except ImportError:
-                _CODEC = None
-    return _CODEC
+    ``BRACKETRY_NO_CKERNEL=1``; :func:`..extensions.optional_extension`)."""
+    return optional_extension(f"{__package__}._pngcodec")
 
 
 def png_decoder() -> Callable[[str, Any], Any] | None:

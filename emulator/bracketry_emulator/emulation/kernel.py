@@ -13,7 +13,6 @@ is used; both give identical results.
 
 from __future__ import annotations
 
-import importlib
 import os
 from collections import OrderedDict
 from collections.abc import Callable
@@ -22,26 +21,16 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from ..crf.response import N_CODES, Response, Rounding
+from ..extensions import optional_extension
 
 Gather = Callable[[object, object, object], None]
-_CKERNEL: Gather | None = None
-_CKERNEL_TRIED = False
 
 
 def c_kernel() -> Gather | None:
     """The compiled gather ``gather(lut, src, dst)`` of the ``_lut12`` extension, or None when the extension was not
-    built (or ``BRACKETRY_NO_CKERNEL=1``)."""
-    global _CKERNEL, _CKERNEL_TRIED
-    if _CKERNEL_TRIED:
-        return _CKERNEL
-    _CKERNEL_TRIED = True
-    if os.environ.get("BRACKETRY_NO_CKERNEL") == "1":
-        return None
-    try:
-        _CKERNEL = importlib.import_module(f"{__package__}._lut12").gather
-    except ImportError:
-        _CKERNEL = None
-    return _CKERNEL
+    built (or ``BRACKETRY_NO_CKERNEL=1``; :func:`..extensions.optional_extension`)."""
+    module = optional_extension(f"{__package__}._lut12")
+    return None if module is None else module.gather  # type: ignore[no-any-return]
 
 
 #: Pixels per chunk: small enough for the cache, large enough to amortise the call.

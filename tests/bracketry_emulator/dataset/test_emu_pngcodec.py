@@ -11,8 +11,9 @@ import cv2
 import numpy as np
 import pytest
 
-from bracketry_emulator.dataset import DatasetError, imageio
+from bracketry_emulator.dataset import DatasetError
 from bracketry_emulator.dataset.imageio import png_decoder, read_png, read_png12
+from bracketry_emulator.extensions import clear_extension_cache
 
 SIGNATURE = b"\x89PNG\r\n\x1a\n"
 
@@ -166,9 +167,14 @@ def test_pngcodec_no_ckernel_reads_with_opencv(tmp_path: Path, monkeypatch: pyte
     image = np.arange(6 * 9, dtype=np.uint16).reshape(6, 9)
     path = tmp_path / "a.png"
     path.write_bytes(filtered_png(image, [4]))
+    assert png_decoder() is not None  # looked up (and kept) before the variable is set
     monkeypatch.setenv("BRACKETRY_NO_CKERNEL", "1")
-    monkeypatch.setattr(imageio, "_CODEC_TRIED", False)
-    monkeypatch.setattr(imageio, "_CODEC", None)
-    assert png_decoder() is None
-    out = np.zeros_like(image)
-    assert read_png12(path, out) is out and np.array_equal(out, image)
+    clear_extension_cache()
+    try:
+        assert png_decoder() is None
+        out = np.zeros_like(image)
+        assert read_png12(path, out) is out and np.array_equal(out, image)
+    finally:
+        monkeypatch.delenv("BRACKETRY_NO_CKERNEL")
+        clear_extension_cache()
+    assert png_decoder() is not None

@@ -12,6 +12,7 @@ import pytest
 
 from bracketry_emulator.dataset import imageio
 from bracketry_emulator.emulation.writer import encode_png
+from bracketry_emulator.extensions import extensions_disabled
 
 
 def zlib_stored_png(image: np.ndarray) -> bytes:
@@ -41,6 +42,6 @@ def test_png_stored_bytes_equal_the_zlib_route(dtype: type, shape: tuple[int, in
     assert encode_png(np.asfortranarray(image), "stored") == expected  # any memory layout
     back = cv2.imdecode(np.frombuffer(expected, np.uint8), cv2.IMREAD_UNCHANGED)
     assert np.array_equal(back, image)
-    monkeypatch.setattr(imageio, "_CODEC_TRIED", True)  # as without the extension
-    monkeypatch.setattr(imageio, "_CODEC", None)
-    assert encode_png(image, "stored") == expected
+    with extensions_disabled():  # as without the extension
+        assert imageio.png_codec() is None
+        assert encode_png(image, "stored") == expected

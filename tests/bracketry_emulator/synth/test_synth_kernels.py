@@ -3,28 +3,28 @@ caster's radiance and range (trunk hits and their shading) and the codes of a no
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-
 import numpy as np
 import pytest
 
 from bracketry.sim.frames import noise_bank, world_frame
+from bracketry_emulator.extensions import extensions_disabled
 from bracketry_emulator.synth import World
-from bracketry_emulator.synth.kernels import synth_kernels, use_kernels
+from bracketry_emulator.synth.kernels import synth_kernels
 
 
 @pytest.fixture
-def both_paths() -> Iterator[None]:
-    use_kernels(True)
+def both_paths() -> None:
     assert synth_kernels() is not None, "the synth _kernels extension was not built (setup.sh builds it)"
-    yield
-    use_kernels(True)
 
 
 def _render(world: World, side: str, t_s: float, compiled: bool) -> tuple[np.ndarray, np.ndarray]:
-    use_kernels(compiled)
     R, p = world.world_pose(t_s, side)
-    res = world._renderer(side).render(R, p)
+    if compiled:
+        res = world._renderer(side).render(R, p)
+    else:
+        with extensions_disabled():
+            assert synth_kernels() is None  # the numpy path runs
+            res = world._renderer(side).render(R, p)
     return res.radiance, res.range_m
 
 
@@ -50,9 +50,9 @@ def test_compiled_exposure_equals_numpy() -> None:
     codes = set()
     for t_s in (0.0, 9.5):
         for exposure_us in (20.0, 1000.0, 8000.0, 64000.0, 2e6):  # dark to fully saturated
-            use_kernels(False)
-            ref = world_frame(world, bank, "left", t_s, exposure_us)
-            use_kernels(True)
+            with extensions_disabled():
+                assert synth_kernels() is None  # the numpy path runs
+                ref = world_frame(world, bank, "left", t_s, exposure_us)
             got = world_frame(world, bank, "left", t_s, exposure_us)
             assert got.dtype == ref.dtype == np.uint16
             assert np.array_equal(got, ref), (t_s, exposure_us)
