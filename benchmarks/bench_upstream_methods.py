@@ -8,7 +8,8 @@ over the frames and repeats, both paths on the same inputs, interleaved; the loa
 machine is shared). The reference paths are the formulas as the authors write them, with the speed-ups our code had
 before the fast paths (per-code tables of Kim's metric; scipy's ``cho_factor``/``cho_solve`` objective driven by
 ``scipy.optimize.minimize``; Zhang's sorted terms with numpy's sort and sum). Both paths give the same values (checked
-here as in tests/bracketry_emulator/ae/test_ae_upstream_fast_paths.py).
+here as in tests/bracketry_emulator/ae/test_ae_upstream_fast_paths.py, the GP and Shim formulas shared with it:
+tests/bracketry_emulator/ae/upstream_formulas.py).
 
 - Shim: the 7 gamma scores of one step (``upstream_shim_scores`` vs ``upstream_shim_metric(img01 ** g)`` per gamma);
 - Kim metric (``upstream_kim_metric`` vs ``upstream_kim_metric_exact``) and Kim's GP fits (11 L-BFGS-B starts on
@@ -23,6 +24,7 @@ import argparse
 import copy
 import os
 import statistics
+import sys
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -31,8 +33,6 @@ from typing import Any
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as bracketry emulate (before numpy loads OpenBLAS)
 
 import numpy as np
-import scipy.optimize
-from scipy.linalg import cho_factor, cho_solve
 
 from bracketry import paths
 from bracketry_emulator.ae import gp as GP
@@ -42,44 +42,15 @@ from bracketry_emulator.dataset import open_dataset
 from bracketry_emulator.emulation import Emulator
 from bracketry_emulator.emulation.settings import emulator_config
 
+# the formulas as written, shared with the tests (tests/bracketry_emulator/ae/upstream_formulas.py)
+sys.path.insert(0, str(paths.repo_root() / "tests" / "bracketry_emulator" / "ae"))
+from upstream_formulas import fit_formula, shim_scores_formula
+
 
 def cpu_ms(fn: Callable[..., Any], *args: Any) -> tuple[float, Any]:
     t0 = time.thread_time()
     out = fn(*args)
     return (time.thread_time() - t0) * 1e3, out
-
-
-def shim_reference(gray: np.ndarray) -> list[np.float32]:
-    lo, hi = np.min(gray), np.max(gray)
-    img01 = (gray - lo) / (hi - lo)
-    return [U.upstream_shim_metric(img01**g) for g in U.SHIM_GAMMAS_UPSTREAM]
-
-
-def neg_lml_reference(log_theta: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
-    c, length = np.exp(log_theta)
-    d2 = (x[:, None] - x[None, :]) ** 2
-    r = np.exp(-0.5 * d2 / length**2)
-    try:
-        cf = cho_factor(c * r + 0.2 * np.eye(len(x)), lower=True)
-    except np.linalg.LinAlgError:
-        return 1e25, np.zeros(2)
-    alpha = cho_solve(cf, y)
-    lml = -0.5 * float(y @ alpha) - float(np.sum(np.log(np.diag(cf[0])))) - 0.5 * len(x) * np.log(2 * np.pi)
-    inner = np.outer(alpha, alpha) - cho_solve(cf, np.eye(len(x)))
-    grad = np.array([0.5 * np.sum(inner * (c * r)), 0.5 * np.sum(inner * (c * r * d2 / length**2))])
-    return -lml, -grad
-
-
-def gp_fit_reference(x: np.ndarray, y: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    starts = [np.zeros(2)] + [rng.uniform(*GP.LOG_BOUNDS, 2) for _ in range(10)]
-    best: tuple[float, np.ndarray] | None = None
-    for s in starts:
-        res = scipy.optimize.minimize(neg_lml_reference, s, args=(x, y), jac=True, method="L-BFGS-B",
-                                      bounds=[GP.LOG_BOUNDS, GP.LOG_BOUNDS])
-        if best is None or res.fun < best[0]:
-            best = (float(res.fun), np.asarray(res.x))
-    assert best is not None
-    return best[1]
 
 
 def zhang_reference(zhang: U.UpstreamZhangAE, gray: np.ndarray, meta: dict[str, Any]) -> np.longdouble:
@@ -145,12 +116,12 @@ def main() -> int:
     for _ in range(args.repeats):
         for x, y, state in windows:
             tf, fit = cpu_ms(GP.GaussianProcess1D(0.2, 10, rng_at(state)).fit, x, y)
-            tr, theta = cpu_ms(gp_fit_reference, x, y, rng_at(state))
+            tr, theta = cpu_ms(fit_formula, x, y, 0.2, rng_at(state))
             assert np.array_equal(fit.log_theta, theta)
             times["kim GP fit"][0].append(tf)
             times["kim GP fit"][1].append(tr)
         for gray in grays:
-            (tf, fast), (tr, ref) = cpu_ms(U.upstream_shim_scores, gray), cpu_ms(shim_reference, gray)
+            (tf, fast), (tr, ref) = cpu_ms(U.upstream_shim_scores, gray), cpu_ms(shim_scores_formula, gray)
             assert [v.tobytes() for v in fast] == [v.tobytes() for v in ref]
             times["shim step"][0].append(tf)
             times["shim step"][1].append(tr)

@@ -9,9 +9,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import scipy.optimize
 from scipy import signal
-from scipy.linalg import cho_factor, cho_solve
+from upstream_formulas import fit_formula, neg_lml_formula, shim_scores_formula
 
 from bracketry_emulator.ae import gp as GP
 from bracketry_emulator.ae import upstream as U
@@ -143,12 +142,6 @@ def test_kim_code_sums_kernel_equals_opencv() -> None:
     assert kernels.kim_code_sums(over, 3, 3, counts, sums) == -1  # not 12-bit: the caller uses the formula
 
 
-def _shim_reference(gray: np.ndarray) -> list[np.float32]:
-    lo, hi = np.min(gray), np.max(gray)
-    img01 = (gray - lo) / (hi - lo)
-    return [U.upstream_shim_metric(img01**g) for g in U.SHIM_GAMMAS_UPSTREAM]
-
-
 @pytest.mark.realdata
 def test_shim_scores_equal_the_per_pixel_formula(borealhdr_sample: Path, borealhdr_sequence: Path) -> None:
     grays = _sample_grays(borealhdr_sample, borealhdr_sequence, (1500.0, 8000.0, 30000.0))
@@ -156,12 +149,12 @@ def test_shim_scores_equal_the_per_pixel_formula(borealhdr_sample: Path, borealh
     grays += [rng.integers(0, 4096, (2, 2)).astype(np.uint16), rng.integers(100, 104, (31, 17)).astype(np.uint16),
               np.minimum(rng.integers(0, 4096, (64, 80)), 4095).astype(np.uint16)]
     for i, gray in enumerate(grays):
-        got, want = U.upstream_shim_scores(gray), _shim_reference(gray)
+        got, want = U.upstream_shim_scores(gray), shim_scores_formula(gray)
         assert [type(v) for v in got] == [type(v) for v in want]
         assert [v.tobytes() for v in got] == [v.tobytes() for v in want], i
     flat = np.full((5, 6), 700, np.uint16)  # hi == lo: the formula (NaN image, zero scores)
     with np.errstate(divide="ignore", invalid="ignore"):
-        assert [v.tobytes() for v in U.upstream_shim_scores(flat)] == [v.tobytes() for v in _shim_reference(flat)]
+        assert [v.tobytes() for v in U.upstream_shim_scores(flat)] == [v.tobytes() for v in shim_scores_formula(flat)]
 
 
 def test_shim_gradient_kernel_rounds_as_opencv() -> None:
@@ -211,35 +204,6 @@ def test_shim_sum_is_numpys_pairwise_sum() -> None:
 # --- Kim's GP: the fit as formulated with scipy.linalg and scipy.optimize.minimize --------------------------------
 
 
-def _neg_lml_formula(log_theta: np.ndarray, x: np.ndarray, y: np.ndarray, noise: float) -> tuple[float, np.ndarray]:
-    c, length = np.exp(log_theta)
-    d2 = (x[:, None] - x[None, :]) ** 2
-    r = np.exp(-0.5 * d2 / length**2)
-    k = c * r + noise * np.eye(len(x))
-    try:
-        cf = cho_factor(k, lower=True)
-    except np.linalg.LinAlgError:
-        return 1e25, np.zeros(2)
-    alpha = cho_solve(cf, y)
-    lml = -0.5 * float(y @ alpha) - float(np.sum(np.log(np.diag(cf[0])))) - 0.5 * len(x) * np.log(2 * np.pi)
-    inner = np.outer(alpha, alpha) - cho_solve(cf, np.eye(len(x)))
-    grad = np.array([0.5 * np.sum(inner * (c * r)), 0.5 * np.sum(inner * (c * r * d2 / length**2))])
-    return -lml, -grad
-
-
-def _fit_formula(x: np.ndarray, y: np.ndarray, noise: float, rng: np.random.Generator) -> np.ndarray:
-    lo, hi = GP.LOG_BOUNDS
-    starts = [np.zeros(2)] + [rng.uniform(lo, hi, 2) for _ in range(10)]
-    best = None
-    for s in starts:
-        res = scipy.optimize.minimize(_neg_lml_formula, s, args=(x, y, noise), jac=True, method="L-BFGS-B",
-                                      bounds=[GP.LOG_BOUNDS, GP.LOG_BOUNDS])
-        if best is None or res.fun < best[0]:
-            best = (float(res.fun), np.asarray(res.x))
-    assert best is not None
-    return best[1]
-
-
 def _gp_problems() -> list[tuple[np.ndarray, np.ndarray]]:
     rng = np.random.default_rng(9)
     problems = [(np.array([4.0]), np.array([1200.0])),  # Kim's first step
@@ -257,7 +221,7 @@ def test_gp_objective_equals_the_formula_bit_for_bit() -> None:
         for theta in [np.zeros(2), np.array(GP.LOG_BOUNDS), np.array(GP.LOG_BOUNDS[::-1]),
                       *rng.uniform(*GP.LOG_BOUNDS, (6, 2))]:
             f, g = obj(theta)
-            f_ref, g_ref = _neg_lml_formula(theta, x, y, 0.2)
+            f_ref, g_ref = neg_lml_formula(theta, x, y, 0.2)
             assert f == f_ref and np.array_equal(g, g_ref), (x, theta)
 
 
@@ -266,4 +230,4 @@ def test_gp_fit_equals_minimize_on_the_formula_bit_for_bit() -> None:
     assert GP._Minimizer._checked, "scipy's L-BFGS-B routine is not driven directly (another scipy?)"
     for i, (x, y) in enumerate(_gp_problems()):
         gp = GP.GaussianProcess1D(0.2, 10, np.random.default_rng(i)).fit(x, y)
-        assert np.array_equal(gp.log_theta, _fit_formula(x, y, 0.2, np.random.default_rng(i))), i
+        assert np.array_equal(gp.log_theta, fit_formula(x, y, 0.2, np.random.default_rng(i))), i
