@@ -1,12 +1,19 @@
-"""The decoded frames of a chunk of bracket sequences, in one anonymous shared memory map (shared by forked workers).
+"""The decoded frames of a run's bracket sequences, in one anonymous shared memory map (shared by forked workers).
 
-Layout: ``slot`` (position of the sequence in the chunk) x ``side`` x ``exposure`` frames of uint16 HxW raw Bayer
-codes, C order. A decode task is ``(slot, sequence index, side index, exposure index)``.
+A run's sequences are numbered by their ``position`` in the run (0, 1, ...); their frames live in a ring of ``slots``
+sequence slots (position ``p`` in slot ``p % slots``), each ``side`` x ``exposure`` frames of uint16 HxW raw Bayer
+codes, C order. A decode task is ``(position, sequence index, side index, exposure index)``.
 
-Decode once per chunk, shared by every process: :meth:`FrameBuffer.ensure` claims a frame in a shared state table
-(one byte per frame, under a lock inherited by the forked workers); the first process that needs a frame decodes
-it, every other one waits for it, so each bracket is decoded at most once per trajectory and only when a method's
-target needs it.
+Decode once per run, shared by every process: :meth:`FrameBuffer.ensure` claims a frame in a shared state table
+(one byte per frame and position, under a lock inherited by the forked workers); the first process that needs a frame
+decodes it, every other one waits for it, so each bracket is decoded at most once per trajectory and only when a
+method's target needs it.
+
+Slot reuse: each reader (a worker; :meth:`FrameBuffer.release`) tells which positions it no longer reads; a frame of
+position ``p`` is written only once every reader is past position ``p - slots`` (the sequence that held the slot
+before). A ring of a few slots keeps the frames on pages already mapped: fresh pages of a shared map are allocated and
+zeroed by the kernel on first touch (and mapped again in every process that reads them), which cost a fifth of the
+system time of a run when every sequence had its own slot.
 """
 
 from __future__ import annotations
@@ -26,8 +33,11 @@ from bracketry.errors import BracketryError
 
 from ..dataset import BracketSequence
 
-#: (slot, sequence index, side index, exposure index) of one frame to decode
+#: (position, sequence index, side index, exposure index) of one frame to decode
 DecodeTask = tuple[int, int, int, int]
+
+#: :meth:`FrameBuffer.release` position of a reader that reads nothing more (finished or failed)
+RELEASED_ALL = 1 << 62
 
 #: states of a frame in the shared table: free, claimed (queued on a decode thread, not started), done, failed,
 #: being decoded
@@ -76,45 +86,77 @@ class _Elsewhere:
 
 
 class FrameBuffer:
-    """``slots`` sequences x ``len(sides)`` cameras x ``n_exp`` brackets of uint16 ``shape`` frames in one
-    anonymous memory map (inherited by forked workers: decoded once, read by every worker).
+    """A ring of ``slots`` sequences x ``len(sides)`` cameras x ``n_exp`` brackets of uint16 ``shape`` frames in one
+    anonymous memory map (inherited by forked workers: decoded once, read by every worker) for the ``positions``
+    sequences of a run (default: ``slots``, every position its own slot).
 
+    ``readers``: how many readers (workers, numbered from 0) :meth:`release` positions; a frame of position ``p``
+    is written once each of them released position ``p - slots``.
     ``preloaded``: {(sequence index, side index, exposure index): uint16 HxW} frames already decoded (copied
     instead of decoded again)."""
 
     def __init__(self, sequences: list[BracketSequence], sides: tuple[str, ...], shape: tuple[int, int], n_exp: int,
-                 slots: int, preloaded: dict[tuple[int, int, int], np.ndarray] | None = None) -> None:
+                 slots: int, preloaded: dict[tuple[int, int, int], np.ndarray] | None = None, *,
+                 positions: int | None = None, readers: int = 1) -> None:
         self.sequences, self.sides, self.shape, self.n_exp = sequences, sides, shape, n_exp
+        self.slots = slots
+        self.positions = slots if positions is None else positions
         self.preloaded = preloaded or {}
         #: set: decodes are timed there (stage ``decode``; see :mod:`~bracketry_emulator.stages`)
         self.stages: Any = None
         self.mmap = mmap.mmap(-1, slots * self.sequence_bytes(len(sides), n_exp, shape))
-        #: one byte per frame (free, claimed, done, failed), shared with forked workers; guarded by ``lock``
-        self.state = mmap.mmap(-1, max(1, slots * len(sides) * n_exp))
+        #: one byte per frame of every position (free, claimed, done, failed, running), shared with forked workers;
+        #: guarded by ``lock``
+        self.state = mmap.mmap(-1, max(1, self.positions * len(sides) * n_exp))
         self.lock = mp.get_context("fork").Lock() if "fork" in mp.get_all_start_methods() else mp.Lock()
+        # shared int64s: per reader the first position it may still read, then the abort flag
+        self._sync = mmap.mmap(-1, 8 * (max(1, readers) + 1))
+        self._released = memoryview(self._sync).cast("q")
+        self.readers = max(1, readers)
 
     @staticmethod
     def sequence_bytes(n_sides: int, n_exp: int, shape: tuple[int, int]) -> int:
         """Bytes of one sequence's frames (every side and bracket)."""
         return n_sides * n_exp * shape[0] * shape[1] * 2
 
-    def view(self, slot: int, side_i: int, exp_i: int) -> np.ndarray:
-        """uint16 HxW view of one frame's place in the buffer."""
+    def view(self, pos: int, side_i: int, exp_i: int) -> np.ndarray:
+        """uint16 HxW view of one frame's place in the buffer (position ``pos``: slot ``pos % slots``)."""
         h, w = self.shape
         n = h * w
-        off = ((slot * len(self.sides) + side_i) * self.n_exp + exp_i) * n * 2
+        off = (((pos % self.slots) * len(self.sides) + side_i) * self.n_exp + exp_i) * n * 2
         return np.frombuffer(self.mmap, dtype=np.uint16, count=n, offset=off).reshape(h, w)
 
+    def release(self, reader: int, pos: int) -> None:
+        """Reader ``reader`` reads no frame of the positions before ``pos`` any more (their slots may be refilled;
+        :data:`RELEASED_ALL`: it reads nothing more)."""
+        self._released[reader] = pos
+
+    def abort(self) -> None:
+        """Make every thread waiting for a slot (in any process) raise instead (a reader failed or the run stops)."""
+        self._released[self.readers] = 1
+
+    def _wait_writable(self, pos: int) -> None:
+        """Return once every reader released position ``pos - slots`` (the slot's previous sequence)."""
+        need = pos - self.slots + 1
+        released = self._released
+        delay = 0.0002
+        while min(released[r] for r in range(self.readers)) < need:
+            if released[self.readers]:
+                raise BracketryError("the run was aborted")
+            time.sleep(delay)
+            delay = min(delay * 2, 0.005)
+
     def _decode_one(self, task: DecodeTask) -> None:
+        self._wait_writable(task[0])
         if self.stages is None:
             return self._load(task)
         with self.stages.time("decode"):
             return self._load(task)
 
     def _load(self, task: DecodeTask) -> None:
-        slot, seq_i, side_i, exp_i = task
+        pos, seq_i, side_i, exp_i = task
         seq = self.sequences[seq_i]
-        view = self.view(slot, side_i, exp_i)
+        view = self.view(pos, side_i, exp_i)
         img = self.preloaded.get((seq_i, side_i, exp_i))
         if img is None:  # decoded straight into the buffer (a PNG), else copied there
             img = seq.frames[self.sides[side_i]][seq.exposures_us[exp_i]].load_into(view)
@@ -133,8 +175,8 @@ class FrameBuffer:
         return [pool.submit(self._decode_one, task) for task in tasks]
 
     def state_index(self, task: DecodeTask) -> int:
-        slot, _, side_i, exp_i = task
-        return (slot * len(self.sides) + side_i) * self.n_exp + exp_i
+        pos, _, side_i, exp_i = task
+        return (pos * len(self.sides) + side_i) * self.n_exp + exp_i
 
     def claim(self, task: DecodeTask) -> bool:
         """Mark a free frame as being decoded by the caller; False when it is claimed, decoded or failed."""
@@ -201,16 +243,17 @@ class FrameBuffer:
                     self.state[i] = _FREE
 
     def reset(self) -> None:
-        """Forget which frames are decoded (before the buffer is reused for the next chunk; nobody may be
-        decoding)."""
+        """Forget which frames are decoded and what the readers released (before the buffer is reused for another
+        run of positions; nobody may be decoding)."""
         self.state[:] = bytes(len(self.state))
+        self._sync[:] = bytes(len(self._sync))
 
     def close(self) -> None:
-        """Free the map (a BufferError while numpy views of it are alive: then it is freed with them)."""
-        with contextlib.suppress(BufferError):
-            self.mmap.close()
-        with contextlib.suppress(BufferError):
-            self.state.close()
+        """Free the maps (a BufferError while numpy views of it are alive: then it is freed with them)."""
+        self._released.release()
+        for m in (self.mmap, self.state, self._sync):
+            with contextlib.suppress(BufferError):
+                m.close()
 
 
 def frame_shape(seq: BracketSequence, side: str) -> tuple[tuple[int, int], np.ndarray | None]:

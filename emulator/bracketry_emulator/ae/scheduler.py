@@ -2,9 +2,10 @@
 
 The methods are split over ``workers`` forked processes, balanced by the cost each method declares
 (:func:`~.registry.method_traits`: ``step_cost``; methods of one ``step_group`` take identical first steps and stay
-on one worker, whose writer then links images instead of encoding them again). The sequences are processed in
-chunks that fit the memory budget, in one shared :class:`~.decode.FrameBuffer`; every worker advances its methods
-through the chunk, sequence by sequence (all methods of a worker take step k before any takes step k+1). Frames are
+on one worker, whose writer then links images instead of encoding them again). The decoded sequences live in one
+shared :class:`~.decode.FrameBuffer`, a ring of :data:`RING_SLOTS` sequences at most (within the memory budget): a
+slot is refilled once every worker is past the sequence it held. Every worker advances its methods through the
+sequences, one by one (all methods of a worker take step k before any takes step k+1). Frames are
 decoded on demand on a decode thread of each worker, only the brackets the methods' current targets can select
 (:func:`~.emulation_cache.needed_brackets`), the next sequence's as soon as a method's next target is known, and
 ONCE for all workers (the buffer's shared state table: a frame another worker decodes is waited for, not decoded
@@ -37,11 +38,15 @@ from bracketry.errors import BracketryError
 from ..dataset import BracketSequence
 from ..emulation import EmulatedImage, Emulator, EmulatorConfig, RunWriter
 from ..stages import StageTimes
-from .decode import DecodeTask, FrameBuffer, frame_shape
+from .decode import RELEASED_ALL, DecodeTask, FrameBuffer, frame_shape
 from .emulation_cache import EmulationCache, needed_brackets
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
 from .registry import MethodTraits, get_method
 from .writers import ImageSink, LinkingRunWriter, method_folder
+
+#: Sequences held in the shared frame buffer at most (its ring of slots): a worker decodes at most this many sequences
+#: ahead of the slowest one (it waits otherwise); every slot's pages stay mapped in every process once touched.
+RING_SLOTS = 4
 
 #: Estimated cost of emulating and writing one step (both cameras, stored PNGs; ~ms of CPU per 1920x1200 step here),
 #: in the unit of the methods' ``step_cost``.
@@ -100,8 +105,11 @@ class Worker:
     """Advances a group of methods through the sequences; the same object serves in-process and forked modes."""
 
     def __init__(self, specs: list[str], settings: LoopSettings, sequences: list[BracketSequence], out_dir: Path,
-                 frames: FrameBuffer, write_threads: int = 1, feeds: dict[str, list[Any]] | None = None) -> None:
+                 frames: FrameBuffer, write_threads: int = 1, feeds: dict[str, list[Any]] | None = None,
+                 reader: int = 0) -> None:
         self.settings = s = settings
+        #: this worker's reader number in ``frames`` (:meth:`FrameBuffer.release`)
+        self.reader = reader
         #: where this worker's time goes (decode, emulation, png_write; the AE methods' is in their steps)
         self.stages = StageTimes()
         #: {method: [objects with RunWriter.write_step and close]}: each step's images also go there (e.g. to a
@@ -109,10 +117,10 @@ class Worker:
         self.feeds = feeds or {}
         #: set: decode on demand (only the brackets the methods' targets need) on this pool's threads
         self.decode_pool: ThreadPoolExecutor | None = None
-        self._decoded: dict[tuple[int, int, int], Any] = {}  # (slot, side, exposure index): future-like
+        self._decoded: dict[tuple[int, int, int], Any] = {}  # (position, side, exposure index): future-like
         # --parity upstream, single-bracket selections: the AE camera alone decides each step's source bracket, so
         # the other cameras need only that bracket of a pair: a decode thread picks it once the AE camera's pair is
-        # decoded (:meth:`_decode_picked`). (slot, target us): (the pick's future, the AE camera's pair of tasks).
+        # decoded (:meth:`_decode_picked`). (position, target us): (the pick's future, the AE camera's pair of tasks).
         self._ae_i = s.emulate_sides.index(s.ae_camera)
         self._pick_alone = (s.emulator.parity == "upstream" and s.emulator.selection in ("upstream", "highernosat")
                             and len(s.emulate_sides) > 1)
@@ -140,33 +148,37 @@ class Worker:
                                                   s.emulator.parity, images=s.write_images)
 
     def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
-        """Advance every method of this worker through the given sequences (slot = position in the list).
+        """Advance every method of this worker through the given sequences (position = place in the list).
 
         Without :attr:`decode_pool` the frames must already be decoded (:meth:`FrameBuffer.decode`); with it,
         frames are decoded on demand, only the brackets that the methods' targets can select, once for every
         worker (:meth:`FrameBuffer.ensure`): a method's next target is known as soon as its step is done, so the
-        next sequence's frames decode while the other methods run."""
+        next sequence's frames decode while the other methods run. Each position is released
+        (:meth:`FrameBuffer.release`) once every method of this worker took its step (the emulated images are copies:
+        nothing reads the buffer's frames of that position later)."""
         self.emu.clear()
         self._decoded.clear()
         self._picks.clear()
         try:
-            for slot, seq_i in enumerate(seq_indices):
+            for pos, seq_i in enumerate(seq_indices):
                 seq = self.sequences[seq_i]
                 self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
+                self._brackets = {}
+                self.frames.release(self.reader, pos)
                 if self.decode_pool is not None:
                     for t in self.targets.values():
-                        self._prefetch(slot, seq_i, t)
-                    self._wait_needed(slot, seq_i)
+                        self._prefetch(pos, seq_i, t)
+                    self._wait_needed(pos, seq_i)
                 self._seq_i = seq_i
-                self._brackets = {side: {e: self.frames.view(slot, si, ei) for ei, e in enumerate(seq.exposures_us)}
+                self._brackets = {side: {e: self.frames.view(pos, si, ei) for ei, e in enumerate(seq.exposures_us)}
                                   for si, side in enumerate(self.settings.emulate_sides)}
-                nxt = seq_indices[slot + 1] if slot + 1 < len(seq_indices) else None
+                nxt = seq_indices[pos + 1] if pos + 1 < len(seq_indices) else None
                 for spec, loop in self._loops.items():
                     step = next(loop)
                     self.runs[spec].steps.append(step)
                     self.targets[spec] = step.next_exposure_us
                     if self.decode_pool is not None and nxt is not None:
-                        self._prefetch(slot + 1, nxt, self.targets[spec])
+                        self._prefetch(pos + 1, nxt, self.targets[spec])
                     progress(1)
         finally:
             self._brackets = {}
@@ -175,7 +187,8 @@ class Worker:
                 f.cancel()
             for f in handles:
                 if not f.cancelled():
-                    f.exception()  # wait: no decode may write into the buffer after this chunk
+                    f.exception()  # wait: no decode of this worker may write into the buffer after this
+            self.frames.release(self.reader, RELEASED_ALL)  # finished or failed: nobody waits for this worker
         self.emu.clear()
 
     def _images(self, seq_i: int, target_us: float) -> dict[str, EmulatedImage]:
@@ -215,7 +228,7 @@ class Worker:
         return [(si, ei) for si in range(len(self.settings.emulate_sides)) for ei, e in enumerate(seq.exposures_us)
                 if e in exps]
 
-    def _prefetch(self, slot: int, seq_i: int, target_us: float) -> None:
+    def _prefetch(self, pos: int, seq_i: int, target_us: float) -> None:
         """Start decoding (on the pool's threads) the frames of ``seq_i`` that ``target_us`` needs, once each; with
         :attr:`_pick_alone` and a pair of brackets, the other cameras' frame once the AE camera's pair tells which."""
         assert self.decode_pool is not None
@@ -223,16 +236,16 @@ class Worker:
         pick = self._pick_alone and len({ei for _, ei in keys}) > 1
         if pick:
             keys = [(si, ei) for si, ei in keys if si == self._ae_i]
-        tasks = [(slot, seq_i, si, ei) for si, ei in keys if (slot, si, ei) not in self._decoded]
+        tasks = [(pos, seq_i, si, ei) for si, ei in keys if (pos, si, ei) not in self._decoded]
         futures = self.frames.ensure(tasks, self.decode_pool)
         for (_, _, si, ei), f in zip(tasks, futures, strict=True):
-            self._decoded[(slot, si, ei)] = f
-        if pick and (slot, float(target_us)) not in self._picks:
-            pair = [(slot, seq_i, si, ei) for si, ei in keys]  # claimed before: no decode thread waits on a task
-            fut = self.decode_pool.submit(self._decode_picked, slot, seq_i, target_us, pair)  # queued after it
-            self._picks[(slot, float(target_us))] = (fut, pair)
+            self._decoded[(pos, si, ei)] = f
+        if pick and (pos, float(target_us)) not in self._picks:
+            pair = [(pos, seq_i, si, ei) for si, ei in keys]  # claimed before: no decode thread waits on a task
+            fut = self.decode_pool.submit(self._decode_picked, pos, seq_i, target_us, pair)  # queued after it
+            self._picks[(pos, float(target_us))] = (fut, pair)
 
-    def _decode_picked(self, slot: int, seq_i: int, target_us: float, pair: list[DecodeTask]) -> list[DecodeTask]:
+    def _decode_picked(self, pos: int, seq_i: int, target_us: float, pair: list[DecodeTask]) -> list[DecodeTask]:
         """On a decode thread (or the worker's thread when it has not started): wait for the AE camera's pair of
         brackets, decide the step's source bracket as :meth:`_images` does (the AE camera alone), decode the other
         cameras' frame of it unless another thread or worker has claimed it. Returns those frames' tasks."""
@@ -241,17 +254,17 @@ class Worker:
         s = self.settings
         seq = self.sequences[seq_i]
         exps = needed_brackets(seq.exposures_us, target_us, s.emulator.selection)
-        views = {s.ae_camera: {e: self.frames.view(slot, self._ae_i, seq.exposures_us.index(e)) for e in exps}}
+        views = {s.ae_camera: {e: self.frames.view(pos, self._ae_i, seq.exposures_us.index(e)) for e in exps}}
         # a new emulator (the worker's caches belong to its main thread), the same decision
         source = Emulator(s.emulator, self.emu.emulator.response).select_stereo(views, target_us, (s.ae_camera,))
         ei = seq.exposures_us.index(source)
-        tasks = [(slot, seq_i, si, ei) for si in range(len(s.emulate_sides)) if si != self._ae_i]
+        tasks = [(pos, seq_i, si, ei) for si in range(len(s.emulate_sides)) if si != self._ae_i]
         for task in tasks:
             if self.frames.claim(task):
                 self.frames.run_claimed(task)
         return tasks
 
-    def _wait_needed(self, slot: int, seq_i: int) -> None:
+    def _wait_needed(self, pos: int, seq_i: int) -> None:
         """Wait until every frame the current targets need is in the buffer (decoded by any worker; the frames whose
         decode has not started are decoded by this thread first, instead of waiting for the decode thread's
         queue)."""
@@ -259,28 +272,28 @@ class Worker:
         targets = list(dict.fromkeys(float(t) for t in self.targets.values()))
         frames: list[tuple[int, int]] = []
         for t in targets:
-            pick = self._picks.get((slot, t))
+            pick = self._picks.get((pos, t))
             frames += [(si, ei) for si, ei in self._needed_keys(seq, [t]) if pick is None or si == self._ae_i]
         frames = list(dict.fromkeys(frames))
         for si, ei in frames:
-            if self.frames.take((slot, seq_i, si, ei)):
-                self.frames.run_taken((slot, seq_i, si, ei))
+            if self.frames.take((pos, seq_i, si, ei)):
+                self.frames.run_taken((pos, seq_i, si, ei))
         for si, ei in frames:
-            self._wait_frame(slot, seq_i, si, ei)
+            self._wait_frame(pos, seq_i, si, ei)
         for t in targets:
-            pick = self._picks.get((slot, t))
+            pick = self._picks.get((pos, t))
             if pick is not None:
                 fut, pair = pick
                 # not started on the decode thread (queued behind other frames): pick and decode here
-                tasks = self._decode_picked(slot, seq_i, t, pair) if fut.cancel() else fut.result()
+                tasks = self._decode_picked(pos, seq_i, t, pair) if fut.cancel() else fut.result()
                 for task in tasks:
                     self.frames.wait(task)
 
-    def _wait_frame(self, slot: int, seq_i: int, si: int, ei: int) -> None:
+    def _wait_frame(self, pos: int, seq_i: int, si: int, ei: int) -> None:
         try:
-            self.frames.wait((slot, seq_i, si, ei))
+            self.frames.wait((pos, seq_i, si, ei))
         except BracketryError:
-            self._decoded[(slot, si, ei)].result()  # a decode of this worker failed: raise its own error
+            self._decoded[(pos, si, ei)].result()  # a decode of this worker failed: raise its own error
             raise
 
     def close(self) -> tuple[dict[str, MethodRun], dict[str, dict[str, float]]]:
@@ -311,6 +324,8 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
     from :data:`AUTO_FORK_MIN_SEQUENCES` sequences on, else 1; 1 = in this process). ``progress(n)`` is called
     after every n method steps. Returns {method id: run} in ``traits`` order. Raises BracketryError (one line) on
     a failing method or worker. ``feeds``: see :class:`Worker`; ``stages``: receives the workers' stage times.
+    ``memory_budget_bytes``: the shared frame buffer's size at most (a ring of :data:`RING_SLOTS` sequences at most,
+    one at least).
     """
     specs = list(traits)
     n_seq = len(sequences)
@@ -318,9 +333,6 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
     shape, first_img = frame_shape(first, settings.emulate_sides[0])
     preloaded = {} if first_img is None else {(0, 0, 0): first_img}  # decoded for the shape: reused
     n_exp = len(first.exposures_us)
-    seq_bytes = FrameBuffer.sequence_bytes(len(settings.emulate_sides), n_exp, shape)
-    chunk = max(1, min(n_seq, memory_budget_bytes // max(seq_bytes, 1)))
-    frames = FrameBuffer(sequences, settings.emulate_sides, shape, n_exp, chunk, preloaded)
     n_cpu = os.cpu_count() or 1
     if workers > 0:
         n_workers = workers
@@ -329,24 +341,29 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
     can_fork = "fork" in mp.get_all_start_methods()
     n_workers = max(1, min(n_workers, len(specs))) if can_fork else 1
     groups = partition(traits, n_workers)
+    seq_bytes = FrameBuffer.sequence_bytes(len(settings.emulate_sides), n_exp, shape)
+    slots = max(1, min(n_seq, RING_SLOTS, memory_budget_bytes // max(seq_bytes, 1)))
+    frames = FrameBuffer(sequences, settings.emulate_sides, shape, n_exp, slots, preloaded, positions=n_seq,
+                         readers=len(groups))
 
-    def make(group: list[str], write_threads: int = 1) -> Callable[[], Worker]:
+    def make(reader: int, write_threads: int = 1) -> Callable[[], Worker]:
+        group = groups[reader]
         return lambda: Worker(group, settings, sequences, out_dir, frames, write_threads,
-                              {m: f for m, f in (feeds or {}).items() if m in group})
+                              {m: f for m, f in (feeds or {}).items() if m in group}, reader)
 
     runs: dict[str, MethodRun] = {}
     times = stages if stages is not None else StageTimes()
     try:
         if len(groups) == 1:
-            runs.update(_run_in_process(make(groups[0], min(2, n_cpu)), n_seq, chunk, progress, times))
+            runs.update(_run_in_process(make(0, min(2, n_cpu)), n_seq, progress, times))
         else:
-            runs.update(_run_forked(groups, make, n_seq, chunk, frames, progress, times))
+            runs.update(_run_forked(len(groups), make, n_seq, frames, progress, times))
     finally:
         frames.close()  # on an error path the traceback may still hold views of the buffer: freed with them
     return {s: runs[s] for s in specs}
 
 
-def _run_in_process(make: Callable[[], Worker], n_seq: int, chunk: int, progress: Callable[[int], None],
+def _run_in_process(make: Callable[[], Worker], n_seq: int, progress: Callable[[int], None],
                     stages: StageTimes) -> dict[str, MethodRun]:
     """One worker in this process, decoding on demand on threads (cv2.imread releases the GIL); matplotlib is
     imported for the final plot on a thread meanwhile."""
@@ -357,9 +374,7 @@ def _run_in_process(make: Callable[[], Worker], n_seq: int, chunk: int, progress
             w = make()
             w.decode_pool = pool
             try:
-                for c0 in range(0, n_seq, chunk):
-                    w.frames.reset()
-                    w.run(list(range(c0, min(n_seq, c0 + chunk))), progress)
+                w.run(list(range(n_seq)), progress)
             except BaseException:
                 with contextlib.suppress(Exception):
                     w.sink.close()  # finish the images already submitted; the first error is the one raised
@@ -397,18 +412,17 @@ def _worker_loop(conn: Connection, worker: Callable[[], Worker]) -> None:
         conn.close()
 
 
-def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[], Worker]], n_seq: int,
-                chunk: int, frames: FrameBuffer, progress: Callable[[int], None],
-                stages: StageTimes) -> dict[str, MethodRun]:
+def _run_forked(n_workers: int, make: Callable[[int], Callable[[], Worker]], n_seq: int, frames: FrameBuffer,
+                progress: Callable[[int], None], stages: StageTimes) -> dict[str, MethodRun]:
     ctx = mp.get_context("fork")
     procs: list[Any] = []
     conns: list[Connection] = []
     runs: dict[str, MethodRun] = {}
     done = False
     try:
-        for group in groups:
+        for reader in range(n_workers):
             parent, child = ctx.Pipe()
-            p = ctx.Process(target=_worker_loop, args=(child, make(group)), daemon=True)
+            p = ctx.Process(target=_worker_loop, args=(child, make(reader)), daemon=True)
             p.start()
             child.close()
             procs.append(p)
@@ -418,12 +432,9 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
         preload = threading.Thread(target=preload_plotting, name="bracketry-mpl-import", daemon=True)
         preload.start()
         _collect(conns, "ready", progress)
-        for c0 in range(0, n_seq, chunk):
-            idx = list(range(c0, min(n_seq, c0 + chunk)))
-            frames.reset()  # every worker is idle between chunks
-            for conn in conns:
-                conn.send(("run", idx))
-            _collect(conns, "ran", progress)
+        for conn in conns:
+            conn.send(("run", list(range(n_seq))))
+        _collect(conns, "ran", progress)
         for conn in conns:
             conn.send(("close", None))
         for res, times in _collect(conns, "closed", progress):
@@ -432,6 +443,8 @@ def _run_forked(groups: list[list[str]], make: Callable[[list[str]], Callable[[]
         preload.join()
         done = True
     finally:
+        if not done:
+            frames.abort()  # a worker failed: the others stop waiting for its slots
         for conn in conns:
             conn.close()
         if done:  # every file is written: the workers' exit (freeing ~1 GB) is not waited for here

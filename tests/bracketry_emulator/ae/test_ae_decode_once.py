@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import multiprocessing as mp
 import threading
+import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from types import SimpleNamespace
@@ -122,15 +123,16 @@ def test_a_waiting_thread_decodes_a_frame_still_queued() -> None:
     fb.close()
 
 
-def _bracket_tree(root: Path, n_seq: int) -> Path:
+def _bracket_tree(root: Path, n_seq: int, brighter_per_sequence: float = 1.0) -> Path:
     """A BorealHDR tree of 40x56 frames, the right camera brighter than the left (saturated at other brackets), a
-    dark half (black at 1 ms): the upstream selection takes the longer bracket of some pairs, the shorter of others."""
+    dark half (black at 1 ms): the upstream selection takes the longer bracket of some pairs, the shorter of others.
+    Each sequence's scene ``brighter_per_sequence`` times the previous one's."""
     irr = irradiance(40, 56, seed=4, dynamic_range=30.0)
     irr[:, :28] *= 0.001
     t_ns = 1_700_000_000_000_000_000
-    for _ in range(n_seq):
+    for q in range(n_seq):
         for ms in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0):
-            for side, gain in (("left", 1.0), ("right", 2.5)):
+            for side, gain in (("left", brighter_per_sequence ** q), ("right", 2.5 * brighter_per_sequence ** q)):
                 d = root / f"camera_{side}" / f"{ms:.1f}"
                 d.mkdir(parents=True, exist_ok=True)
                 cv2.imwrite(str(d / f"{t_ns}.png"), render(irr * gain, ms * 1000))
@@ -197,3 +199,59 @@ def test_upstream_parity_decodes_only_the_source_bracket_of_the_other_camera(
     for f in sorted((tmp_path / "both").rglob("*")):
         if f.is_file() and f.name not in ("summary.json", "ae.csv", "exposure_times.png"):
             assert f.read_bytes() == (tmp_path / "picked" / f.relative_to(tmp_path / "both")).read_bytes(), f
+
+
+def test_a_ring_slot_is_refilled_only_once_every_reader_passed_its_sequence() -> None:
+    """Positions 0..3 in 2 slots: position 2 reuses position 0's slot; its decode waits until both readers released
+    position 0, and an aborted buffer makes a waiting decode raise."""
+    counter = mp.Value("i", 0)
+    fb = FrameBuffer(sequences(counter, n_seq=4), ("left", "right"), SHAPE, 3, slots=2, positions=4, readers=2)
+    assert np.shares_memory(fb.view(2, 1, 2), fb.view(0, 1, 2))
+    assert not np.shares_memory(fb.view(1, 0, 0), fb.view(0, 0, 0))
+    _ensure_all(fb, [(0, 0, 0, 0), (1, 1, 0, 0)])  # both slots filled at once: nobody has to release anything
+    with ThreadPoolExecutor(1) as pool:
+        (third,) = fb.ensure([(2, 2, 0, 0)], pool)
+        fb.release(0, 1)  # reader 0 is past position 0, reader 1 still reads it
+        with pytest.raises(TimeoutError):
+            third.result(timeout=0.3)
+        assert np.array_equal(fb.view(0, 0, 0), frame_value(0, 0, 0))  # not overwritten while read
+        fb.release(1, 1)
+        third.result(timeout=30)
+    assert np.array_equal(fb.view(2, 0, 0), frame_value(2, 0, 0)) and counter.value == 3
+    with ThreadPoolExecutor(1) as pool:
+        (fourth,) = fb.ensure([(3, 3, 0, 0)], pool)  # slot 1: reader 0 is still at position 1
+        fb.abort()
+        with pytest.raises(Exception, match="aborted"):
+            fourth.result(timeout=30)
+    fb.close()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_run_through_a_two_slot_ring_gives_the_outputs_of_a_run_without_reuse(
+        tmp_path: Path, workers: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    """6 sequences (each scene brighter) through 2 frame-buffer slots; the methods of both workers keep targets
+    near each other (they read the same frames) and the second worker is slowed down (the first one runs ahead and
+    must wait for it before refilling a slot): every output file equals that of a run with a slot per sequence."""
+    from bracketry_emulator.ae import LoopConfig, run_methods
+    from bracketry_emulator.ae import scheduler as sch
+    from bracketry_emulator.emulation.settings import emulator_config
+
+    rec = _bracket_tree(tmp_path / "rec", 6, brighter_per_sequence=1.15)
+    emulate = sch.Worker._emulate
+
+    def slow_second_worker(self: sch.Worker, *args: Any) -> Any:
+        if self.reader == 1:
+            time.sleep(0.02)
+        return emulate(self, *args)
+
+    monkeypatch.setattr(sch.Worker, "_emulate", slow_second_worker)
+    methods = ["fix", "constant-3", "ae50"]
+    cfg = LoopConfig(emulator=emulator_config("upstream", "srgb", "upstream"), init_exposure_us=3000.0)
+    for name, slots in (("ring", 2), ("all", 64)):
+        monkeypatch.setattr(sch, "RING_SLOTS", slots)
+        run_methods(rec, methods, tmp_path / name, workers=workers, config=cfg, progress=False)
+    files = sorted(f.relative_to(tmp_path / "all") for f in (tmp_path / "all").rglob("*") if f.is_file())
+    assert sum(f.suffix == ".png" for f in files) == 6 * 2 * len(methods) + 1
+    for f in files:
+        if f.name not in ("summary.json", "ae.csv", "exposure_times.png"):
+            assert (tmp_path / "ring" / f).read_bytes() == (tmp_path / "all" / f).read_bytes(), f
