@@ -4,6 +4,7 @@ authors' formulas as written: bit for bit, Kim's code sums to float64 rounding."
 
 from __future__ import annotations
 
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import cv2
@@ -84,6 +85,70 @@ def test_compiled_weighted_sum_equals_numpys_sum_of_the_sorted_terms() -> None:
             got = z.weighted_sum(gray, t_ms, meta)
             want = np.sum(U.upstream_zhang_weights(gray.size) * np.sort(z._terms(gray, t_ms, meta)))
             assert isinstance(got, np.longdouble) and got == want, (shape, t_ms)
+
+
+def _terms_of_jlut(gray: np.ndarray, jlut: np.ndarray) -> np.ndarray:
+    """The numpy path's terms 2 (Ix Jx + Iy Jy) (long double, flat, unsorted) for J = jlut[gray]."""
+    ix, iy = U.scharr_integer(gray)
+    j = jlut[gray]
+    jx = U.scharr_symm(j, U.UpstreamZhangAE._SCHARR_X)
+    jy = U.scharr_symm(j, U.UpstreamZhangAE._SCHARR_Y)
+    with np.errstate(invalid="ignore", over="ignore"):
+        prod = np.multiply(ix, jx, dtype=np.longdouble)
+        prod += np.multiply(iy, jy, dtype=np.longdouble)
+        prod *= 2
+    return prod.ravel()
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    """Equal values (a zero's sign aside, as ``==``: the kernel's -0 terms are +0, which no sum can tell apart from
+    -0 unless it is zero itself), NaN where NaN."""
+    return bool(np.array_equal(a, b, equal_nan=True))
+
+
+def test_compiled_bucket_sort_equals_numpy_on_large_and_degenerate_images() -> None:
+    """Images large enough for the kernel's radix buckets and their splits (a smooth scene with noise, noise of a
+    few codes, flat, steps), one after the other through its kept scratch memory (sizes up and down), and J tables
+    with infinities and NaN: the sorted terms and the weighted sum are numpy's."""
+    kernel = U._zhang_kernel()
+    assert kernel is not None, "the _zhang_terms extension was not built (setup.sh builds it)"
+    rng = np.random.default_rng(12)
+    yy, xx = np.mgrid[0:300, 0:420]
+    scene = 2000 + 1500 * np.sin(xx / 37.0) * np.cos(yy / 23.0) + rng.normal(0, 30, xx.shape)
+    steps = np.where(xx < 210, 1000, 3000) + np.where(yy < 150, 0, 77)
+    cases = [np.clip(scene, 0, 4095), rng.integers(1000, 1004, (64, 512)), np.full((50, 60), 7), steps,
+             np.clip(scene[:90, :70], 0, 4095), rng.integers(0, 4096, (250, 333))]
+    slope = 0.5 + np.abs(np.sin(np.arange(65536) / 300.0))
+    for i, img in enumerate(cases):
+        gray = np.ascontiguousarray(img, dtype=np.uint16)
+        for t_ms in (0.7, 9.0):
+            jlut = 1.0 / (slope * t_ms)
+            if i == 3:
+                jlut = jlut.copy()
+                jlut[1000], jlut[3077] = np.inf, np.nan  # infinite / NaN terms: numpy sorts NaN last
+            want = np.sort(_terms_of_jlut(gray, jlut))
+            got = np.empty(gray.size, dtype=np.longdouble)
+            kernel.sorted_terms(gray, jlut, gray.shape[0], gray.shape[1], got)
+            assert _same(got, want), (i, t_ms)
+            w = U.upstream_zhang_weights(gray.size)
+            total = np.empty(1, dtype=np.longdouble)
+            kernel.weighted_sum(gray, jlut, gray.shape[0], gray.shape[1], w, total)
+            with np.errstate(invalid="ignore"):
+                assert _same(total, np.array([np.sum(w * want)])), (i, t_ms)
+
+
+def test_compiled_weighted_sum_from_two_threads_at_once() -> None:
+    """Two threads in the kernel at the same time (it releases the GIL; one of them takes the kept scratch memory,
+    the other its own): each result is the one computed alone."""
+    z = U.UpstreamZhangAE()
+    meta = {"response": None}
+    rng = np.random.default_rng(13)
+    grays = [rng.integers(0, 4096, (240, 320)).astype(np.uint16) for _ in range(4)]
+    alone = [z.weighted_sum(g, 4.0, meta) for g in grays]
+    with ThreadPoolExecutor(2) as pool:
+        for _ in range(3):
+            together = list(pool.map(lambda g: z.weighted_sum(g, 4.0, meta), grays))
+            assert together == alone
 
 
 @pytest.mark.realdata
