@@ -7,7 +7,10 @@
 - pixels are the raw 12-bit Bayer codes, unshifted, in 16-bit single-channel PNGs (lossless).
 
 Frames without pixels (incomplete) or without a TRIGGER event (unknown exposure) are not exported; they are counted.
-PNG encoding runs in a thread pool (OpenCV releases the GIL) with a progress bar.
+PNG encoding runs in a thread pool (the encoders release the GIL) with a progress bar. ``png_compression`` chooses the
+lossless encoding (the choices of ``bracketry emulate --png-compression``): ``opencv`` (``cv2.imwrite``'s defaults,
+the default here), ``stored`` (no compression: ~17x faster to write at 640x400, 0.34 vs 5.7 ms an image, and ~1.4x
+larger, 2 bytes a pixel), ``fast`` or ``small``; every choice reads back as exactly the recorded codes.
 """
 
 from __future__ import annotations
@@ -45,7 +48,19 @@ class ExportSummary:
     out_dir: str = ""
 
 
-def _write_png(path: Path, image: np.ndarray) -> None:
+#: the ``png_compression`` choices (see the module docstring)
+PNG_COMPRESSIONS = ("opencv", "stored", "fast", "small")
+
+
+def _write_png(path: Path, image: np.ndarray, compression: str = "opencv") -> None:
+    if compression != "opencv":
+        from bracketry_emulator.emulation.writer import write_png
+
+        try:
+            write_png(path, image, compression)
+        except OSError as exc:
+            raise BracketryError(f"cannot write {path}: {exc.strerror or exc}") from exc
+        return
     import cv2
 
     if not cv2.imwrite(str(path), image):
@@ -53,12 +68,16 @@ def _write_png(path: Path, image: np.ndarray) -> None:
 
 
 def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int = 2,
-                     progress: bool = True, keep_unpaired: bool = False) -> ExportSummary:
+                     progress: bool = True, keep_unpaired: bool = False,
+                     png_compression: str = "opencv") -> ExportSummary:
     """Export ``recording`` (file or folder of split files) under ``out_dir`` (created).
 
     In a stereo recording a frame whose partner of the other camera (same trigger) is missing is counted in
     ``unpaired`` and written only with ``keep_unpaired``, so a BorealHDR tree never holds half a pair silently.
+    ``png_compression``: one of :data:`PNG_COMPRESSIONS` (module docstring).
     """
+    if png_compression not in PNG_COMPRESSIONS:
+        raise BracketryError(f"unknown PNG compression {png_compression!r} (use {', '.join(PNG_COMPRESSIONS)})")
     try:
         import cv2  # noqa: F401
     except ImportError as exc:
@@ -91,7 +110,7 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
     written: set[Path] = set()
 
     def job(path: Path, image: np.ndarray, side: str) -> None:
-        _write_png(path, image)
+        _write_png(path, image, png_compression)
         with lock:
             summary.written[side] = summary.written.get(side, 0) + 1
             if bar is not None:

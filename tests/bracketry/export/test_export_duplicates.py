@@ -1,4 +1,5 @@
-"""BorealHDR export of a recording where a camera delivered two frames for one trigger: one file, never two writes."""
+"""BorealHDR export of a recording where a camera delivered two frames for one trigger: one file, never two writes;
+every PNG compression choice reads back as the recorded codes."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
+from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
 from bracketry.export.borealhdr import export_borealhdr
 from bracketry.pairing.pairer import PairedSet
@@ -31,7 +33,8 @@ def _set(k: int, version: int) -> PairedSet:
     return PairedSet(k, ev, frames, ev.t_start_host_ns)
 
 
-def test_a_frame_twice_is_exported_once_and_readable(tmp_path: Path) -> None:
+@pytest.mark.parametrize("compression", ["opencv", "stored"])
+def test_a_frame_twice_is_exported_once_and_readable(tmp_path: Path, compression: str) -> None:
     rec = Recorder(tmp_path, "t", RecorderConfig(queue_max_items=1000),
                    metadata={"brackets_us": ",".join(map(str, BRACKETS)), "fps": "22.0"}).start()
     twice = {3, 4, 5, 9}
@@ -43,7 +46,7 @@ def test_a_frame_twice_is_exported_once_and_readable(tmp_path: Path) -> None:
         time.sleep(0.001)
     rec.stop()
     out = tmp_path / "tree"
-    summary = export_borealhdr(rec.summary.files[0], out, workers=4, progress=False)
+    summary = export_borealhdr(rec.summary.files[0], out, workers=4, progress=False, png_compression=compression)
     assert summary.duplicates == 2 * len(twice) and summary.written == {"left": 12, "right": 12}
     for side in T.SIDES:
         for k in range(12):
@@ -51,3 +54,7 @@ def test_a_frame_twice_is_exported_once_and_readable(tmp_path: Path) -> None:
             png = out / f"camera_{side}" / repr(s.event.exposure_us / 1000.0) / f"{s.event.t_start_host_ns}.png"
             img = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
             assert img is not None and np.array_equal(img, s.frames[side].image), png  # the first one, intact
+    if compression == "stored":  # no compression: 2 bytes a pixel plus the PNG's own few hundred bytes
+        assert all(160 * 120 * 2 < p.stat().st_size < 160 * 120 * 2 + 1000 for p in out.rglob("*.png"))
+    with pytest.raises(BracketryError, match="unknown PNG compression"):
+        export_borealhdr(rec.summary.files[0], tmp_path / "other", progress=False, png_compression="lzw")
