@@ -156,8 +156,8 @@ class OrbExtractor:
         kps = self._fast.detect(image, None)
         if not kps or wanted <= 0:
             return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
-        xy = np.array([k.pt for k in kps], dtype=np.float32)
-        resp = np.array([k.response for k in kps], dtype=np.float32)
+        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2)  # float32, as KeyPoint.pt holds them (one C++ call)
+        resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
         e = s.edge_px
         inside = (xy[:, 0] >= e) & (xy[:, 0] < w - e) & (xy[:, 1] >= e) & (xy[:, 1] < h - e)
         xy, resp = xy[inside], resp[inside]
@@ -165,9 +165,11 @@ class OrbExtractor:
             return xy, resp
         ncols = int(np.ceil(w / s.cell_px))
         cell = (xy[:, 1] // s.cell_px).astype(np.int64) * ncols + (xy[:, 0] // s.cell_px).astype(np.int64)
-        cell_max = np.zeros(int(cell.max()) + 1, np.float32)
-        np.maximum.at(cell_max, cell, resp)
-        keep = (resp >= s.ini_th_fast) | (cell_max[cell] < s.ini_th_fast)
+        # cells with a corner at iniThFAST or more (a cell's maximum reaches it exactly then)
+        strong = resp >= s.ini_th_fast
+        has_strong = np.zeros(int(cell.max()) + 1, bool)
+        has_strong[cell[strong]] = True
+        keep = strong | ~has_strong[cell]
         xy, resp = xy[keep], resp[keep]
         pick = _spread(xy, resp, w, h, wanted)
         return xy[pick], resp[pick]

@@ -92,3 +92,46 @@ def test_bench_orb_detect_xy_is_detect_and_compute_without_descriptors(borealhdr
             assert np.array_equal(ex.detect_xy(img, m), ex.detect_and_compute(img, m).xy_px), (k, m is None)
     small_edge = OrbExtractor(OrbSettings(edge_px=15))  # below the descriptor border: falls back to the full path
     assert np.array_equal(small_edge.detect_xy(images[0]), small_edge.detect_and_compute(images[0]).xy_px)
+
+
+def test_bench_gray16_to_gray8_is_the_rounding_formula_for_every_code() -> None:
+    from bracketry_emulator.features.demosaic import gray16_to_gray8
+
+    codes = np.arange(65536, dtype=np.uint16).reshape(256, 256)
+    want = np.clip(np.rint(codes.astype(np.float32) / 16.0), 0, 255).astype(np.uint8)  # half to even
+    got = gray16_to_gray8(codes)
+    assert got.dtype == np.uint8 and np.array_equal(got, want)
+    assert np.array_equal(gray16_to_gray8(codes[:, ::3]), want[:, ::3])  # a strided view too
+
+
+def _level_reference(ex: OrbExtractor, image: np.ndarray, wanted: int) -> tuple[np.ndarray, np.ndarray]:
+    """The extractor's level detection written plainly (per-keypoint Python, ufunc.at): the fast path must match."""
+    from bracketry_emulator.features.orb import _spread
+
+    s = ex.settings
+    h, w = image.shape
+    kps = ex._fast.detect(image, None)
+    xy = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+    resp = np.array([k.response for k in kps], np.float32)
+    e = s.edge_px
+    inside = (xy[:, 0] >= e) & (xy[:, 0] < w - e) & (xy[:, 1] >= e) & (xy[:, 1] < h - e)
+    xy, resp = xy[inside], resp[inside]
+    cell = (xy[:, 1] // s.cell_px).astype(np.int64) * int(np.ceil(w / s.cell_px)) \
+        + (xy[:, 0] // s.cell_px).astype(np.int64)
+    cell_max = np.zeros(int(cell.max()) + 1, np.float32)
+    np.maximum.at(cell_max, cell, resp)
+    keep = (resp >= s.ini_th_fast) | (cell_max[cell] < s.ini_th_fast)
+    pick = _spread(xy[keep], resp[keep], w, h, wanted)
+    return xy[keep][pick], resp[keep][pick]
+
+
+def test_bench_orb_levels_match_the_plain_reference() -> None:
+    rng = np.random.default_rng(11)
+    img = cv2.GaussianBlur(rng.integers(0, 256, (400, 640), dtype=np.uint8), (5, 5), 1.2)
+    img[100:200, 200:400] //= 8  # a dark patch: cells without any corner at iniThFAST fall back to minThFAST
+    ex = OrbExtractor()
+    wanted = ex.settings.features_per_level()
+    for level, image in enumerate(ex.pyramid(img)):
+        xy, resp = ex._detect_level(image, wanted[level])
+        ref_xy, ref_resp = _level_reference(ex, image, wanted[level])
+        assert xy.dtype == np.float32 and np.array_equal(xy, ref_xy) and np.array_equal(resp, ref_resp), level
