@@ -156,7 +156,7 @@ class OrbExtractor:
         kps = self._fast.detect(image, None)
         if not kps or wanted <= 0:
             return np.zeros((0, 2), np.float32), np.zeros(0, np.float32)
-        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2)  # float32, as KeyPoint.pt holds them (one C++ call)
+        xy = cv2.KeyPoint_convert(kps).reshape(-1, 2)  # type: ignore[attr-defined]  # float32 pt, one C++ call
         resp = np.fromiter((k.response for k in kps), np.float32, len(kps))
         e = s.edge_px
         inside = (xy[:, 0] >= e) & (xy[:, 0] < w - e) & (xy[:, 1] >= e) & (xy[:, 1] < h - e)
