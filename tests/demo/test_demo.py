@@ -36,6 +36,11 @@ def test_demo_quick_records_verifies_and_reports_every_method(tmp_path: Path) ->
         assert text in res.stderr, text
     summary = json.loads((out / "demo_summary.json").read_text())
     assert summary["recording_verified"] is True
+    # where the time went: wall and CPU (every process of the demo, children included) per stage
+    for key in ("record", "export", "benchmark", "total"):
+        assert summary["timing_s"][key] > 0 and summary["cpu_s"][key] > 0, (key, summary["cpu_s"])
+    assert summary["cpu_s"]["total"] >= summary["cpu_s"]["record"] + summary["cpu_s"]["benchmark"] - 0.2
+    assert f"CPU {summary['cpu_s']['total']} s (recording " in res.stdout
     assert min(summary["frames"].values()) >= 200  # 10 s at 22 fps per camera
     assert summary["drops"] == {"left": 0, "right": 0}
     for seg in summary["recordings"]:  # the recording verifies clean by the user's own command too

@@ -52,7 +52,9 @@ def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, 
         click.echo(f"  WARNING: {held} frames repeat an earlier rendered cycle: these are not an idle run's figures")
     report = summary["report"].get("report.html") or summary["report"].get("report.md")
     click.echo(f"report: {report}")
-    t = summary["timing_s"]
+    t, c = summary["timing_s"], summary["cpu_s"]
     click.echo(f"took {t['total']} s (recording {t['record']} s, export {t['export']} s, benchmark {t['benchmark']} s"
                f"; load average {' / '.join(str(x) for x in summary['load_average'])})")
+    click.echo(f"CPU {c['total']} s (recording {c['record']} s, export {c['export']} s, benchmark {c['benchmark']} s; "
+               "user + system, every process of the demo)")
     return EXIT_OK if summary["recording_verified"] else EXIT_PROBLEMS

@@ -143,6 +143,7 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
         wait_for_lead(rig.schedule, seconds, fps, started_mono_s)
         session = run_session(rig, seconds)
         render_done_ns = rig.schedule.render_done_ns()
+        rig.start_world_files()  # the ground truth's world is built on a thread while the recording is verified
     finally:
         rig.close()
     reports = [verify_recording(seg) for seg in rig.recordings()]

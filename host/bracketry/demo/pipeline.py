@@ -201,9 +201,18 @@ def best_per_metric(summary_csv: Path) -> dict[str, tuple[str, str]]:
     return out
 
 
+def cpu_s() -> float:
+    """CPU seconds (user + system) of this process and of every child process it (or they) waited for: the
+    simulated rig, the closed loops' workers, the SLAM runs."""
+    import resource
+
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
 def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     """The whole demo; returns the summary written to ``out_dir/demo_summary.json``."""
-    t0 = time.monotonic()
+    t0, cpu0 = time.monotonic(), cpu_s()
     p.out_dir.mkdir(parents=True, exist_ok=True)
     sim = record(p, echo)
     verify = sim.get("verify", [])
@@ -221,11 +230,11 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
         echo(f"      WARNING: the frame renderer fell behind the cameras on this loaded machine: {held} recorded "
              "frames repeat an earlier rendered cycle (the world held); poses stay right, but the walk and so the "
              "figures below are NOT those of an idle run")
-    t_rec = time.monotonic() - t0
+    t_rec, cpu_rec = time.monotonic() - t0, cpu_s() - cpu0
     dataset = export_dataset(p, sim, echo)
-    t_export = time.monotonic() - t0 - t_rec
+    t_export, cpu_export = time.monotonic() - t0 - t_rec, cpu_s() - cpu0 - cpu_rec
     result = benchmark(p, dataset, echo)
-    t_bench = time.monotonic() - t0 - t_rec - t_export
+    t_bench, cpu_bench = time.monotonic() - t0 - t_rec - t_export, cpu_s() - cpu0 - cpu_rec - cpu_export
     best = best_per_metric(result.report_files["summary.csv"]) if "summary.csv" in result.report_files else {}
     summary = {"out_dir": str(p.out_dir), "seconds": p.seconds, "resolution": list(p.resolution),
                "frames": frames, "drops": drops, "recording_verified": bool(sim["ok"]),
@@ -236,6 +245,8 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
                "report": {k: str(v) for k, v in result.report_files.items()},
                "timing_s": {"record": round(t_rec, 1), "export": round(t_export, 1), "benchmark": round(t_bench, 1),
                             "total": round(time.monotonic() - t0, 1)},
+               "cpu_s": {"record": round(cpu_rec, 1), "export": round(cpu_export, 1), "benchmark": round(cpu_bench, 1),
+                         "total": round(cpu_s() - cpu0, 1)},
                "load_average": [round(x, 2) for x in os.getloadavg()]}
     (p.out_dir / "demo_summary.json").write_text(json.dumps(summary, indent=2))
     return summary

@@ -24,6 +24,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -92,6 +93,10 @@ class SimulatedRig:
         self.procs: dict[str, subprocess.Popen] = {}
         self.qemu: Any = None
         self._last_screen: list[str] | None = None
+        #: (the recording files' identity, {side: frame ids}) of the last read (:meth:`recorded_frame_ids`)
+        self._frame_ids: tuple[Any, dict[str, list[tuple[int, int | None]]]] | None = None
+        self._world_thread: threading.Thread | None = None
+        self._world_error: BaseException | None = None
 
     # ------------------------------------------------------------------------------------------------ set-up
     def prepare_frames(self, progress: Callable[[int, int], None] | None = None, wait: bool = False) -> None:
@@ -336,33 +341,63 @@ class SimulatedRig:
 
     def recorded_frame_ids(self, side: str = "left") -> list[tuple[int, int | None]]:
         """Every recorded frame of ``side`` (this rig's recordings, in order): (stamp_ns of the image, the rendered
-        frame index its pixels carry, or None when it carries none)."""
+        frame index its pixels carry, or None when it carries none). One pass over the recordings gives both
+        sides; it is kept until a recording file changes (each pass decompresses every chunk)."""
         from bracketry.recording import topics as T
         from bracketry.recording.decode import decode_image_msg
         from bracketry.recording.reader import RecordingReader
         from bracketry.sim.frames import read_frame_id
 
-        out: list[tuple[int, int | None]] = []
-        for seg in self.recordings():
-            for f in sorted(seg.glob("*.mcap")):
-                for msg in RecordingReader(f).messages({T.image_topic(side)}):
+        files = [f for seg in self.recordings() for f in sorted(seg.glob("*.mcap"))]
+        key = [(str(f), f.stat().st_size, f.stat().st_mtime_ns) for f in files]
+        if self._frame_ids is None or self._frame_ids[0] != key:
+            topics = {T.image_topic(s): s for s in T.SIDES}
+            ids: dict[str, list[tuple[int, int | None]]] = {s: [] for s in T.SIDES}
+            for f in files:
+                for msg in RecordingReader(f).messages(set(topics)):
                     img = decode_image_msg(msg.data)
                     k = read_frame_id(img.image) if img.image.dtype == np.uint16 else None
-                    out.append((int(img.stamp_ns), k))
-        out.sort(key=lambda t: t[0])
-        return out
+                    ids[topics[msg.topic]].append((int(img.stamp_ns), k))
+            for frames in ids.values():
+                frames.sort(key=lambda t: t[0])
+            self._frame_ids = (key, ids)
+        return list(self._frame_ids[1].get(side, []))
+
+    def start_world_files(self) -> None:
+        """Start :meth:`write_world_files` on a thread (e.g. while the recording is verified); the next
+        :meth:`write_world_files` waits for it (and raises what it raised)."""
+        if self._world_thread is not None or self.schedule is None or self.schedule.world is None:
+            return
+
+        def build() -> None:
+            try:
+                self._build_world_files()
+            except BaseException as exc:  # handed to write_world_files
+                self._world_error = exc
+
+        self._world_thread = threading.Thread(target=build, name="bracketry-world", daemon=True)
+        self._world_thread.start()
 
     def write_world_files(self) -> None:
         """The world's calibration and camera model next to the recordings (``write_common``); builds the rig
         process's own world (poses) on first use, after recording, so it never delays the first frame."""
+        if self._world_thread is not None:
+            self._world_thread.join()
+            self._world_thread = None
+            if self._world_error is not None:
+                raise self._world_error
+        self._build_world_files()
+
+    def _build_world_files(self) -> None:
         if self.schedule is None or self.schedule.world is None:
             return
         if self.world is None:
             from bracketry_emulator.synth import World
             from bracketry_emulator.synth.writer import write_common
 
-            self.world = World(self.o.preset, seed=self.o.seed, resolution=self.o.resolution)
-            write_common(self.world, self.out, {"dataset": "simulated-rig"})
+            world = World(self.o.preset, seed=self.o.seed, resolution=self.o.resolution)
+            write_common(world, self.out, {"dataset": "simulated-rig"})
+            self.world = world
 
     def write_groundtruth(self) -> dict[str, Any] | None:
         """Ground truth of the recorded left frames (image time stamps), next to the recordings: each frame's pose
@@ -371,12 +406,13 @@ class SimulatedRig:
         lists their stamps.
 
         Returns {"path", "frames", "poses", "unknown"} (None without a world)."""
-        self.write_world_files()
-        if self.world is None:
+        if self.schedule is None or self.schedule.world is None:
             return None
+        self.start_world_files()  # built while the recordings are read
+        frames = self.recorded_frame_ids("left")
+        self.write_world_files()
         from bracketry.sim.frames import groundtruth_lines
 
-        frames = self.recorded_frame_ids("left")
         # a stereo pair whose right image shows another rendered frame than its left one has no single pose
         right = dict(self.recorded_frame_ids("right"))
         frames = [(t, k if right.get(t, k) == k else None) for t, k in frames]
