@@ -78,18 +78,23 @@ static scratch_t *scratch_get(void)
     return s;
 }
 
+/* Grows a scratch buffer to at least n bytes, with headroom (a quarter more, in whole MiB): the files of one run differ
+   in size by tens of percent, and every regrowth is a fresh block whose pages fault in again. */
 static int reserve(uint8_t **buf, size_t *cap, size_t n)
 {
     if (*cap >= n) {
         return 0;
     }
-    uint8_t *p = (uint8_t *)malloc(n);
+    const size_t mib = (size_t)1 << 20;
+    size_t want = n + n / 4;
+    want = (want < n || want > SIZE_MAX - mib) ? n : (want + mib - 1) / mib * mib;
+    uint8_t *p = (uint8_t *)malloc(want);
     if (p == NULL) {
         return -1;
     }
     free(*buf);
     *buf = p;
-    *cap = n;
+    *cap = want;
     return 0;
 }
 
