@@ -109,6 +109,11 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
     OUT/cache, so running the same command again resumes. The report is written to OUT/report (CSV, Markdown,
     HTML, figures). Exit code 0.
     """
+    import os
+
+    # the closed loops run in worker processes beside the SLAM runs: OpenBLAS's threads (read when numpy loads it,
+    # i.e. just below) only spin on the AE methods' tiny matrices (Kim's GP fits) and take CPU from SLAM
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
     from bracketry_emulator.benchmark import run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
 
@@ -116,8 +121,6 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
         raise BracketryError(f"bad --scheduler {scheduler!r} (expected tcp://HOST:PORT)")
     windows_m = _windows(windows_text)
     if workers == 0:
-        import os
-
         workers = os.cpu_count() or 1
 
     slam = slam_options(slam_backend, vocabulary, slam_pace, loop_closing, slam_repeats, resolve=False)

@@ -114,7 +114,7 @@ def start_child(request: dict, out_dir: str | Path, timeout_s: float = 3600.0) -
         old.unlink(missing_ok=True)
     (out / "request.json").write_text(json.dumps({**request, "out_dir": str(out)}, indent=1))
     log = out / "orbslam3.log"
-    env = dict(os.environ, OMP_NUM_THREADS="1")
+    env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")  # the runs share the cores
     with open(log, "wb") as fh:
         proc = subprocess.Popen([sys.executable, "-m", "bracketry_emulator.slam.orbslam3_child",
                                  str(out / "request.json")], stdin=subprocess.DEVNULL, stdout=fh,

@@ -1,0 +1,22 @@
+"""The commands that run work in parallel processes (demo, benchmark, emulate) ask for one OpenBLAS thread before
+numpy loads OpenBLAS: that only works while importing the CLI and those commands does not import numpy."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+COMMANDS = ("bracketry.cli.demo", "bracketry_emulator.cli.benchmark", "bracketry_emulator.cli.emulate")
+
+
+def test_cli_commands_set_blas_threads_before_numpy_loads() -> None:
+    code = f"import sys\nimport bracketry.cli, {', '.join(COMMANDS)}\nprint('numpy' in sys.modules)\n"
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60)
+    assert res.returncode == 0, res.stderr
+    assert res.stdout.strip() == "False", "numpy is imported before the commands set OPENBLAS_NUM_THREADS"
+    for name in COMMANDS:
+        spec = importlib.util.find_spec(name)
+        assert spec is not None and spec.origin is not None
+        assert 'os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")' in Path(spec.origin).read_text(), name
