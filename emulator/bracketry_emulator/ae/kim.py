@@ -67,6 +67,8 @@ class KimAE:
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits)
     step_cost = 40
+    #: the GP fit imports scipy (see registry.MethodTraits): shared with the other methods that do on one worker
+    start_up = "scipy"
 
     def __init__(self, window: int = 5, min_ms: float = 0.5, max_ms: float = 35.0, n_candidates: int = 50,
                  noise_var: float = 0.2, n_restarts: int = 10, sigma_converged: float = 5.0, seed: int = 0,

@@ -2,7 +2,8 @@
 
 The methods are split over ``workers`` forked processes, balanced by the cost each method declares
 (:func:`~.registry.method_traits`: ``step_cost``; methods of one ``step_group`` take identical first steps and stay
-on one worker, whose writer then links images instead of encoding them again). The decoded sequences live in one
+on one worker, whose writer then links images instead of encoding them again; methods of one ``start_up`` share it
+on one worker where the balance allows). The decoded sequences live in one
 shared :class:`~.decode.FrameBuffer`, a ring of :data:`RING_SLOTS` sequences at most (within the memory budget): a
 slot is refilled once every worker is past the sequence it held. Every worker advances its methods through the
 sequences, one by one (all methods of a worker take step k before any takes step k+1). Frames are
@@ -76,7 +77,8 @@ class LoopSettings:
 
 def partition(traits: dict[str, MethodTraits], n: int) -> list[list[str]]:
     """Longest-processing-time-first split of the methods (in ``traits`` order) over ``n`` workers; the methods of
-    one ``step_group`` stay together; the order is kept within a worker."""
+    one ``step_group`` stay together, and those of one ``start_up`` too (paid once per worker) where together they
+    cost no more than an equal share of all; the order is kept within a worker."""
     specs = list(traits)
     grouped: dict[str, list[str]] = {}
     singles: list[list[str]] = []
@@ -90,6 +92,13 @@ def partition(traits: dict[str, MethodTraits], n: int) -> list[list[str]]:
 
     def cost(unit: list[str]) -> int:
         return sum(EMULATION_COST + traits[s].step_cost for s in unit)
+
+    share = sum(cost(u) for u in units) / max(n, 1)
+    for name in dict.fromkeys(traits[s].start_up for s in specs if traits[s].start_up):
+        sharing = [u for u in units if any(traits[s].start_up == name for s in u)]
+        merged = [s for u in sharing for s in u]
+        if len(sharing) > 1 and cost(merged) <= share:
+            units = [u for u in units if u not in sharing] + [merged]
 
     loads = [0] * n
     groups: list[list[str]] = [[] for _ in range(n)]

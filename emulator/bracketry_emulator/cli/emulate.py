@@ -122,6 +122,9 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     # the work is spread over processes: BLAS threads (OpenBLAS's, read when numpy/scipy load it, i.e. just below)
     # would only wait on each other for the methods' tiny matrices (a GP fit spent 2/3 of its time there)
     os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from bracketry_emulator.gc_policy import fewer_collections
+
+    fewer_collections()  # a batch process: the imports of matplotlib / scipy below and in the workers collect less
     from bracketry_emulator.ae import LoopConfig, expand_methods, run_methods
 
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))

@@ -87,7 +87,8 @@ def test_a_failing_method_is_one_line_naming_it(answer: Any, words: str) -> None
 
 
 def test_methods_declare_their_scheduling_traits() -> None:
-    assert method_traits("kim") == MethodTraits(40, None)
+    assert method_traits("kim") == MethodTraits(40, None, "scipy")
+    assert method_traits("zhang", parity="upstream") == MethodTraits(45, None, "scipy")
     assert method_traits("ae50") == method_traits("ae50") == MethodTraits(1, "classical-50-default")
     assert method_traits("fix", parity="upstream") == MethodTraits(1, "classical-50-upstream")
     assert method_traits("constant-3") == MethodTraits(1, None)
@@ -105,3 +106,18 @@ def test_scheduler_balances_declared_costs_and_keeps_a_step_group_together() -> 
     assert partition(traits, 2) == [["kim", "shim"], ["fix", "ae50", "wang"]]
     assert partition(traits, 1) == [list(traits)]
     assert sorted(map(len, partition(traits, 8))) == [1, 1, 1, 2]  # never an empty worker; the group stays whole
+
+
+def test_scheduler_keeps_methods_sharing_a_start_up_together_where_the_balance_allows() -> None:
+    from bracketry_emulator.ae.scheduler import partition
+
+    traits = {"fix": MethodTraits(1, "c50"), "ae30": MethodTraits(1, "c30"), "ae50": MethodTraits(1, "c50"),
+              "ae70": MethodTraits(1, "c70"), "shim": MethodTraits(40), "kim": MethodTraits(30, None, "scipy"),
+              "zhang": MethodTraits(45, None, "scipy")}
+    # with emulation (16 per step): zhang 61, shim 56, kim 46, fix+ae50 34, ae30 17, ae70 17; kim + zhang (107) is
+    # within an equal share of two workers (115.5): one unit, which the longest-first split puts first
+    assert partition(traits, 2) == [["ae70", "kim", "zhang"], ["fix", "ae30", "ae50", "shim"]]
+    without = {s: MethodTraits(t.step_cost, t.step_group) for s, t in traits.items()}
+    assert partition(without, 2) == [["fix", "ae30", "ae50", "zhang"], ["ae70", "shim", "kim"]]
+    # four workers: together they would exceed a share (57.75), so they are split as any other methods
+    assert [g for g in partition(traits, 4) if "kim" in g] != [g for g in partition(traits, 4) if "zhang" in g]

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 from scipy import signal
-from upstream_formulas import fit_formula, neg_lml_formula, shim_scores_formula
+from upstream_formulas import fit_formula, neg_lml_formula, shim_scores_formula, zhang_weights_formula
 
 from bracketry_emulator.ae import gp as GP
 from bracketry_emulator.ae import upstream as U
@@ -33,7 +33,7 @@ def reference_next_ms(gray: np.ndarray, t_ms: float, spline: object) -> float:
     ix, iy = grad(gray)
     jx, jy = grad(1.0 / (spline(gray) * t_ms))  # type: ignore[operator]
     terms = np.sort((2 * ((ix * jx) + (iy * jy))).ravel())
-    return float(t_ms + 1e-6 * np.sum(U.upstream_zhang_weights(terms.size) * terms))
+    return float(t_ms + 1e-6 * np.sum(zhang_weights_formula(terms.size) * terms))
 
 
 def test_scharr_symm_is_convolve2d_bit_for_bit() -> None:
@@ -59,6 +59,14 @@ def test_sort_longdouble_equals_np_sort_with_ties_below_float64() -> None:
     assert np.array_equal(got, np.sort(vals))
     hi = got.astype(np.float64)
     assert np.count_nonzero((hi[1:] == hi[:-1]) & (got[1:] != got[:-1])) > 1000  # the ties were there to sort
+
+
+def test_zhang_weights_equal_the_formula_bit_for_bit() -> None:
+    for n in (2, 3, 7, 8, 100, 32768 * 5, 32768 * 5 + 1, 65536 * 3 + 17, 1920 * 1080, 1920 * 1200):
+        got, want = U.upstream_zhang_weights(n), zhang_weights_formula(n)
+        assert got.dtype == want.dtype == np.float32 and got.tobytes() == want.tobytes(), n
+    with pytest.raises(ZeroDivisionError):  # one pixel: no ranks below the percentile, as the formula
+        U.upstream_zhang_weights(1)
 
 
 def test_compiled_kernel_is_built_and_equals_numpy() -> None:

@@ -1,10 +1,13 @@
-"""The authors' Shim metric and Kim's GP fit as formulated before the fast paths of ae/upstream.py and ae/gp.py: one
-``upstream_shim_metric`` per gamma on the normalised image, and the GP's negative log marginal likelihood with
-``scipy.linalg.cho_factor``/``cho_solve`` minimised by ``scipy.optimize.minimize`` (L-BFGS-B, 11 starts). The
+"""The authors' Shim metric, Kim's GP fit and Zhang's weights as formulated before the fast paths of ae/upstream.py
+and ae/gp.py: one ``upstream_shim_metric`` per gamma on the normalised image, the GP's negative log marginal
+likelihood with ``scipy.linalg.cho_factor``/``cho_solve`` minimised by ``scipy.optimize.minimize`` (L-BFGS-B, 11
+starts), Zhang's soft-percentile weights on full-size temporaries. The
 references that tests/bracketry_emulator/ae/test_ae_upstream_fast_paths.py and benchmarks/bench_upstream_methods.py
 compare the fast paths with (bit for bit)."""
 
 from __future__ import annotations
+
+import math
 
 import numpy as np
 import scipy.optimize
@@ -50,3 +53,13 @@ def fit_formula(x: np.ndarray, y: np.ndarray, noise: float, rng: np.random.Gener
             best = (float(res.fun), np.asarray(res.x))
     assert best is not None
     return best[1]
+
+
+def zhang_weights_formula(n: int, p: float = 0.8, k: int = 5) -> np.ndarray:
+    """Zhang's soft-percentile weights (float32 (n,), divided by their L2 norm) as the authors write them."""
+    t = math.floor(p * n)
+    w = np.zeros(n, dtype=np.float32)
+    first = np.arange(0, t)
+    w[first] = np.sin((np.pi / (2 * t)) * first) ** k
+    w[np.arange(t, n)] = np.sin((np.pi / 2) - (np.pi / (2 * (n - t))) * np.arange(0, n - t)) ** k
+    return w / np.linalg.norm(w)
