@@ -164,6 +164,187 @@ static PyObject *shim_buckets(PyObject *self, PyObject *args)
     return Py_BuildValue("iii", result, m2[0], m2[1]);
 }
 
+/* The pixels whose gradients can be non-zero for some gamma: a gradient rounds above 0 only when it exceeds 0.5,
+   and each is a sum of differences of table values with weights adding to 4 (x: 2 d(y) + (d(y+1) + d(y-1)),
+   d = v(x+1) - v(x-1); y: s(y+1) - s(y-1), s a 1-2-1 sum), so one of those differences must reach 1/8. The tables
+   rise with the code: v(a) - v(b) >= 1/8 - margin needs a >= partner[b] (partner: the smallest such code over every
+   gamma, computed by the caller). A pixel is a candidate when one of its three row pairs (codes at x + 1 and x - 1
+   of rows y - 1, y, y + 1) or column pairs (codes at y + 1 and y - 1 of columns x - 1, x, x + 1) passes; BORDER_
+   REFLECT_101 as the gradients. Writes the candidates' flat indices, returns their count (-1: a code outside
+   partner). rows4: scratch of 4 * w bytes. */
+static Py_ssize_t shim_candidates_image(const uint16_t *g, const int32_t *partner, Py_ssize_t n_codes, Py_ssize_t h,
+                                        Py_ssize_t w, int32_t *idx, uint8_t *rows4)
+{
+    for (Py_ssize_t i = 0; i < h * w; i++) {
+        if (g[i] >= n_codes) {
+            return -1;
+        }
+    }
+    /* hp[r % 3][x]: the row pair of image row r passes at x; vp[x]: the column pair at (y, x) passes */
+    uint8_t *hp[3] = {rows4, rows4 + w, rows4 + 2 * w}, *vp = rows4 + 3 * w;
+    Py_ssize_t held[3] = {-1, -1, -1}, count = 0;
+    for (Py_ssize_t y = 0; y < h; y++) {
+        Py_ssize_t rows[3] = {refl101(y - 1, h), y, refl101(y + 1, h)};
+        for (int i = 0; i < 3; i++) {
+            Py_ssize_t r = rows[i];
+            uint8_t *o = hp[r % 3];
+            if (held[r % 3] != r) {
+                const uint16_t *row = g + r * w;
+                for (Py_ssize_t x = 0; x < w; x++) {
+                    o[x] = row[refl101(x + 1, w)] >= partner[row[refl101(x - 1, w)]];
+                }
+                held[r % 3] = r;
+            }
+        }
+        const uint16_t *up = g + rows[0] * w, *down = g + rows[2] * w;
+        for (Py_ssize_t x = 0; x < w; x++) {
+            vp[x] = down[x] >= partner[up[x]];
+        }
+        const uint8_t *h0 = hp[rows[0] % 3], *h1 = hp[rows[1] % 3], *h2 = hp[rows[2] % 3];
+        for (Py_ssize_t x = 0; x < w; x++) {
+            if (h0[x] | h1[x] | h2[x] | vp[refl101(x - 1, w)] | vp[x] | vp[refl101(x + 1, w)]) {
+                idx[count++] = (int32_t)(y * w + x);
+            }
+        }
+    }
+    return count;
+}
+
+static PyObject *shim_candidates(PyObject *self, PyObject *args)
+{
+    Py_buffer gray, partner, idx;
+    Py_ssize_t h, w;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*nnw*", &gray, &partner, &h, &w, &idx)) {
+        return NULL;
+    }
+    const char *error = NULL;
+    size_t n = (size_t)h * (size_t)w;
+    Py_ssize_t n_codes = partner.len / (Py_ssize_t)sizeof(int32_t);
+    if (h < 2 || w < 2) {
+        error = "the image must be at least 2x2";
+    } else if (n > INT32_MAX) {
+        error = "the image must have fewer than 2^31 pixels";
+    } else if (gray.len != (Py_ssize_t)(n * sizeof(uint16_t))) {
+        error = "gray must be a C-contiguous uint16 HxW buffer";
+    } else if (n_codes < 1 || partner.len != n_codes * (Py_ssize_t)sizeof(int32_t)) {
+        error = "partner must be a C-contiguous int32 buffer";
+    } else if (idx.len != (Py_ssize_t)(n * sizeof(int32_t))) {
+        error = "idx must be an int32 buffer of H*W entries";
+    }
+    Py_ssize_t count = 0;
+    int failed = 0;
+    if (error == NULL) {
+        Py_BEGIN_ALLOW_THREADS
+        uint8_t *rows4 = (uint8_t *)malloc((size_t)4 * w);
+        if (rows4 == NULL) {
+            failed = 1;
+        } else {
+            count = shim_candidates_image((const uint16_t *)gray.buf, (const int32_t *)partner.buf, n_codes, h, w,
+                                          (int32_t *)idx.buf, rows4);
+            free(rows4);
+        }
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&gray);
+    PyBuffer_Release(&partner);
+    PyBuffer_Release(&idx);
+    if (error != NULL) {
+        PyErr_SetString(PyExc_ValueError, error);
+        return NULL;
+    }
+    if (failed) {
+        return PyErr_NoMemory();
+    }
+    return PyLong_FromSsize_t(count);
+}
+
+/* shim_image's bucket at the listed pixels only (the other pixels' gradients are 0, their buckets left as they
+   are): the same float64 operations per pixel as shim_row and shim_out_row; m2, top over every pixel (the others
+   count as gx = gy = 0 when count < h * w). Returns 0, 1 (a gradient above 4) or -1 (a code outside the table). */
+static int shim_sparse_image(const uint16_t *g, const double *table, Py_ssize_t n_codes, Py_ssize_t h, Py_ssize_t w,
+                             const int32_t *idx, Py_ssize_t count, uint8_t *out, int *m2)
+{
+    int tp = 0, lo = count < h * w ? 0 : 1 << 30, hi = 0;
+    for (Py_ssize_t k = 0; k < count; k++) {
+        Py_ssize_t y = idx[k] / w, x = idx[k] % w;
+        const uint16_t *ru = g + refl101(y - 1, h) * w, *rm = g + y * w, *rd = g + refl101(y + 1, h) * w;
+        Py_ssize_t xm = refl101(x - 1, w), xp = refl101(x + 1, w);
+        uint16_t c[8] = {ru[xm], ru[x], ru[xp], rm[xm], rm[xp], rd[xm], rd[x], rd[xp]};
+        for (int j = 0; j < 8; j++) {
+            if (c[j] >= n_codes) {
+                return -1;
+            }
+        }
+        double du = table[c[2]] - table[c[0]], dm = table[c[4]] - table[c[3]], dd = table[c[7]] - table[c[5]];
+        double tu = table[c[0]] + 2.0 * table[c[1]], td = table[c[5]] + 2.0 * table[c[6]];
+        double su = tu + table[c[2]], sd = td + table[c[7]];
+        double vx = 2.0 * dm + (dd + du);
+        double vy = sd - su;
+        int gx = (vx > 0.5) + (vx >= 1.5) + (vx > 2.5) + (vx >= 3.5) + (vx > 4.5);
+        int gy = (vy > 0.5) + (vy >= 1.5) + (vy > 2.5) + (vy >= 3.5) + (vy > 4.5);
+        int q = gx * gx + gy * gy;
+        int t = gx > gy ? gx : gy;
+        tp = t > tp ? t : tp;
+        lo = q < lo ? q : lo;
+        hi = q > hi ? q : hi;
+        out[idx[k]] = (uint8_t)(gx * 6 + gy);
+    }
+    m2[0] = lo;
+    m2[1] = hi;
+    return tp > 4 ? 1 : 0;
+}
+
+static PyObject *shim_sparse(PyObject *self, PyObject *args)
+{
+    Py_buffer gray, table, idx, out;
+    Py_ssize_t h, w, count;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*y*nny*nw*", &gray, &table, &h, &w, &idx, &count, &out)) {
+        return NULL;
+    }
+    const char *error = NULL;
+    size_t n = (size_t)h * (size_t)w;
+    Py_ssize_t n_codes = table.len / (Py_ssize_t)sizeof(double);
+    if (h < 2 || w < 2) {
+        error = "the image must be at least 2x2";
+    } else if (gray.len != (Py_ssize_t)(n * sizeof(uint16_t))) {
+        error = "gray must be a C-contiguous uint16 HxW buffer";
+    } else if (n_codes < 1 || table.len != n_codes * (Py_ssize_t)sizeof(double)) {
+        error = "table must be a C-contiguous float64 buffer";
+    } else if (count < 0 || (size_t)count > n || idx.len < count * (Py_ssize_t)sizeof(int32_t)) {
+        error = "idx must hold count int32 pixel indices";
+    } else if (out.len != (Py_ssize_t)n) {
+        error = "out must be a uint8 HxW buffer";
+    }
+    if (error == NULL) { /* indices from shim_candidates; checked here all the same (no write outside out) */
+        const int32_t *ix = (const int32_t *)idx.buf;
+        for (Py_ssize_t k = 0; k < count; k++) {
+            if (ix[k] < 0 || (size_t)ix[k] >= n) {
+                error = "idx holds an index outside the image";
+                break;
+            }
+        }
+    }
+    int result = 0;
+    int m2[2] = {0, 0};
+    if (error == NULL) {
+        Py_BEGIN_ALLOW_THREADS
+        result = shim_sparse_image((const uint16_t *)gray.buf, (const double *)table.buf, n_codes, h, w,
+                                   (const int32_t *)idx.buf, count, (uint8_t *)out.buf, m2);
+        Py_END_ALLOW_THREADS
+    }
+    PyBuffer_Release(&gray);
+    PyBuffer_Release(&table);
+    PyBuffer_Release(&idx);
+    PyBuffer_Release(&out);
+    if (error != NULL) {
+        PyErr_SetString(PyExc_ValueError, error);
+        return NULL;
+    }
+    return Py_BuildValue("iii", result, m2[0], m2[1]);
+}
+
 /* numpy's pairwise sum (float32 accumulators: blocks of at most 128 summed by 8 accumulators, halves at multiples
    of 8) of values[b[i]], i < n; a block of zero codes adds nothing when values[0] is +0 */
 static float pairwise_sum(const uint8_t *b, Py_ssize_t n, const float *values, int zero0)
@@ -328,6 +509,13 @@ static PyMethodDef methods[] = {
      "shim_buckets(gray, table, h, w, out) -> (status, min, max): the authors' CV_16U Sobel gradients of table[gray], "
      "gx * 6 + gy into out (uint8 HxW); status 0, 1 when a gradient is above 4 (out incomplete), -1 when a code is "
      "outside the table; min, max of gx^2 + gy^2; gray: C-contiguous uint16 HxW codes, table: float64 (codes,)."},
+    {"shim_candidates", shim_candidates, METH_VARARGS,
+     "shim_candidates(gray, partner, h, w, idx) -> count: the flat indices (into idx, int32 H*W) of the pixels whose "
+     "Shim gradients can be non-zero for a table where v(a) - v(b) reaches 1/8 only for a >= partner[b] (int32 "
+     "(codes,)); -1 when a code is outside partner."},
+    {"shim_sparse", shim_sparse, METH_VARARGS,
+     "shim_sparse(gray, table, h, w, idx, count, out) -> (status, min, max): shim_buckets at the count listed pixels "
+     "only (the others' gradients must be 0; their bytes in out are left as they are); min, max over every pixel."},
     {"shim_sum", shim_sum, METH_VARARGS,
      "shim_sum(codes, values) -> float: np.sum(values[codes]) of a uint8 buffer and float32 (256,) values, bit for "
      "bit (numpy's pairwise float32 summation)."},

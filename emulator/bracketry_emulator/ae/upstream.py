@@ -84,6 +84,25 @@ def _shim_values(m2_min: int, m2_max: int, delta: float, lam: float) -> np.ndarr
     return out
 
 
+#: the sparse path of :func:`upstream_shim_scores` runs when at most this fraction of the pixels are candidates
+SHIM_SPARSE_MAX_FRACTION = 0.25
+
+#: a difference of table values below this cannot make a Shim gradient round above 0 (1/8: the four weights of a
+#: gradient add to 4 and it must exceed 0.5; the margin covers the rounding of the differences and sums)
+_SHIM_MIN_STEP = 0.125 - 1e-6
+
+
+def _shim_partner_codes(tables: list[np.ndarray]) -> np.ndarray:
+    """int32 (codes,): for each code b the smallest code a whose value can exceed b's by :data:`_SHIM_MIN_STEP`
+    in any of the tables (float64 (codes,) each; len(tables[0]) when none can), from their running maxima (so a
+    table that is not exactly monotone is still bounded)."""
+    partner = np.full(len(tables[0]), len(tables[0]), dtype=np.int64)
+    for table in tables:
+        rising = np.maximum.accumulate(table)
+        partner = np.minimum(partner, np.searchsorted(rising, table + _SHIM_MIN_STEP, side="left"))
+    return partner.astype(np.int32)
+
+
 def upstream_shim_scores(gray: np.ndarray, gammas: np.ndarray = SHIM_GAMMAS_UPSTREAM, delta: float = 0.06,
                          lam: float = 1e3) -> list[np.float32]:
     """:func:`upstream_shim_metric` of ``((gray - min) / (max - min)) ** gamma`` for each gamma (a gray image,
@@ -93,8 +112,12 @@ def upstream_shim_scores(gray: np.ndarray, gammas: np.ndarray = SHIM_GAMMAS_UPST
     function of the code: a table per gamma. The compiled kernel (``_upstream_kernels.c``) computes the authors'
     CV_16U Sobel gradients of the gathered table with OpenCV's float64 operations in OpenCV's order (so the same
     rounded integers, 0..4), stores each pixel's (gx, gy) pair as one byte, and sums the per-pair float32 terms in
-    numpy's pairwise order; ~6x faster. Where the kernel was not built (or ``BRACKETRY_NO_CKERNEL=1``), for
-    non-integer or flat images and in the unexpected case of a gradient above 4, the authors' formula runs as written.
+    numpy's pairwise order; ~6x faster. Most gradients round to 0: a pixel can have a non-zero one only if a
+    difference of table values around it reaches 1/8, which the codes tell for every gamma at once
+    (:func:`_shim_partner_codes`); where at most :data:`SHIM_SPARSE_MAX_FRACTION` of the pixels can (3-10 % on the
+    frames here), only those are computed, with the same operations (~2.5x faster again). Where the kernel was not
+    built (or ``BRACKETRY_NO_CKERNEL=1``), for non-integer or flat images and in the unexpected case of a gradient
+    above 4, the authors' formula runs as written.
     """
     lo, hi = np.min(gray), np.max(gray)
     kernels = _upstream_kernels()
@@ -102,15 +125,24 @@ def upstream_shim_scores(gray: np.ndarray, gammas: np.ndarray = SHIM_GAMMAS_UPST
             and hi > lo)
     img01: np.ndarray | None = None
     scores: list[np.float32] = []
+    count = -1  # candidates of the sparse path (-1: every pixel, shim_buckets)
     if fast:
         codes = np.maximum(np.arange(int(hi) + 1, dtype=gray.dtype), lo)
         t01 = (codes - lo) / (hi - lo)  # = (gray - lo) / (hi - lo) per code
+        tables = [np.ascontiguousarray(t01**gamma) for gamma in gammas]
         g = np.ascontiguousarray(gray)
-        buckets = np.empty(g.shape, dtype=np.uint8)
-    for gamma in gammas:
+        idx = np.empty(g.size, dtype=np.int32)
+        count = kernels.shim_candidates(g, _shim_partner_codes(tables), g.shape[0], g.shape[1], idx)
+        if count > SHIM_SPARSE_MAX_FRACTION * g.size:
+            count = -1
+        buckets = np.zeros(g.shape, dtype=np.uint8) if count >= 0 else np.empty(g.shape, dtype=np.uint8)
+    for k, gamma in enumerate(gammas):
         if fast:
-            status, m2_min, m2_max = kernels.shim_buckets(g, np.ascontiguousarray(t01**gamma), g.shape[0],
-                                                           g.shape[1], buckets)
+            if count >= 0:
+                status, m2_min, m2_max = kernels.shim_sparse(g, tables[k], g.shape[0], g.shape[1], idx, count,
+                                                             buckets)
+            else:
+                status, m2_min, m2_max = kernels.shim_buckets(g, tables[k], g.shape[0], g.shape[1], buckets)
             if status == 0:
                 scores.append(np.float32(kernels.shim_sum(buckets, _shim_values(m2_min, m2_max, delta, lam))))
                 continue

@@ -258,6 +258,44 @@ def test_shim_gradient_kernel_rounds_as_opencv() -> None:
     assert kernels.shim_buckets(gray, np.array([0.0]), 3, 3, np.empty((3, 3), np.uint8))[0] == -1  # not in table
 
 
+def test_shim_sparse_path_equals_every_pixel() -> None:
+    """The candidates (pixels whose gradients can round above 0 for some table) and the gradients computed there
+    only: the same buckets and (min, max) as every pixel computed, for gammas and for tables that are not monotone;
+    edges of just over 1/8 of the range (gradient 4 x 0.14 > 0.5) must be candidates."""
+    kernels = U._upstream_kernels()
+    assert kernels is not None
+    rng = np.random.default_rng(14)
+    yy, xx = np.mgrid[0:61, 0:83]
+    images = [np.where(xx < 40, 1000, 1000 + 0.14 * 3000) + 0 * yy,  # a vertical step just over 1/8
+              np.where(yy < 30, 1000, 1000 + 0.14 * 3000) + 0 * xx,  # a horizontal one
+              2000 + 900 * np.sin(xx / 9.0) * np.cos(yy / 7.0) + rng.normal(0, 25, xx.shape),
+              rng.integers(0, 4096, (2, 3)), np.where(rng.random((40, 50)) < 0.02, 4000, 100),
+              np.where(xx < 40, 1000, 1005) + 0 * yy]  # a step of 5 codes: large only where the table jumps
+    for i, img in enumerate(images):
+        gray = np.clip(img, 0, 4095).astype(np.uint16)
+        gray[0, 0], gray[-1, -1] = 1000, 4000  # one range for all
+        lo, hi = int(gray.min()), int(gray.max())
+        t01 = (np.maximum(np.arange(hi + 1), lo) - lo) / (hi - lo)
+        tables = [np.ascontiguousarray(t01**g) for g in U.SHIM_GAMMAS_UPSTREAM]
+        wobbly = np.clip(t01 + rng.choice([0.0, 0.01, -0.01], t01.size), 0, 1)
+        wobbly[1005] = 0.9  # not monotone: bounded by the running maximum
+        tables.append(np.ascontiguousarray(wobbly))
+        idx = np.empty(gray.size, np.int32)
+        count = kernels.shim_candidates(gray, U._shim_partner_codes(tables), *gray.shape, idx)
+        assert 0 < count <= gray.size, i
+        for k, table in enumerate(tables):
+            full, sparse = np.empty(gray.shape, np.uint8), np.zeros(gray.shape, np.uint8)
+            want = kernels.shim_buckets(gray, table, *gray.shape, full)
+            assert kernels.shim_sparse(gray, table, *gray.shape, idx, count, sparse) == want, (i, k)
+            assert np.array_equal(sparse, full), (i, k)
+            if i < 2 and k == 3:  # gamma 1: the steps give gradients on both sides of the edge
+                edge = full[1:-1, 39:41] if i == 0 else full[29:31, 1:-1]
+                assert np.all(edge > 0), i
+            if i == 5 and k == len(tables) - 1:
+                assert np.all(full[1:-1, 39:41] > 0)
+    assert kernels.shim_candidates(np.full((3, 3), 9, np.uint16), np.zeros(5, np.int32), 3, 3, idx[:9]) == -1
+
+
 def test_shim_sum_is_numpys_pairwise_sum() -> None:
     kernels = U._upstream_kernels()
     assert kernels is not None
