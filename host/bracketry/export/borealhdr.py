@@ -85,19 +85,20 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
     out = Path(out_dir)
     files = recording_files(recording)
     summary = ExportSummary(out_dir=str(out))
-    # pass 1: exposure per trigger_seq from the events, frame metas (status) per side
+    # pass 1 (one read of the chunks, images not decoded): the exposure of each trigger_seq from the events, the
+    # trigger_seqs each side has a frame of
     exposures: dict[int, int] = {}
-    for path in files:
-        for msg in RecordingReader(path).messages({T.TRIGGER_TOPIC}):
-            ev = decode(msg.schema_name, msg.data)
-            exposures[int(ev.trigger_seq)] = int(ev.exposure_us)
     total = 0
     image_topics = {T.image_topic(s): s for s in T.SIDES}
     seen: dict[str, set[int]] = {s: set() for s in T.SIDES}
     for path in files:
-        for msg in RecordingReader(path).messages(set(image_topics)):
-            seen[image_topics[msg.topic]].add(msg.sequence)
-            total += 1
+        for msg in RecordingReader(path).messages({T.TRIGGER_TOPIC, *image_topics}):
+            if msg.topic == T.TRIGGER_TOPIC:
+                ev = decode(msg.schema_name, msg.data)
+                exposures[int(ev.trigger_seq)] = int(ev.exposure_us)
+            else:
+                seen[image_topics[msg.topic]].add(msg.sequence)
+                total += 1
     stereo = all(seen[s] for s in T.SIDES)
     paired = set.intersection(*(seen[s] for s in T.SIDES)) if stereo else set()
     lock = threading.Lock()
