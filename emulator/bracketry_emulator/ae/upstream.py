@@ -156,8 +156,8 @@ class UpstreamShimAE:
     """Shim as the authors' code runs it (see the module docstring; id ``shim`` with ``--parity upstream``)."""
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
-    #: 1920x1200 step here
-    step_cost = 40
+    #: 1920x1200 step here (~19 with the sparse gradients on the frames here, ~42 where every pixel is computed)
+    step_cost = 20
 
     def __init__(self, delta: float = 0.06, lam: float = 1e3, kp: float = 0.2, name: str = "shim") -> None:
         self.delta, self.lam, self.kp = delta, lam, kp
@@ -294,8 +294,8 @@ class UpstreamKimAE:
     """
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
-    #: 1920x1200 step here (metric ~9, GP fit ~3, scipy's import on the first step: ~15 per step of 15)
-    step_cost = 30
+    #: 1920x1200 step here (metric ~8, GP fit ~3; scipy's import, ~0.3 s of CPU on the first step, is its start_up)
+    step_cost = 15
     #: the GP fit imports scipy (see registry.MethodTraits): shared with the other methods that do on one worker
     start_up = "scipy"
 
@@ -423,8 +423,8 @@ class UpstreamZhangAE:
     """
 
     #: relative cost of one step, for balancing worker processes (see registry.MethodTraits): ~ms of CPU per
-    #: 1920x1200 step here (~45 on the gradient branch, ~1 on the classical one; scipy's import and the spline on the
-    #: first step: ~20 per step of 15)
+    #: 1920x1200 step here (~42 on the gradient branch, ~1 on the classical one; scipy's import for the spline, ~0.3
+    #: s of CPU on the first step, is its start_up)
     step_cost = 45
     #: the spline imports scipy (see registry.MethodTraits): shared with the other methods that do on one worker
     start_up = "scipy"
