@@ -102,12 +102,16 @@ LEAD_DEADLINE_S = 7.0
 def wait_for_lead(schedule: Any, seconds: float, fps: float, started_mono_s: float) -> None:
     """Before recording: wait until the renderer, at the rate it has shown so far, will keep ahead of the cameras for
     the whole recording (every recorded frame then shows its own rendered frame: no world held), but no longer than
-    :data:`LEAD_DEADLINE_S` after the start, and at least until two seconds of frames are there."""
+    :data:`LEAD_DEADLINE_S` after the start, and at least until two seconds of frames are there.
+
+    The rate is the renderer's average since ``started_mono_s`` (when it was started, before the rig): its start-up
+    counts as time without frames, so the estimate is on the low side, and a fast renderer has shown it by the time
+    the rig is up (the rate used to be measured for a second after that, ~1-2 s before every recording)."""
     import time
 
     schedule.wait(timeout_s=120.0, frames=round(2.0 * fps))
     needed = min(schedule.n_frames, round((seconds + 2.0) * fps))
-    t0_s, k0 = time.monotonic(), schedule.rendered()
+    t0_s, k0 = started_mono_s, 0
     while True:
         now_s, k = time.monotonic(), schedule.rendered()
         if k >= needed or now_s >= started_mono_s + LEAD_DEADLINE_S:
