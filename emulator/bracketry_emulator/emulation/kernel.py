@@ -33,6 +33,13 @@ def c_kernel() -> Gather | None:
     return None if module is None else module.gather  # type: ignore[no-any-return]
 
 
+def code_counts() -> Callable[[object, int], tuple[int, int]] | None:
+    """The compiled ``code_counts(src, code) -> (pixels >= code, pixels == 0)`` of the ``_lut12`` extension (one
+    pass over a C-contiguous uint16 buffer), or None as :func:`c_kernel`."""
+    module = optional_extension(f"{__package__}._lut12")
+    return None if module is None else module.code_counts  # type: ignore[no-any-return]
+
+
 #: Pixels per chunk: small enough for the cache, large enough to amortise the call.
 CHUNK_PIXELS = 1 << 18
 _POOL: ThreadPoolExecutor | None = None

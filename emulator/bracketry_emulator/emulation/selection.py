@@ -16,14 +16,23 @@ from typing import Literal
 
 import numpy as np
 
+from .kernel import code_counts
+
 SatCount = Literal["over", "both"]
 
 
 def saturation_fraction(image: np.ndarray, saturated_code: int, count: SatCount = "over") -> float:
-    """Fraction of pixels at or above ``saturated_code`` (plus pixels at 0 when ``count == "both"``)."""
-    n = np.count_nonzero(image >= saturated_code)
-    if count == "both":
-        n += np.count_nonzero(image == 0)
+    """Fraction of pixels at or above ``saturated_code`` (plus pixels at 0 when ``count == "both"``) of an image
+    (any shape; a C-contiguous uint16 one is counted in one pass by the compiled ``_lut12`` where it was built)."""
+    counts = code_counts()
+    if (counts is not None and image.dtype == np.uint16 and image.flags.c_contiguous
+            and 0 <= saturated_code <= 65535):
+        at, zero = counts(image, int(saturated_code))
+        n = at + zero if count == "both" else at
+    else:
+        n = int(np.count_nonzero(image >= saturated_code))
+        if count == "both":
+            n += int(np.count_nonzero(image == 0))
     return float(n) / float(image.size)
 
 

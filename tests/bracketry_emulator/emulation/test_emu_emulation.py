@@ -85,6 +85,31 @@ def test_emu_apply_lut_matches_fancy_indexing() -> None:
     assert kernel.c_kernel() is gather
 
 
+def test_emu_saturation_fraction_compiled_counts_equal_numpy() -> None:
+    """The compiled one-pass counts (pixels at or above the code, pixels at 0; blocks of 32768) give numpy's
+    fractions, for both counts, sizes around the blocks, any code; other dtypes and views take numpy's path."""
+    from bracketry_emulator.emulation import saturation_fraction
+
+    counts = kernel.code_counts()
+    assert counts is not None
+    rng = np.random.default_rng(21)
+    for n in (1, 7, 32767, 32768, 32769, 70001, 1200 * 1920):
+        img = rng.integers(0, 4096, n).astype(np.uint16)
+        img[::5], img[::13] = 0, 4094
+        for code in (0, 1, 4094, 4095):
+            want_at, want_zero = np.count_nonzero(img >= code), np.count_nonzero(img == 0)
+            assert counts(img, code) == (want_at, want_zero), (n, code)
+            assert saturation_fraction(img, code) == want_at / n
+            assert saturation_fraction(img, code, "both") == (want_at + want_zero) / n
+    img = rng.integers(0, 4096, (120, 160)).astype(np.uint16)
+    img[:10] = 4095
+    want = saturation_fraction(img, 4094, "both")
+    with extensions_disabled():
+        assert kernel.code_counts() is None and saturation_fraction(img, 4094, "both") == want
+    assert saturation_fraction(img[:, ::2], 4094, "both") == saturation_fraction(img[:, ::2].copy(), 4094, "both")
+    assert saturation_fraction(img.astype(np.int32), 4094) == saturation_fraction(img, 4094)
+
+
 def test_emu_gather_needs_no_compiler_and_writes_no_cache(tmp_path: Path) -> None:
     """A fresh process with no compiler on PATH and an empty cache folder uses the built gather, writing nothing."""
     cache = tmp_path / "cache"
