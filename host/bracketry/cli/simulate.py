@@ -99,30 +99,66 @@ def _end_with_sigterm(proc: subprocess.Popen) -> None:
 LEAD_DEADLINE_S = 7.0
 
 
-def wait_for_lead(schedule: Any, seconds: float, fps: float, started_mono_s: float) -> None:
-    """Before recording: wait until the renderer, at the rate it has shown so far, will keep ahead of the cameras for
-    the whole recording (every recorded frame then shows its own rendered frame: no world held), but no longer than
-    :data:`LEAD_DEADLINE_S` after the start, and at least until two seconds of frames are there.
+class RenderProgress:
+    """Samples of the renderer's progress, (time.monotonic(), frames rendered), every 0.1 s on a thread from when
+    the renderer was started (while the rig starts), so :func:`wait_for_lead` has its recent rate at once."""
 
-    The rate is the renderer's average since ``started_mono_s`` (when it was started, before the rig): its start-up
-    counts as time without frames, so the estimate is on the low side, and a fast renderer has shown it by the time
-    the rig is up (the rate used to be measured for a second after that, ~1-2 s before every recording)."""
+    def __init__(self, schedule: Any, period_s: float = 0.1) -> None:
+        import time
+
+        self.samples: list[tuple[float, int]] = [(time.monotonic(), schedule.rendered())]
+        self._stop = threading.Event()
+
+        def sample() -> None:
+            while not self._stop.wait(period_s):
+                self.samples.append((time.monotonic(), schedule.rendered()))
+
+        self._thread = threading.Thread(target=sample, name="bracketry-render-rate", daemon=True)
+        self._thread.start()
+
+    def rate(self, now_s: float, k: int, window_s: float = 1.0) -> float | None:
+        """Frames per second per side over the last ``window_s`` (at least) before ``now_s``, when ``k`` frames are
+        rendered; None before a whole window was sampled."""
+        past = [(t, n) for t, n in self.samples if t <= now_s - window_s]
+        if not past:
+            return None
+        t0_s, k0 = past[-1]
+        return (k - k0) / (now_s - t0_s)
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join()
+
+
+def wait_for_lead(schedule: Any, seconds: float, fps: float, started_mono_s: float,
+                  progress: RenderProgress | None = None) -> None:
+    """Before recording: wait until the renderer, at the rate it has shown over the last second, will keep ahead of
+    the cameras for the whole recording (every recorded frame then shows its own rendered frame: no world held), but
+    no longer than :data:`LEAD_DEADLINE_S` after the start, and at least until two seconds of frames are there.
+
+    ``progress``: samples taken since the renderer was started (:class:`RenderProgress`), so the last second may lie
+    while the rig was starting (without them the second is measured from now: ~1-2 s before every recording)."""
     import time
 
     schedule.wait(timeout_s=120.0, frames=round(2.0 * fps))
     needed = min(schedule.n_frames, round((seconds + 2.0) * fps))
-    t0_s, k0 = started_mono_s, 0
-    while True:
-        now_s, k = time.monotonic(), schedule.rendered()
-        if k >= needed or now_s >= started_mono_s + LEAD_DEADLINE_S:
-            return
-        if now_s - t0_s >= 1.0:
-            rate = (k - k0) / (now_s - t0_s)  # frames per second per side
-            if k + rate * seconds >= needed + fps:  # ahead until the end, with one second to spare
+    own = progress is None
+    if progress is None:
+        progress = RenderProgress(schedule)
+    try:
+        while True:
+            now_s, k = time.monotonic(), schedule.rendered()
+            if k >= needed or now_s >= started_mono_s + LEAD_DEADLINE_S:
                 return
-        if schedule.failed():
-            raise BracketryError("the frame renderer failed")
-        time.sleep(0.1)
+            rate = progress.rate(now_s, k)  # frames per second per side
+            if rate is not None and k + rate * seconds >= needed + fps:  # ahead until the end, one second to spare
+                return
+            if schedule.failed():
+                raise BracketryError("the frame renderer failed")
+            time.sleep(0.1)
+    finally:
+        if own:
+            progress.stop()
 
 
 def _read_frame_ids(rig: Any) -> None:
@@ -148,14 +184,19 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
                       echo=lambda s: click.echo(s, err=True), monitor_port=monitor_port)
     rig = SimulatedRig(opts)
     render_done_ns = None
+    render_progress = None
     try:
         rig.prepare_frames()  # rendered ahead in a separate process while the rig starts and records
+        render_progress = RenderProgress(rig.schedule)  # its recent rate is known when the rig is up
         rig.start()
-        wait_for_lead(rig.schedule, seconds, fps, started_mono_s)
+        wait_for_lead(rig.schedule, seconds, fps, started_mono_s, render_progress)
+        render_progress.stop()
         session = run_session(rig, seconds)
         render_done_ns = rig.schedule.render_done_ns()
         rig.start_world_files()  # the ground truth's world is built on a thread while the recording is verified
     finally:
+        if render_progress is not None:
+            render_progress.stop()
         rig.close()
     # the frame ids (for the ground truth) are read on a thread while the recording is verified: ~0.7 s less for
     # the demo's 40 s; a failure there is raised again by the ground truth's own read below
