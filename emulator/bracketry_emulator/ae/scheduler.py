@@ -400,11 +400,6 @@ def _worker_loop(conn: Connection, worker: Callable[[], Worker]) -> None:
     """A forked worker: answers the parent's commands (decode, run, close) until closed; reports one error."""
     pool: ThreadPoolExecutor | None = None
     try:
-        # the work is spread over processes: OpenCV's pool threads (its parallel cvtColor, Sobel) only took CPU from
-        # the other workers, and spun (sched_yield) after every call
-        import cv2
-
-        cv2.setNumThreads(1)
         w = worker()
         # one decode thread per worker: the frames its methods need next decode while its methods run
         pool = w.decode_pool = ThreadPoolExecutor(1, thread_name_prefix="bracketry-decode")
@@ -438,13 +433,14 @@ def _run_forked(n_workers: int, make: Callable[[int], Callable[[], Worker]], n_s
     runs: dict[str, MethodRun] = {}
     done = False
     try:
-        for reader in range(n_workers):
-            parent, child = ctx.Pipe()
-            p = ctx.Process(target=_worker_loop, args=(child, make(reader)), daemon=True)
-            p.start()
-            child.close()
-            procs.append(p)
-            conns.append(parent)
+        with _opencv_single_threaded():
+            for reader in range(n_workers):
+                parent, child = ctx.Pipe()
+                p = ctx.Process(target=_worker_loop, args=(child, make(reader)), daemon=True)
+                p.start()
+                child.close()
+                procs.append(p)
+                conns.append(parent)
         # the parent only relays messages while the workers run: import matplotlib for the final plot meanwhile, on a
         # thread (the workers must not wait for it to be told to start)
         preload = threading.Thread(target=preload_plotting, name="bracketry-mpl-import", daemon=True)
@@ -470,6 +466,22 @@ def _run_forked(n_workers: int, make: Callable[[int], Callable[[], Worker]], n_s
         else:
             _reap(procs)
     return runs
+
+
+@contextlib.contextmanager
+def _opencv_single_threaded() -> Iterator[None]:
+    """OpenCV without its thread pool inside the block (the workers forked there inherit that; this process gets its
+    thread count back after it). The work is spread over processes: the pool's threads only took CPU from the other
+    workers and spun (sched_yield) after every parallel call (cvtColor, Sobel). Set before forking: a forked child
+    must not change OpenCV's thread count itself, that waits forever on the pool the parent had running."""
+    import cv2
+
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(threads)
 
 
 def _reap(procs: list[Any]) -> None:

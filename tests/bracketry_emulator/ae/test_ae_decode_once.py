@@ -255,3 +255,33 @@ def test_a_run_through_a_two_slot_ring_gives_the_outputs_of_a_run_without_reuse(
     for f in files:
         if f.name not in ("summary.json", "ae.csv", "exposure_times.png"):
             assert (tmp_path / "ring" / f).read_bytes() == (tmp_path / "all" / f).read_bytes(), f
+
+
+FORK_AFTER_OPENCV = """
+import sys
+import cv2
+import numpy as np
+from bracketry_emulator.ae import LoopConfig, run_methods
+from bracketry_emulator.emulation.settings import emulator_config
+
+threads = cv2.getNumThreads()
+for _ in range(20):  # OpenCV's thread pool running in this process before the workers fork
+    cv2.cvtColor(np.zeros((1200, 1920), np.uint16), cv2.COLOR_BAYER_RG2GRAY)
+cfg = LoopConfig(emulator=emulator_config("upstream", "srgb", "upstream"), init_exposure_us=3000.0)
+summary = run_methods(sys.argv[1], ["ae50", "shim"], sys.argv[2], workers=2, config=cfg, progress=False)
+assert summary.stages["png_write"]["count"] > 0  # written by the workers
+assert cv2.getNumThreads() == threads  # given back to this process after forking
+print("done")
+"""
+
+
+def test_forked_workers_after_this_process_ran_opencv_threads(tmp_path: Path) -> None:
+    """The workers are forked with OpenCV single-threaded; a process whose OpenCV pool was running before still gets
+    its run (a child that changed OpenCV's thread count itself waited forever on the parent's pool)."""
+    import subprocess
+    import sys
+
+    rec = _bracket_tree(tmp_path / "rec", 2)
+    out = subprocess.run([sys.executable, "-c", FORK_AFTER_OPENCV, str(rec), str(tmp_path / "out")],
+                         capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0 and out.stdout.strip() == "done", out.stderr[-2000:]
