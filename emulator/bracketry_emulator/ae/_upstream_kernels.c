@@ -55,6 +55,20 @@ static void shim_row(const uint16_t *restrict g, const double *restrict table, P
     s[w - 1] = (v[w - 2] + 2.0 * v[w - 1]) + v[w - 2];
 }
 
+/* The bucket byte gx*6+gy of one pixel's x and y values (each rounded half-even to 0..5 by comparisons: 5 means
+   above 4.5); updates the running largest of gx, gy (*top) and the min / max of gx^2 + gy^2 (*lo, *hi). */
+static inline uint8_t shim_bucket(double vx, double vy, int *top, int *lo, int *hi)
+{
+    int gx = (vx > 0.5) + (vx >= 1.5) + (vx > 2.5) + (vx >= 3.5) + (vx > 4.5);
+    int gy = (vy > 0.5) + (vy >= 1.5) + (vy > 2.5) + (vy >= 3.5) + (vy > 4.5);
+    int q = gx * gx + gy * gy;
+    int t = gx > gy ? gx : gy;
+    *top = t > *top ? t : *top;
+    *lo = q < *lo ? q : *lo;
+    *hi = q > *hi ? q : *hi;
+    return (uint8_t)(gx * 6 + gy);
+}
+
 /* one output row: bucket gx * 6 + gy of every pixel, gx, gy = cv::saturate_cast<ushort> of the column filter
    (round half to even, negatives and NaN -> 0) counted by comparisons up to 5 (5: above 4, out of the table);
    returns the largest gx or gy (5: out of range) in *top and the min / max of gx^2 + gy^2 in m2[0], m2[1] */
@@ -67,14 +81,7 @@ static void shim_out_row(const double *restrict du, const double *restrict dm, c
     for (Py_ssize_t x = 0; x < n; x++) {
         double vx = 2.0 * dm[x] + (dd[x] + du[x]);
         double vy = sd[x] - su[x];
-        int gx = (vx > 0.5) + (vx >= 1.5) + (vx > 2.5) + (vx >= 3.5) + (vx > 4.5);
-        int gy = (vy > 0.5) + (vy >= 1.5) + (vy > 2.5) + (vy >= 3.5) + (vy > 4.5);
-        int q = gx * gx + gy * gy;
-        int t = gx > gy ? gx : gy;
-        tp = t > tp ? t : tp;
-        lo = q < lo ? q : lo;
-        hi = q > hi ? q : hi;
-        o[x] = (uint8_t)(gx * 6 + gy);
+        o[x] = shim_bucket(vx, vy, &tp, &lo, &hi);
     }
     *top = tp;
     m2[0] = lo;
@@ -281,14 +288,7 @@ static int shim_sparse_image(const uint16_t *g, const double *table, Py_ssize_t 
         double su = tu + table[c[2]], sd = td + table[c[7]];
         double vx = 2.0 * dm + (dd + du);
         double vy = sd - su;
-        int gx = (vx > 0.5) + (vx >= 1.5) + (vx > 2.5) + (vx >= 3.5) + (vx > 4.5);
-        int gy = (vy > 0.5) + (vy >= 1.5) + (vy > 2.5) + (vy >= 3.5) + (vy > 4.5);
-        int q = gx * gx + gy * gy;
-        int t = gx > gy ? gx : gy;
-        tp = t > tp ? t : tp;
-        lo = q < lo ? q : lo;
-        hi = q > hi ? q : hi;
-        out[idx[k]] = (uint8_t)(gx * 6 + gy);
+        out[idx[k]] = shim_bucket(vx, vy, &tp, &lo, &hi);
     }
     m2[0] = lo;
     m2[1] = hi;
