@@ -48,23 +48,14 @@ class ExportSummary:
     out_dir: str = ""
 
 
-#: the ``png_compression`` choices (see the module docstring)
-PNG_COMPRESSIONS = ("opencv", "stored", "fast", "small")
+def _write_png(path: Path, image: np.ndarray, compression: str) -> None:
+    """The emulator's lossless PNG writer (one encoder for both packages); its OSError as a one-line error."""
+    from bracketry_emulator.emulation.writer import write_png
 
-
-def _write_png(path: Path, image: np.ndarray, compression: str = "opencv") -> None:
-    if compression != "opencv":
-        from bracketry_emulator.emulation.writer import write_png
-
-        try:
-            write_png(path, image, compression)
-        except OSError as exc:
-            raise BracketryError(f"cannot write {path}: {exc.strerror or exc}") from exc
-        return
-    import cv2
-
-    if not cv2.imwrite(str(path), image):
-        raise BracketryError(f"cannot write {path}")
+    try:
+        write_png(path, image, compression)
+    except OSError as exc:
+        raise BracketryError(f"cannot write {path}: {exc.strerror or exc}") from exc
 
 
 def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int = 2,
@@ -74,14 +65,16 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
 
     In a stereo recording a frame whose partner of the other camera (same trigger) is missing is counted in
     ``unpaired`` and written only with ``keep_unpaired``, so a BorealHDR tree never holds half a pair silently.
-    ``png_compression``: one of :data:`PNG_COMPRESSIONS` (module docstring).
+    ``png_compression``: one of the emulator's ``PNG_COMPRESSIONS`` (module docstring).
     """
-    if png_compression not in PNG_COMPRESSIONS:
-        raise BracketryError(f"unknown PNG compression {png_compression!r} (use {', '.join(PNG_COMPRESSIONS)})")
     try:
         import cv2  # noqa: F401
     except ImportError as exc:
         raise BracketryError("export needs OpenCV (pip install -e '.[host]')") from exc
+    from bracketry_emulator.emulation.writer import PNG_COMPRESSIONS
+
+    if png_compression not in PNG_COMPRESSIONS:
+        raise BracketryError(f"unknown PNG compression {png_compression!r} (use {', '.join(PNG_COMPRESSIONS)})")
     out = Path(out_dir)
     files = recording_files(recording)
     summary = ExportSummary(out_dir=str(out))
