@@ -124,6 +124,30 @@ static int shim_image(const uint16_t *g, const double *table, Py_ssize_t n_codes
     return top > 4 ? 1 : 0;
 }
 
+/* The argument checks every entry point makes: NULL when ``gray`` is a uint16 HxW buffer of at least 2x2, else the
+   message of the ValueError to raise. */
+static const char *gray_error(const Py_buffer *gray, Py_ssize_t h, Py_ssize_t w)
+{
+    if (h < 2 || w < 2) {
+        return "the image must be at least 2x2";
+    }
+    if (gray->len != (Py_ssize_t)((size_t)h * (size_t)w * sizeof(uint16_t))) {
+        return "gray must be a C-contiguous uint16 HxW buffer";
+    }
+    return NULL;
+}
+
+/* gray_error, and ``table`` a float64 buffer of at least one value (one per code) */
+static const char *shim_inputs_error(const Py_buffer *gray, const Py_buffer *table, Py_ssize_t h, Py_ssize_t w)
+{
+    const char *error = gray_error(gray, h, w);
+    Py_ssize_t n_codes = table->len / (Py_ssize_t)sizeof(double);
+    if (error == NULL && (n_codes < 1 || table->len != n_codes * (Py_ssize_t)sizeof(double))) {
+        error = "table must be a C-contiguous float64 buffer";
+    }
+    return error;
+}
+
 static PyObject *shim_buckets(PyObject *self, PyObject *args)
 {
     Py_buffer gray, table, out;
@@ -132,16 +156,10 @@ static PyObject *shim_buckets(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*y*nnw*", &gray, &table, &h, &w, &out)) {
         return NULL;
     }
-    const char *error = NULL;
     size_t n = (size_t)h * (size_t)w;
     Py_ssize_t n_codes = table.len / (Py_ssize_t)sizeof(double);
-    if (h < 2 || w < 2) {
-        error = "the image must be at least 2x2";
-    } else if (gray.len != (Py_ssize_t)(n * sizeof(uint16_t))) {
-        error = "gray must be a C-contiguous uint16 HxW buffer";
-    } else if (n_codes < 1 || table.len != n_codes * (Py_ssize_t)sizeof(double)) {
-        error = "table must be a C-contiguous float64 buffer";
-    } else if (out.len != (Py_ssize_t)n) {
+    const char *error = shim_inputs_error(&gray, &table, h, w);
+    if (error == NULL && out.len != (Py_ssize_t)n) {
         error = "out must be a uint8 HxW buffer";
     }
     int result = 0, failed = 0;
@@ -225,15 +243,13 @@ static PyObject *shim_candidates(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*y*nnw*", &gray, &partner, &h, &w, &idx)) {
         return NULL;
     }
-    const char *error = NULL;
     size_t n = (size_t)h * (size_t)w;
     Py_ssize_t n_codes = partner.len / (Py_ssize_t)sizeof(int32_t);
-    if (h < 2 || w < 2) {
-        error = "the image must be at least 2x2";
+    const char *error = gray_error(&gray, h, w);
+    if (error != NULL) {
+        /* raised once the buffers are released */
     } else if (n > INT32_MAX) {
         error = "the image must have fewer than 2^31 pixels";
-    } else if (gray.len != (Py_ssize_t)(n * sizeof(uint16_t))) {
-        error = "gray must be a C-contiguous uint16 HxW buffer";
     } else if (n_codes < 1 || partner.len != n_codes * (Py_ssize_t)sizeof(int32_t)) {
         error = "partner must be a C-contiguous int32 buffer";
     } else if (idx.len != (Py_ssize_t)(n * sizeof(int32_t))) {
@@ -303,15 +319,11 @@ static PyObject *shim_sparse(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*y*nny*nw*", &gray, &table, &h, &w, &idx, &count, &out)) {
         return NULL;
     }
-    const char *error = NULL;
     size_t n = (size_t)h * (size_t)w;
     Py_ssize_t n_codes = table.len / (Py_ssize_t)sizeof(double);
-    if (h < 2 || w < 2) {
-        error = "the image must be at least 2x2";
-    } else if (gray.len != (Py_ssize_t)(n * sizeof(uint16_t))) {
-        error = "gray must be a C-contiguous uint16 HxW buffer";
-    } else if (n_codes < 1 || table.len != n_codes * (Py_ssize_t)sizeof(double)) {
-        error = "table must be a C-contiguous float64 buffer";
+    const char *error = shim_inputs_error(&gray, &table, h, w);
+    if (error != NULL) {
+        /* raised once the buffers are released */
     } else if (count < 0 || (size_t)count > n || idx.len < count * (Py_ssize_t)sizeof(int32_t)) {
         error = "idx must hold count int32 pixel indices";
     } else if (out.len != (Py_ssize_t)n) {
@@ -467,13 +479,9 @@ static PyObject *kim_code_sums(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*nnw*w*", &gray, &h, &w, &counts, &gsum)) {
         return NULL;
     }
-    const char *error = NULL;
-    size_t n = (size_t)h * (size_t)w;
-    if (h < 2 || w < 2) {
-        error = "the image must be at least 2x2";
-    } else if (gray.len != (Py_ssize_t)(n * sizeof(uint16_t))) {
-        error = "gray must be a C-contiguous uint16 HxW buffer";
-    } else if (counts.len != (Py_ssize_t)(256 * sizeof(int64_t)) || gsum.len != (Py_ssize_t)(256 * sizeof(int64_t))) {
+    const char *error = gray_error(&gray, h, w);
+    Py_ssize_t sums_len = (Py_ssize_t)(256 * sizeof(int64_t));
+    if (error == NULL && (counts.len != sums_len || gsum.len != sums_len)) {
         error = "counts and sums must be int64 (256,) buffers";
     }
     int result = 0;
