@@ -425,14 +425,15 @@ def _worker_loop(conn: Connection, worker: Callable[[], Worker]) -> None:
 def _run_forked(n_workers: int, make: Callable[[int], Callable[[], Worker]], n_seq: int, frames: FrameBuffer,
                 progress: Callable[[int], None], stages: StageTimes) -> dict[str, MethodRun]:
     ctx = mp.get_context("fork")
-    # the objects that exist now (modules, the dataset) live as long as the run: out of the collector's reach, so the
-    # workers' collections neither traverse them (a full one took 17-25 ms per worker) nor copy their pages on write
-    gc.freeze()
     procs: list[Any] = []
     conns: list[Connection] = []
     runs: dict[str, MethodRun] = {}
     done = False
     try:
+        # the objects that exist at the fork (modules, the dataset) live as long as the run: frozen out of the
+        # collector's reach, so the collections neither traverse them (a full one took 17-25 ms per worker) nor
+        # copy their pages on write; collected again in this process after the run (a library caller lives on)
+        gc.freeze()
         with _opencv_single_threaded():
             for reader in range(n_workers):
                 parent, child = ctx.Pipe()
@@ -457,6 +458,7 @@ def _run_forked(n_workers: int, make: Callable[[int], Callable[[], Worker]], n_s
         preload.join()
         done = True
     finally:
+        gc.unfreeze()
         if not done:
             frames.abort()  # a worker failed: the others stop waiting for its slots
         for conn in conns:

@@ -258,6 +258,7 @@ def test_a_run_through_a_two_slot_ring_gives_the_outputs_of_a_run_without_reuse(
 
 
 FORK_AFTER_OPENCV = """
+import gc
 import sys
 import cv2
 import numpy as np
@@ -271,13 +272,15 @@ cfg = LoopConfig(emulator=emulator_config("upstream", "srgb", "upstream"), init_
 summary = run_methods(sys.argv[1], ["ae50", "shim"], sys.argv[2], workers=2, config=cfg, progress=False)
 assert summary.stages["png_write"]["count"] > 0  # written by the workers
 assert cv2.getNumThreads() == threads  # given back to this process after forking
+assert gc.get_freeze_count() == 0  # the objects frozen for the workers' sake are collectable here again
 print("done")
 """
 
 
 def test_forked_workers_after_this_process_ran_opencv_threads(tmp_path: Path) -> None:
     """The workers are forked with OpenCV single-threaded; a process whose OpenCV pool was running before still gets
-    its run (a child that changed OpenCV's thread count itself waited forever on the parent's pool)."""
+    its run (a child that changed OpenCV's thread count itself waited forever on the parent's pool), and its OpenCV
+    thread count and garbage collection (the objects frozen at the fork) back afterwards."""
     import subprocess
     import sys
 
