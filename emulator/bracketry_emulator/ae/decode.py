@@ -165,15 +165,6 @@ class FrameBuffer:
         if img is not view:
             view[...] = img
 
-    def decode(self, tasks: list[DecodeTask], pool: ThreadPoolExecutor | None = None) -> list[Future[None]]:
-        """Decode frames into the buffer (unconditionally, without the state table): with ``pool`` on its threads
-        (the decoders release the GIL; the futures are returned: wait on them before reading), else inline."""
-        if pool is None:
-            for task in tasks:
-                self._decode_one(task)
-            return []
-        return [pool.submit(self._decode_one, task) for task in tasks]
-
     def state_index(self, task: DecodeTask) -> int:
         pos, _, side_i, exp_i = task
         return (pos * len(self.sides) + side_i) * self.n_exp + exp_i
@@ -241,12 +232,6 @@ class FrameBuffer:
             with self.lock:
                 if self.state[i] == _CLAIMED:
                     self.state[i] = _FREE
-
-    def reset(self) -> None:
-        """Forget which frames are decoded and what the readers released (before the buffer is reused for another
-        run of positions; nobody may be decoding)."""
-        self.state[:] = bytes(len(self.state))
-        self._sync[:] = bytes(len(self._sync))
 
     def close(self) -> None:
         """Free the maps (a BufferError while numpy views of it are alive: then it is freed with them)."""

@@ -160,12 +160,12 @@ class Worker:
     def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
         """Advance every method of this worker through the given sequences (position = place in the list).
 
-        Without :attr:`decode_pool` the frames must already be decoded (:meth:`FrameBuffer.decode`); with it,
-        frames are decoded on demand, only the brackets that the methods' targets can select, once for every
-        worker (:meth:`FrameBuffer.ensure`): a method's next target is known as soon as its step is done, so the
-        next sequence's frames decode while the other methods run. Each position is released
-        (:meth:`FrameBuffer.release`) once every method of this worker took its step (the emulated images are copies:
-        nothing reads the buffer's frames of that position later)."""
+        Frames are decoded on demand on :attr:`decode_pool`'s threads (set it first), only the brackets that the
+        methods' targets can select, once for every worker (:meth:`FrameBuffer.ensure`): a method's next target is
+        known as soon as its step is done, so the next sequence's frames decode while the other methods run. Each
+        position is released (:meth:`FrameBuffer.release`) once every method of this worker took its step (the
+        emulated images are copies: nothing reads the buffer's frames of that position later)."""
+        assert self.decode_pool is not None, "set decode_pool before run"
         self.emu.clear()
         self._decoded.clear()
         self._picks.clear()
@@ -175,10 +175,9 @@ class Worker:
                 self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
                 self._brackets = {}
                 self.frames.release(self.reader, pos)
-                if self.decode_pool is not None:
-                    for t in self.targets.values():
-                        self._prefetch(pos, seq_i, t)
-                    self._wait_needed(pos, seq_i)
+                for t in self.targets.values():
+                    self._prefetch(pos, seq_i, t)
+                self._wait_needed(pos, seq_i)
                 self._seq_i = seq_i
                 self._brackets = {side: {e: self.frames.view(pos, si, ei) for ei, e in enumerate(seq.exposures_us)}
                                   for si, side in enumerate(self.settings.emulate_sides)}
@@ -187,7 +186,7 @@ class Worker:
                     step = next(loop)
                     self.runs[spec].steps.append(step)
                     self.targets[spec] = step.next_exposure_us
-                    if self.decode_pool is not None and nxt is not None:
+                    if nxt is not None:
                         self._prefetch(pos + 1, nxt, self.targets[spec])
                     progress(1)
         finally:
