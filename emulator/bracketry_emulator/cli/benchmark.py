@@ -111,9 +111,9 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
     """
     import os
 
-    # the closed loops run in worker processes beside the SLAM runs: OpenBLAS's threads (read when numpy loads it,
-    # i.e. just below) only spin on the AE methods' tiny matrices (Kim's GP fits) and take CPU from SLAM
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    from bracketry_emulator.blas_policy import one_blas_thread
+
+    one_blas_thread()  # the closed loops run in worker processes beside the SLAM runs; before numpy loads
     from bracketry_emulator.benchmark import run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
 

@@ -117,11 +117,9 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     cameras, the images are written, and the method picks the next target from the --ae-camera image. Each decoded
     bracket sequence is shared by all methods; methods run in parallel worker processes.
     """
-    import os
+    from bracketry_emulator.blas_policy import one_blas_thread
 
-    # the work is spread over processes: BLAS threads (OpenBLAS's, read when numpy/scipy load it, i.e. just below)
-    # would only wait on each other for the methods' tiny matrices (a GP fit spent 2/3 of its time there)
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    one_blas_thread()  # the work is spread over processes; before numpy loads (just below)
     from bracketry_emulator.gc_policy import fewer_collections
 
     fewer_collections()  # a batch process: the imports of matplotlib / scipy below and in the workers collect less

@@ -27,12 +27,9 @@ from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Number, input_file, op
 def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, drl_weights: Path | None,
             slam: str | None, slam_pace: str) -> int:
     """Run the whole pipeline on the embedded default: simulated rig -> recording -> AE benchmark -> report."""
-    import os
+    from bracketry_emulator.blas_policy import one_blas_thread
 
-    # one OpenBLAS thread in every process of the demo (read when numpy loads it, i.e. below): the benchmark's
-    # closed loops run beside seven SLAM runs on all cores, and OpenBLAS's threads only spun on the AE methods'
-    # tiny matrices (the closed loops of the default demo: 20.7 -> 11.4 CPU-s, same exposures and images)
-    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+    one_blas_thread()  # every process of the demo (the closed loops beside seven SLAM runs); before numpy loads
     from bracketry.demo.pipeline import plan, run
     from bracketry_emulator.benchmark.slam import parse_pace
 

@@ -4,9 +4,12 @@ numpy loads OpenBLAS: that only works while importing the CLI and those commands
 from __future__ import annotations
 
 import importlib.util
+import os
 import subprocess
 import sys
 from pathlib import Path
+
+import pytest
 
 COMMANDS = ("bracketry.cli.demo", "bracketry_emulator.cli.benchmark", "bracketry_emulator.cli.emulate")
 
@@ -19,4 +22,15 @@ def test_cli_commands_set_blas_threads_before_numpy_loads() -> None:
     for name in COMMANDS:
         spec = importlib.util.find_spec(name)
         assert spec is not None and spec.origin is not None
-        assert 'os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")' in Path(spec.origin).read_text(), name
+        assert "one_blas_thread()" in Path(spec.origin).read_text(), name
+
+
+def test_one_blas_thread_keeps_a_thread_count_the_caller_set(monkeypatch: pytest.MonkeyPatch) -> None:
+    from bracketry_emulator.blas_policy import one_blas_thread
+
+    monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
+    one_blas_thread()
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")
+    one_blas_thread()
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
