@@ -23,6 +23,7 @@ from bracketry.cameras.aravis_gi import CameraError, glib_error_message, load_ar
 from bracketry.cameras.frame_ids import FrameIdUnwrapper
 from bracketry.cameras.pixels import PIXEL_FORMAT_NAMES, payload_to_image
 from bracketry.cameras.profiles import CameraSettings, ConfigReport, apply_writes, probe_features, profile_writes
+from bracketry.cameras.triggering import ExposureReadbacks
 from bracketry.errors import BracketryError
 from bracketry.ipv4 import unicast_ipv4
 
@@ -55,6 +56,8 @@ class Frame:
         missing_packets: stream's missing-packet counter increase since the previous frame.
         exposure_us_reported: exposure the camera reports for this frame (ExposureTime chunk), None without chunks.
         counter_value: the CounterValue chunk (trigger counter), None without chunks.
+        exposure_us_register: the exposure register read back at this frame's software trigger (set by the recording
+            session once the frame is paired with its pulse, from ``GigECamera.exposure_readbacks``), None otherwise.
     """
 
     side: str
@@ -71,6 +74,7 @@ class Frame:
     missing_packets: int = 0
     exposure_us_reported: float | None = None
     counter_value: int | None = None
+    exposure_us_register: float | None = None
 
 
 @dataclass
@@ -142,6 +146,8 @@ class GigECamera:
         self._chunk_parser: Any = None
         self._chunks_on = False
         self._counter_names: tuple[str, ...] = ()
+        #: exposure register read back at each software trigger, by trigger_seq (``SoftwareTrigger`` fills it)
+        self.exposure_readbacks = ExposureReadbacks()
 
     def _take_control(self, wait_s: float) -> None:
         """Hold the GigE Vision control privilege (writes and streaming need it), waiting up to ``wait_s`` seconds.
@@ -213,10 +219,17 @@ class GigECamera:
                 self._chunk_parser = None
         return report
 
+    def _exposure_feature(self) -> str:
+        return "ExposureTimeAbs" if self._device.get_feature("ExposureTime") is None else "ExposureTime"
+
     def set_exposure_us(self, exposure_us: float) -> None:
         """Set the exposure timed by the camera itself (fake camera: ExposureTimeAbs; Basler Timed mode)."""
-        name = "ExposureTimeAbs" if self._device.get_feature("ExposureTime") is None else "ExposureTime"
-        self._device.set_float_feature_value(name, float(exposure_us))
+        self._device.set_float_feature_value(self._exposure_feature(), float(exposure_us))
+
+    def read_exposure_us(self) -> float:
+        """The exposure register (ExposureTime, or ExposureTimeAbs on the fake camera) as the camera holds it: one
+        GVCP read (Aravis does not cache registers), so the value the camera took, rounded to its granularity."""
+        return float(self._device.get_float_feature_value(self._exposure_feature()))
 
     def software_trigger(self) -> None:
         """Fire one software trigger (TriggerSource Software)."""
@@ -254,6 +267,7 @@ class GigECamera:
         for _ in range(n_buffers):
             self._stream.push_buffer(Aravis.Buffer.new_allocate(payload))
         self._unwrapper = FrameIdUnwrapper()
+        self.exposure_readbacks.clear()  # a new stream's pulses are numbered from 0 again
         self._last_missing = 0
         self._stats = StreamStats()
         self._running.set()

@@ -6,6 +6,14 @@ are fired by the host at each event: :class:`SoftwareTrigger` writes each camera
 TriggerSoftware command, standing for the pulse. Applications hold a :class:`CameraTrigger` and never ask which kind
 it is; :func:`camera_trigger` picks it from the cameras' profiles (the profile layer says how a camera is triggered).
 
+Exposure read-back: right after a pulse's TriggerSoftware commands, :class:`SoftwareTrigger` reads each camera's
+exposure register back (one GVCP read, ``read_exposure_us``; nothing writes it before the next pulse, so this is the
+value the camera exposed with) into the camera's :class:`ExposureReadbacks` (``camera.exposure_readbacks``, keyed by
+trigger_seq). The recording session attaches it to that camera's frame of that pulse once the pairer matched them
+(``Frame.exposure_us_register``), and the recorder writes it as the frame's ``exposure_us_read`` (source ``register``)
+when the camera sent no ExposureTime chunk. Cameras on trigger lines are not read per pulse (their chunk is the
+read-back).
+
 Threads: ``fire`` runs on one thread at a time (the daemon's event pump, or a harness's loop); ``remove``,
 ``failed`` and ``frames_expected`` may be called from another thread.
 """
@@ -15,6 +23,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections import OrderedDict
 from collections.abc import Iterable, Mapping
 from typing import Protocol
 
@@ -31,12 +40,49 @@ PRIMING_EXPOSURE_US = 77
 SOFTWARE_TRIGGER_MIN_INTERVAL_S = 0.004
 
 
+#: read-backs an ``ExposureReadbacks`` keeps (the pairing window is 8..16 pulses; late frames come within ~1 s)
+EXPOSURE_READBACKS_KEPT = 1024
+
+
+class ExposureReadbacks:
+    """One camera's exposure register as read back at each software trigger: trigger_seq -> microseconds, the latest
+    ``keep`` pulses. Thread-safe: written on the trigger's thread, read on the pairing thread."""
+
+    def __init__(self, keep: int = EXPOSURE_READBACKS_KEPT) -> None:
+        self.keep = keep
+        self._lock = threading.Lock()
+        self._values: OrderedDict[int, float] = OrderedDict()
+
+    def put(self, trigger_seq: int, exposure_us: float) -> None:
+        with self._lock:
+            self._values[trigger_seq] = float(exposure_us)
+            self._values.move_to_end(trigger_seq)
+            while len(self._values) > self.keep:
+                self._values.popitem(last=False)
+
+    def get(self, trigger_seq: int) -> float | None:
+        with self._lock:
+            return self._values.get(trigger_seq)
+
+    def clear(self) -> None:
+        """Forget every value (a new acquisition numbers its pulses from 0 again)."""
+        with self._lock:
+            self._values.clear()
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._values)
+
+
 class TriggeredCamera(Protocol):
     """What a camera trigger adapter needs of a camera (``bracketry.cameras.camera.GigECamera``)."""
 
     def set_exposure_us(self, exposure_us: float) -> None: ...
 
     def software_trigger(self) -> None: ...
+
+    # optional (``GigECamera`` has both; a camera without them is fired without read-back):
+    # ``read_exposure_us() -> float`` and ``exposure_readbacks: ExposureReadbacks``
 
 
 class CameraTrigger(Protocol):
@@ -105,7 +151,9 @@ class SoftwareTrigger:
 
     A camera that fails a GVCP write is gone (each further write would wait for GVCP timeouts and hold up the other
     camera): it is skipped until the next acquisition and listed in ``failed``. Two pulses are fired at least
-    ``min_interval_s`` apart (the fake camera would merge closer ones).
+    ``min_interval_s`` apart (the fake camera would merge closer ones). After every camera's TriggerSoftware, each
+    camera's exposure register is read back into its ``exposure_readbacks`` under the pulse's trigger_seq (after the
+    triggers, so the read does not spread the cameras' exposure starts; a failed read is logged and leaves no value).
     """
 
     initial_alignment = "host_time"
@@ -126,6 +174,9 @@ class SoftwareTrigger:
         first software trigger of each acquisition. A frame it may still give precedes every TRIGGER event, and the
         pairer (``initial_alignment="host_time"``) ignores it. ``exposure_us`` marks such a frame (not a bracket)."""
         for cam in self._live().values():
+            readbacks = getattr(cam, "exposure_readbacks", None)
+            if readbacks is not None:
+                readbacks.clear()  # this acquisition's pulses are numbered from 0 again
             cam.set_exposure_us(exposure_us)
             cam.software_trigger()
         time.sleep(settle_s)
@@ -157,9 +208,22 @@ class SoftwareTrigger:
                     with self._lock:
                         self._failed.add(side)
                     log.warning("camera %s: software trigger failed: %s", side, exc)
+        self._read_back(event.trigger_seq, cams)
         with self._lock:
             self._fired += 1
         return tuple(cams)
+
+    def _read_back(self, trigger_seq: int, cams: Mapping[str, TriggeredCamera]) -> None:
+        """Each fired camera's exposure register, as it stood at this pulse, into its ``exposure_readbacks``."""
+        for side, cam in cams.items():
+            read = getattr(cam, "read_exposure_us", None)
+            readbacks = getattr(cam, "exposure_readbacks", None)
+            if read is None or readbacks is None or side in self._failed:
+                continue
+            try:
+                readbacks.put(trigger_seq, float(read()))
+            except Exception as exc:
+                log.warning("camera %s: exposure read-back of trigger_seq %d failed: %s", side, trigger_seq, exc)
 
     def remove(self, side: str) -> None:
         with self._lock:

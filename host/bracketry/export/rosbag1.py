@@ -6,6 +6,8 @@ Topics: ``/stereo/left|right/image_raw`` (sensor_msgs/Image, bayer_rggb16), ``/s
 ``norlab_basler_camera_driver/metadata_msg``: ``Header header, int32 FrameId, int64 Timestamp, float32 ExposureTime
 (microseconds, the commanded pulse width as in the version that script reads), float32 DeviceTemperature`` (°C:
 the camera's last temperature in ``/rig/status`` before the frame, NaN before the first or when it has none).
+Frame times are the recording's (image stamps = trigger start, as the BorealHDR names); each frame's mid-exposure
+time is in its frame_meta (``mid_exposure_host_ns``; derived for recordings made before that field).
 """
 
 from __future__ import annotations
@@ -17,8 +19,9 @@ from typing import Any
 from bracketry.errors import BracketryError
 from bracketry.recording import topics as T
 from bracketry.recording.decode import decode
-from bracketry.recording.msgdefs import OWN_MSG_TEXT
+from bracketry.recording.msgdefs import MSGDEFS, OWN_MSG_TEXT
 from bracketry.recording.reader import RecordingReader
+from bracketry.recording.recorder import current_frame_meta
 from bracketry.recording.verify import recording_files
 
 UPSTREAM_METADATA_TYPE = "norlab_basler_camera_driver/msg/metadata_msg"
@@ -62,6 +65,7 @@ def export_rosbag1(recording: str | Path, out_bag: str | Path, *, overwrite: boo
 
 
 def _write_bag(tmp: Path, files: list[Path], store: Any, cdr_store: Any, counts: dict[str, int]) -> None:
+    from mcap_ros2._dynamic import serialize_dynamic
     from rosbags.rosbag1 import Writer
 
     Header = store.types["std_msgs/msg/Header"]
@@ -86,14 +90,21 @@ def _write_bag(tmp: Path, files: list[Path], store: Any, cdr_store: Any, counts:
             counts[topic] = counts.get(topic, 0) + 1
 
         temperature_c = {"left": float("nan"), "right": float("nan")}  # latest /rig/status reading per camera
+        encode_meta = serialize_dynamic(T.SCHEMA_FRAME_META, MSGDEFS[T.SCHEMA_FRAME_META])[T.SCHEMA_FRAME_META]
         for path in files:
-            for raw in RecordingReader(path).messages():
+            reader = RecordingReader(path)
+            for raw in reader.messages():
+                data = bytes(raw.data)
+                stored = reader.schemas.get(reader.channels[raw.channel_id][1], ("", "", ""))[2] or None
                 if raw.schema_name == T.SCHEMA_STATUS:
-                    st = decode(raw.schema_name, raw.data)
+                    st = decode(raw.schema_name, data, stored)
                     for s in temperature_c:
                         temperature_c[s] = float(getattr(st, f"temperature_{s}_c", float("nan")))
                 if raw.schema_name == T.SCHEMA_FRAME_META:
-                    m = decode(raw.schema_name, raw.data)
+                    m = decode(raw.schema_name, data, stored)
+                    if stored is not None and stored != MSGDEFS[T.SCHEMA_FRAME_META]:
+                        # a recording made before the read-back fields: the bag's frame_meta has today's definition
+                        data = encode_meta(current_frame_meta(m))
                     side = raw.topic.split("/")[2]
                     meta = Meta(header=header(m.header, int(m.trigger_seq)), FrameId=int(m.cam_frame_id),
                                 Timestamp=int(m.cam_timestamp_ns), ExposureTime=float(m.exposure_us),
@@ -102,6 +113,6 @@ def _write_bag(tmp: Path, files: list[Path], store: Any, cdr_store: Any, counts:
                           raw.log_time, meta)
                 # CDR (ROS 2) -> ROS 1 wire format by rosbags (adds the ROS 1 Header.seq)
                 writer.write(conn(raw.topic, raw.schema_name), raw.log_time,
-                             cdr_store.cdr_to_ros1(bytes(raw.data), raw.schema_name))
+                             cdr_store.cdr_to_ros1(data, raw.schema_name))
                 counts[raw.topic] = counts.get(raw.topic, 0) + 1
 

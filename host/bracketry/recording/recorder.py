@@ -70,10 +70,41 @@ def camera_info_message(t_ns: int, side: str, height: int, width: int,
             "roi": {"x_offset": 0, "y_offset": 0, "height": 0, "width": 0, "do_rectify": False}}
 
 
+#: ``FrameMeta.exposure_source`` values: the frame's ExposureTime chunk, the exposure register read at the software
+#: trigger, nothing read back
+EXPOSURE_SOURCES = ("chunk", "register", "none")
+
+
+def _finite(value: Any) -> float | None:
+    if value is None:
+        return None
+    value = float(value)
+    return value if math.isfinite(value) else None
+
+
+def exposure_read_back(reported_us: float | None, register_us: float | None) -> tuple[float, str]:
+    """A frame's read-back exposure and its source: the chunk value when the camera sent one, else the register read
+    at its trigger, else (NaN, ``none``)."""
+    if (chunk := _finite(reported_us)) is not None:
+        return chunk, "chunk"
+    if (register := _finite(register_us)) is not None:
+        return register, "register"
+    return math.nan, "none"
+
+
+def mid_exposure_host_ns(trigger_host_ns: int, exposure_us: float | None) -> int:
+    """Mid-exposure in host time: the trigger start plus half the exposure (rounded to ns); -1 without an exposure."""
+    if exposure_us is None or not math.isfinite(exposure_us) or exposure_us < 0:
+        return -1
+    return int(trigger_host_ns) + round(float(exposure_us) * 500.0)
+
+
 def frame_meta_message(pset: PairedSet, side: str, frame: Any) -> dict[str, Any]:
     """The bracketry_msgs/msg/FrameMeta dict of one frame of a paired set."""
     ev = pset.event
     reported = getattr(frame, "exposure_us_reported", None)
+    read_us, source = exposure_read_back(reported, getattr(frame, "exposure_us_register", None))
+    trigger_ns = ev.t_start_host_ns if ev is not None and ev.t_start_host_ns is not None else pset.stamp_ns
     n_frames = sum(f is not None for f in pset.frames.values())
     return {
         "header": {"stamp": stamp(pset.stamp_ns), "frame_id": f"camera_{side}"},
@@ -93,7 +124,35 @@ def frame_meta_message(pset: PairedSet, side: str, frame: Any) -> dict[str, Any]
         "has_trigger_event": ev is not None,
         "paired": n_frames == len(pset.frames) and ev is not None,
         "note": pset.notes.get(side, ""),
+        "exposure_us_read": read_us,
+        "exposure_source": source,
+        "mid_exposure_host_ns": mid_exposure_host_ns(trigger_ns,
+                                                     ev.exposure_us if ev is not None else _finite(read_us)),
     }
+
+
+def current_frame_meta(meta: Any) -> dict[str, Any]:
+    """A decoded FrameMeta of any version of the recording format as a dict of the current definition: fields a
+    recording made before them lacks are derived from the stored ones as the recorder would have written them
+    (``exposure_us_read`` from the chunk value, ``mid_exposure_host_ns`` from the trigger time and exposure)."""
+    out: dict[str, Any] = {
+        "header": {"stamp": {"sec": int(meta.header.stamp.sec), "nanosec": int(meta.header.stamp.nanosec)},
+                   "frame_id": str(meta.header.frame_id)}}
+    for name in ("trigger_seq", "bracket_index", "exposure_us", "exposure_us_reported", "cam_frame_id",
+                 "cam_frame_index", "cam_timestamp_ns", "host_receive_ns", "trigger_host_ns", "trigger_device_us",
+                 "missing_packets", "skipped_ids", "status", "has_trigger_event", "paired", "note"):
+        out[name] = getattr(meta, name)
+    if hasattr(meta, "exposure_source"):
+        out.update(exposure_us_read=float(meta.exposure_us_read), exposure_source=str(meta.exposure_source),
+                   mid_exposure_host_ns=int(meta.mid_exposure_host_ns))
+        return out
+    read_us, source = exposure_read_back(float(meta.exposure_us_reported), None)
+    stamp_ns = int(meta.header.stamp.sec) * 1_000_000_000 + int(meta.header.stamp.nanosec)
+    trigger_ns = int(meta.trigger_host_ns) if int(meta.trigger_host_ns) >= 0 else stamp_ns
+    exposure = float(meta.exposure_us) if meta.has_trigger_event else _finite(read_us)
+    out.update(exposure_us_read=read_us, exposure_source=source,
+               mid_exposure_host_ns=mid_exposure_host_ns(trigger_ns, exposure))
+    return out
 
 
 def trigger_message(ev: TriggerEvent) -> dict[str, Any]:

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bracketry.cameras.triggering import PRIMING_EXPOSURE_US
+from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, ExposureReadbacks
 from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet, Pairer
@@ -92,6 +92,7 @@ class RecordingSession:
                  status_period_s: float = 1.0, disk_path: str | Path | None = None, inbox_max_items: int = 256,
                  initial_alignment: str = "count", tap: Callable[[PairedSet], None] | None = None) -> None:
         self.cameras = cameras
+        self._cameras_at_start = dict(cameras)  # a camera that leaves (daemon) still gets its last frames' read-backs
         self.recorder = recorder
         self.pairer = Pairer(tuple(cameras), self._on_set, window=window, initial_alignment=initial_alignment)
         self.status_period_s = status_period_s
@@ -151,12 +152,28 @@ class RecordingSession:
             log.error("pairing inbox full: trigger event %d dropped", event.trigger_seq)
 
     def _on_set(self, pset: PairedSet) -> None:
+        self._attach_register_exposures(pset)
         self.recorder.put_set(pset)
         if self.tap is not None:  # after the recorder: a monitor sees frames already received, never first
             try:
                 self.tap(pset)
             except Exception:
                 log.exception("session tap failed")
+
+    def _attach_register_exposures(self, pset: PairedSet) -> None:
+        """Each frame of ``pset`` gets its camera's exposure register as read back at this pulse's software trigger
+        (``frame.exposure_us_register``, from the camera's ``exposure_readbacks``, empty for cameras on trigger
+        lines): the recorder writes it as the frame's read-back exposure when the camera sent no chunk."""
+        for side, frame in pset.frames.items():
+            readbacks = getattr(self._cameras_at_start.get(side), "exposure_readbacks", None)
+            if frame is None or not isinstance(readbacks, ExposureReadbacks):
+                continue
+            value = readbacks.get(pset.trigger_seq)
+            if value is not None:
+                try:
+                    frame.exposure_us_register = value
+                except AttributeError:  # a frame type without the field: no read-back for it
+                    continue
 
     def _run(self) -> None:
         next_status = time.monotonic() + self.status_period_s

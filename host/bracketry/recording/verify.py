@@ -1,6 +1,7 @@
 """Check recordings: per camera frames, drops, incomplete and unpaired frames, bracket-order breaks, exposure
-mismatches and missing packets, from the stored FrameMeta and TRIGGER events (never from the summary section, so
-truncated files are checked too). ``repair_recording`` writes a clean copy of a truncated file.
+mismatches (each frame's read-back exposure vs its pulse width) and missing packets, from the stored FrameMeta and
+TRIGGER events (never from the summary section, so truncated files are checked too). ``repair_recording`` writes a
+clean copy of a truncated file.
 
 A recording is one ``.mcap`` file or a folder of the split files of one recording (``<name>_NNN.mcap``).
 """
@@ -21,7 +22,14 @@ from bracketry.recording.decode import decode
 from bracketry.recording.mcap_writer import ChunkedMcapWriter
 from bracketry.recording.reader import RecordingReader, UnreadableRecordingError
 
-#: exposure mismatch tolerance: relative and absolute (µs), whichever is larger
+#: read-back exposure (``FrameMeta.exposure_us_read``: chunk or register) vs the pulse width: relative and absolute
+#: (µs), whichever is larger. Covers the cameras' exposure granularity (Basler ace: 1 µs steps, the register holds the
+#: value rounded to them; the Aravis fake: exact) and float32 chunk values, and still flags a chunk one frame behind
+#: (Aravis #312): neighbouring brackets differ by far more than 0.5 %.
+EXPOSURE_READ_TOLERANCE_REL = 0.005
+EXPOSURE_READ_TOLERANCE_US = 1.0
+#: recordings made before ``exposure_us_read`` existed: their chunk value (``exposure_us_reported``) is checked as it
+#: always was, relative and absolute (µs), whichever is larger
 EXPOSURE_TOLERANCE_REL = 0.02
 EXPOSURE_TOLERANCE_US = 20.0
 #: at most this many trigger_seqs listed per problem kind
@@ -30,6 +38,30 @@ MAX_LISTED = 50
 
 #: name ending of the clean copy ``verify --repair`` writes next to a truncated file
 REPAIRED_SUFFIX = ".repaired.mcap"
+
+
+def exposure_read_mismatch(read_us: float, commanded_us: float) -> bool:
+    """True when a frame's read-back exposure differs from its pulse width by more than
+    max(``EXPOSURE_READ_TOLERANCE_US``, ``EXPOSURE_READ_TOLERANCE_REL`` * pulse width); NaN (nothing read) never."""
+    if math.isnan(read_us):
+        return False
+    return abs(read_us - commanded_us) > max(EXPOSURE_READ_TOLERANCE_REL * commanded_us, EXPOSURE_READ_TOLERANCE_US)
+
+
+def _exposure_mismatch(meta: Any, commanded_us: float) -> bool | None:
+    """Whether ``meta``'s exposure disagrees with its pulse width; None when the frame has no exposure read back.
+    Frames with ``exposure_source`` (read-back fields) are checked by :func:`exposure_read_mismatch`; older ones,
+    without it, by their chunk value and the old tolerance, as before."""
+    source = getattr(meta, "exposure_source", None)
+    if source is not None:
+        read = float(meta.exposure_us_read)
+        if source == "none" or math.isnan(read):
+            return None
+        return exposure_read_mismatch(read, commanded_us)
+    reported = float(meta.exposure_us_reported)
+    if math.isnan(reported):
+        return None
+    return abs(reported - commanded_us) > max(EXPOSURE_TOLERANCE_REL * commanded_us, EXPOSURE_TOLERANCE_US)
 
 
 def recording_files(path: str | Path) -> list[Path]:
@@ -69,7 +101,9 @@ def expand_segments(path: str | Path) -> list[Path]:
 
 @dataclass
 class SideReport:
-    """Counts for one camera; ``seqs`` lists (up to MAX_LISTED) trigger_seqs of each problem kind."""
+    """Counts for one camera; ``seqs`` lists (up to MAX_LISTED) trigger_seqs of each problem kind.
+    ``exposures_checked``: frames whose read-back exposure was compared with their pulse width (the others have no
+    read-back or no TRIGGER event); ``exposure_mismatches`` counts the ones that disagree."""
 
     frames: int = 0
     images: int = 0
@@ -78,6 +112,7 @@ class SideReport:
     unpaired: int = 0
     bracket_order_breaks: int = 0
     exposure_mismatches: int = 0
+    exposures_checked: int = 0
     missing_packets: int = 0
     timestamp_mismatches: int = 0
     missing_images: int = 0
@@ -121,6 +156,12 @@ class VerifyReport:
         return d
 
 
+def _stored_schema(reader: RecordingReader, msg: Any) -> str | None:
+    """The message's schema text as stored in its file: messages are decoded with their file's own definition (a
+    recording made before a field was added lacks it)."""
+    return reader.schemas.get(reader.channels[msg.channel_id][1], ("", "", ""))[2] or None
+
+
 def _load(files: list[Path], report: VerifyReport) -> tuple[dict[int, Any], dict[str, dict[int, Any]],
                                                             dict[str, set[int]], dict[str, str], list[Any]]:
     events: dict[int, Any] = {}
@@ -132,18 +173,18 @@ def _load(files: list[Path], report: VerifyReport) -> tuple[dict[int, Any], dict
         reader = RecordingReader(path)
         for msg in reader.messages():
             if msg.topic == T.TRIGGER_TOPIC:
-                ev = decode(msg.schema_name, msg.data)
+                ev = decode(msg.schema_name, msg.data, _stored_schema(reader, msg))
                 events[int(ev.trigger_seq)] = ev
             elif msg.topic.endswith("/frame_meta"):
                 side = msg.topic.split("/")[2]
-                meta = decode(msg.schema_name, msg.data)
+                meta = decode(msg.schema_name, msg.data, _stored_schema(reader, msg))
                 if int(meta.trigger_seq) in metas[side]:
                     report.problems.append(f"camera {side}: two frames for trigger_seq {meta.trigger_seq}")
                 metas[side][int(meta.trigger_seq)] = meta
             elif msg.topic.endswith("/image_raw"):
                 images[msg.topic.split("/")[2]].add(msg.sequence)
             elif msg.topic == T.STATUS_TOPIC:
-                statuses.append(decode(msg.schema_name, msg.data))
+                statuses.append(decode(msg.schema_name, msg.data, _stored_schema(reader, msg)))
         rr = reader.report
         metadata.update(rr.metadata.get(T.METADATA_NAME, {}))
         report.files.append({"path": str(path), "size_bytes": rr.size_bytes, "truncated": rr.truncated,
@@ -238,11 +279,11 @@ def verify_recording(path: str | Path) -> VerifyReport:
                 if prev is not None and int(ev.bracket_index) != (prev[1] + seq - prev[0]) % n_brackets:
                     sr.note("bracket_order_breaks", seq)
                 prev = (seq, int(ev.bracket_index))
-                reported = float(meta.exposure_us_reported)
-                commanded = float(ev.exposure_us)
-                if not math.isnan(reported) and abs(reported - commanded) > max(
-                        EXPOSURE_TOLERANCE_REL * commanded, EXPOSURE_TOLERANCE_US):
-                    sr.note("exposure_mismatches", seq)
+                mismatch = _exposure_mismatch(meta, float(ev.exposure_us))
+                if mismatch is not None:
+                    sr.exposures_checked += 1
+                    if mismatch:
+                        sr.note("exposure_mismatches", seq)
         sr.images = len(images.get(side, set()))
         report.sides[side] = sr
     report.queue_overflows = max((int(s.queue_overflows) for s in statuses), default=0)
@@ -281,7 +322,8 @@ def format_report(report: VerifyReport) -> str:
     for side, sr in report.sides.items():
         lines.append(f"  {side:>5}: frames {sr.frames}  drops {sr.drops}  incomplete {sr.incomplete}  "
                      f"unpaired {sr.unpaired}  bracket-order breaks {sr.bracket_order_breaks}  "
-                     f"exposure mismatches {sr.exposure_mismatches}  missing packets {sr.missing_packets}")
+                     f"exposure mismatches {sr.exposure_mismatches}/{sr.exposures_checked} read back  "
+                     f"missing packets {sr.missing_packets}")
     lines += [f"  - {p}" for p in report.problems]
     return "\n".join(lines)
 
