@@ -15,6 +15,7 @@ import click
 
 from bracketry.cli.options import SEED, Duration, Integer, Number, option, output_dir, overwrite_option
 from bracketry.errors import BracketryError
+from bracketry.sim.clock import MONOTONIC, Clock
 
 
 def parse_resolution(text: str) -> tuple[int, int]:
@@ -100,21 +101,29 @@ LEAD_DEADLINE_S = 7.0
 
 
 class RenderProgress:
-    """Samples of the renderer's progress, (time.monotonic(), frames rendered), every 0.1 s on a thread from when
-    the renderer was started (while the rig starts), so :func:`wait_for_lead` has its recent rate at once."""
+    """Samples of the renderer's progress, (clock time, frames rendered): every 0.1 s on a thread from when the
+    renderer was started (while the rig starts), so :func:`wait_for_lead` has its recent rate at once; with
+    ``thread=False`` only when :meth:`sample` is called (:func:`wait_for_lead` samples on each of its steps)."""
 
-    def __init__(self, schedule: Any, period_s: float = 0.1) -> None:
-        import time
-
-        self.samples: list[tuple[float, int]] = [(time.monotonic(), schedule.rendered())]
+    def __init__(self, schedule: Any, period_s: float = 0.1, clock: Clock = MONOTONIC, thread: bool = True) -> None:
+        self._schedule = schedule
+        self._clock = clock
+        self.samples: list[tuple[float, int]] = []
+        self.sample()
         self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        if thread:
+            def sample() -> None:
+                while not self._stop.wait(period_s):
+                    self.sample()
 
-        def sample() -> None:
-            while not self._stop.wait(period_s):
-                self.samples.append((time.monotonic(), schedule.rendered()))
+            self._thread = threading.Thread(target=sample, name="bracketry-render-rate", daemon=True)
+            self._thread.start()
 
-        self._thread = threading.Thread(target=sample, name="bracketry-render-rate", daemon=True)
-        self._thread.start()
+    def sample(self, now_s: float | None = None, k: int | None = None) -> None:
+        """Add a sample: ``k`` frames rendered at ``now_s`` (default: the schedule's count at the clock's time)."""
+        self.samples.append((self._clock.now_s() if now_s is None else now_s,
+                             self._schedule.rendered() if k is None else k))
 
     def rate(self, now_s: float, k: int, window_s: float = 1.0) -> float | None:
         """Frames per second per side over the last ``window_s`` (at least) before ``now_s``, when ``k`` frames are
@@ -127,38 +136,38 @@ class RenderProgress:
 
     def stop(self) -> None:
         self._stop.set()
-        self._thread.join()
+        if self._thread is not None:
+            self._thread.join()
+
+
+#: how often :func:`wait_for_lead` looks at the renderer's progress, seconds
+LEAD_STEP_S = 0.1
 
 
 def wait_for_lead(schedule: Any, seconds: float, fps: float, started_mono_s: float,
-                  progress: RenderProgress | None = None) -> None:
+                  progress: RenderProgress | None = None, clock: Clock = MONOTONIC) -> None:
     """Before recording: wait until the renderer, at the rate it has shown over the last second, will keep ahead of
     the cameras for the whole recording (every recorded frame then shows its own rendered frame: no world held), but
     no longer than :data:`LEAD_DEADLINE_S` after the start, and at least until two seconds of frames are there.
 
     ``progress``: samples taken since the renderer was started (:class:`RenderProgress`), so the last second may lie
-    while the rig was starting (without them the second is measured from now: ~1-2 s before every recording)."""
-    import time
-
+    while the rig was starting (without them the second is measured from now: ~1-2 s before every recording).
+    ``clock``: the time ``started_mono_s`` and the samples are on, and the waits between looks (tests step it)."""
     schedule.wait(timeout_s=120.0, frames=round(2.0 * fps))
     needed = min(schedule.n_frames, round((seconds + 2.0) * fps))
-    own = progress is None
     if progress is None:
-        progress = RenderProgress(schedule)
-    try:
-        while True:
-            now_s, k = time.monotonic(), schedule.rendered()
-            if k >= needed or now_s >= started_mono_s + LEAD_DEADLINE_S:
-                return
-            rate = progress.rate(now_s, k)  # frames per second per side
-            if rate is not None and k + rate * seconds >= needed + fps:  # ahead until the end, one second to spare
-                return
-            if schedule.failed():
-                raise BracketryError("the frame renderer failed")
-            time.sleep(0.1)
-    finally:
-        if own:
-            progress.stop()
+        progress = RenderProgress(schedule, clock=clock, thread=False)
+    while True:
+        now_s, k = clock.now_s(), schedule.rendered()
+        progress.sample(now_s, k)
+        if k >= needed or now_s >= started_mono_s + LEAD_DEADLINE_S:
+            return
+        rate = progress.rate(now_s, k)  # frames per second per side
+        if rate is not None and k + rate * seconds >= needed + fps:  # ahead until the end, one second to spare
+            return
+        if schedule.failed():
+            raise BracketryError("the frame renderer failed")
+        clock.sleep(LEAD_STEP_S)
 
 
 def _read_frame_ids(rig: Any) -> None:

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import multiprocessing.connection
 import os
 import threading
 import time
@@ -32,6 +33,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bracketry.sim.clock import MONOTONIC, Clock
 
 ProgressFn = Callable[[int, int], None]
 
@@ -53,6 +56,9 @@ MAX_FRAME_ID = (1 << 24) - 1
 #: how long the image source waits for the renderer before serving a frame without identity, seconds (short: a camera
 #: blocked in its image source delivers late and merges triggers, which confuses the pairing of the frames)
 WAIT_FOR_RENDER_S = 0.02
+#: the longest a wait for the renderer sleeps without looking again (a safety net: each frame rendered, and a
+#: renderer's exit, wakes it)
+SAFETY_WAKE_S = 1.0
 
 
 def embed_frame_id(image: np.ndarray, k: int) -> None:
@@ -112,6 +118,8 @@ class FrameSchedule:
     resolution: tuple[int, int] = (640, 400)
     sides: Sequence[str] = ("left", "right")
     wait_for_render_s: float = WAIT_FOR_RENDER_S
+    #: the time of fills (see ``_follow_missed_trigger``) and the waits' deadlines
+    clock: Clock = MONOTONIC
     frames: dict[str, np.ndarray] = field(default_factory=dict, init=False)
     #: per side, how many bracket frames were served (the next one is bracket frame ``served[side]``), and how many
     #: frames without identity
@@ -143,11 +151,14 @@ class FrameSchedule:
                                                   shape=(len(self.sides), 3))
         self._lock = threading.Lock()
         self._chosen: dict[int, int] = {}
-        #: per side: fill time (time.monotonic()) of its recent bracket frames, and its run of fills later than the
+        #: per side: fill time (on ``clock``) of its recent bracket frames, and its run of fills later than the
         #: other side's by most of a period (see _follow_missed_trigger)
         self._fill_s: dict[str, dict[int, float]] = {}
         self._late_run: dict[str, int] = {}
         self._procs: list[Any] = []
+        #: notified when a renderer reports a frame or ends (see ``_watch``)
+        self._progressed = threading.Condition()
+        self._watcher: threading.Thread | None = None
 
     def frame_path(self, side: str) -> Path:
         return self.folder / f"frames_{side}.npy"
@@ -167,14 +178,40 @@ class FrameSchedule:
 
         One process per side: both cores when the machine is idle, and twice the share of a loaded one."""
         ctx = multiprocessing.get_context("spawn")  # the rig process runs GLib threads: never fork it
+        readers = []
         for side in self.sides:
+            reader, writer = ctx.Pipe(duplex=False)
             proc = ctx.Process(target=render_frames, name=f"bracketry-render-{side}", daemon=True,
                                args=(str(self.folder), self.world, list(self.brackets_us), self.fps,
-                                     int(self.n_frames), self.resolution, [side], list(self.sides)))
+                                     int(self.n_frames), self.resolution, [side], list(self.sides), writer))
             with _environment(RENDERER_ENV):  # read by the child's BLAS when it loads
                 proc.start()
+            writer.close()  # the child's copy is the only one: its exit ends the pipe
             self._procs.append(proc)
+            readers.append(reader)
+        self._watcher = threading.Thread(target=self._watch, args=(readers, [p.sentinel for p in self._procs]),
+                                         name="bracketry-render-watch", daemon=True)
+        self._watcher.start()
         return self
+
+    def _watch(self, readers: list[Any], sentinels: list[int]) -> None:
+        """Wake the waits for the renderer whenever a renderer reports a frame (one message per frame on its pipe) or
+        ends (its process sentinel); returns once every renderer has ended."""
+        waiting: list[Any] = [*readers, *sentinels]
+        while waiting:
+            for ready in multiprocessing.connection.wait(waiting):
+                waited: Any = ready  # a reader (Connection) or a sentinel (int)
+                if waited in sentinels:
+                    waiting.remove(waited)
+                    continue
+                try:
+                    waited.recv_bytes()
+                except (EOFError, OSError):
+                    waiting.remove(waited)
+            with self._progressed:
+                self._progressed.notify_all()
+        for reader in readers:
+            reader.close()
 
     def rendered(self) -> int:
         """Frames rendered so far on every side."""
@@ -190,16 +227,20 @@ class FrameSchedule:
     def wait(self, progress: ProgressFn | None = None, timeout_s: float | None = None,
              frames: int | None = None) -> None:
         """Block until ``frames`` (default: every frame) are rendered (``progress(done, total)`` on the way)."""
-        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        deadline = None if timeout_s is None else self.clock.now_s() + timeout_s
         wanted = self.n_frames if frames is None else min(int(frames), self.n_frames)
         while self.rendered() < wanted:
             if self.failed():
                 raise RuntimeError(f"the frame renderer failed (see {self.folder}/render_*.log)")
-            if deadline is not None and time.monotonic() > deadline:
+            now = self.clock.now_s()
+            if deadline is not None and now > deadline:
                 raise TimeoutError(f"frames not rendered within {timeout_s:g} s")
             if progress is not None:
                 progress(self.rendered(), self.n_frames)
-            time.sleep(0.05)
+            with self._progressed:  # woken by the next frame rendered (or a renderer's end)
+                self._progressed.wait_for(lambda: self.rendered() >= wanted or self.failed(),
+                                          SAFETY_WAKE_S if deadline is None else
+                                          min(SAFETY_WAKE_S, max(0.0, deadline - now) + 1e-3))
         if progress is not None:
             progress(wanted, self.n_frames)
 
@@ -211,19 +252,21 @@ class FrameSchedule:
                 proc.terminate()
         for proc in procs:
             proc.join(10)
+        watcher, self._watcher = self._watcher, None
+        if watcher is not None:
+            watcher.join(10)  # ends with the renderers
 
     # ----------------------------------------------------------------------------------------------- serving
     def _frame(self, side: str, k: int) -> np.ndarray | None:
         """Rendered frame k of ``side`` (waits for the renderer up to ``wait_for_render_s``), or None."""
         k %= self.n_frames
-        deadline = time.monotonic() + self.wait_for_render_s
         if self.rendered() <= k:
             with self._lock:
                 self.waited[side] += 1
-        while self.rendered() <= k:
-            if self.failed() or time.monotonic() > deadline:
+            with self._progressed:  # woken by each frame rendered (or a renderer's end)
+                self._progressed.wait_for(lambda: self.rendered() > k or self.failed(), self.wait_for_render_s)
+            if self.rendered() <= k:
                 return None
-            time.sleep(0.002)
         return self.frames[side][k]
 
     def choose(self, m: int) -> int | None:
@@ -292,7 +335,7 @@ class FrameSchedule:
                                                   if abs(self.exposure_us(c + j) - exposure_us) <= 1), c)
                     matched = self.served[side]
                     self.mismatches += abs(self.exposure_us(matched) - exposure_us) > 1
-                    self._follow_missed_trigger(side, matched, time.monotonic())
+                    self._follow_missed_trigger(side, matched, self.clock.now_s())
                     self.served[side] += 1
                     k = self.choose(matched)
             frame = None
@@ -361,9 +404,11 @@ def world_frame(world: Any, bank: np.ndarray, side: str, t_s: float, exposure_us
 
 
 def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[int], fps: float, n_frames: int,
-                  resolution: tuple[int, int], sides: list[str], all_sides: list[str] | None = None) -> None:
+                  resolution: tuple[int, int], sides: list[str], all_sides: list[str] | None = None,
+                  progress: Any = None) -> None:
     """A renderer process: frame k of each of ``sides``, k = 0, 1, ..., into the shared files, counting as it goes
-    (in the counter rows of those sides among ``all_sides``, default ``sides``)."""
+    (in the counter rows of those sides among ``all_sides``, default ``sides``) and, given ``progress`` (the
+    writing end of a ``multiprocessing.Pipe``), telling the rig there after each frame."""
     parent = os.getppid()
     # its own session: with the kernel's autogroup scheduling, a session's processes share one CPU share, so the
     # renderer competes with other sessions' load rather than with the rig it feeds (which has its own)
@@ -396,6 +441,11 @@ def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[i
                 embed_frame_id(img, k)
                 frames[side][k] = img
             counter[rows, 0] = k + 1
+            if progress is not None:
+                try:
+                    progress.send_bytes(b"")
+                except BrokenPipeError:
+                    return  # the rig process is gone
         counter[rows, 2] = time.time_ns()
         counter[rows, 1] = 1
     except BaseException as exc:

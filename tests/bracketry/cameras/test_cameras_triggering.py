@@ -5,14 +5,27 @@ fired through it by the recording and daemon tests)."""
 from __future__ import annotations
 
 import time
+from typing import Any
 
 import pytest
 
+from bracketry.cameras import triggering
 from bracketry.cameras.profiles import profile_kind, settings_from_config
 from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, LineTrigger, SoftwareTrigger, camera_trigger
 from bracketry.daemon.config import CameraConfig, ConfigError, parse_config
 from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
+from bracketry.sim.clock import SteppedClock
+
+
+class SteppedTime:
+    """The ``time`` module as the trigger sees it: monotonic time and sleeps on ``clock``, the rest real."""
+
+    def __init__(self, clock: SteppedClock) -> None:
+        self.monotonic, self.sleep = clock.now_s, clock.sleep
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(time, name)
 
 
 class Cam:
@@ -63,7 +76,10 @@ def test_profiles_choose_the_adapter_and_the_settings() -> None:
         parse_config(mixed, "mixed")
 
 
-def test_software_trigger_writes_exposures_first_spaces_pulses_and_skips_a_failed_camera() -> None:
+def test_software_trigger_writes_exposures_first_spaces_pulses_and_skips_a_failed_camera(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    clock = SteppedClock(100.0)  # the trigger's time: moves only when it waits
+    monkeypatch.setattr(triggering, "time", SteppedTime(clock))
     calls: list[tuple[str, str, float | None]] = []
     cams = {"left": Cam("left", calls), "right": Cam("right", calls)}
     trig = SoftwareTrigger(cams, min_interval_s=0.05)
@@ -71,10 +87,11 @@ def test_software_trigger_writes_exposures_first_spaces_pulses_and_skips_a_faile
     assert calls == [("left", "exposure", PRIMING_EXPOSURE_US), ("left", "trigger", None),
                      ("right", "exposure", PRIMING_EXPOSURE_US), ("right", "trigger", None)]
     calls.clear()
-    t0 = time.monotonic()
+    clock.slept.clear()
     assert trig.fire(event(0, 1000)) == ("left", "right")
+    assert clock.slept == []  # the first pulse waits for nothing
     assert trig.fire(event(1, 4000), sides=["right"]) == ("right",)  # the left camera misses this pulse
-    assert time.monotonic() - t0 >= 0.05  # the second pulse waited for the first one's interval
+    assert clock.slept == [pytest.approx(0.05)]  # the second pulse waited for the first one's interval
     assert calls == [("left", "exposure", 1000), ("right", "exposure", 1000), ("left", "trigger", None),
                      ("right", "trigger", None), ("right", "exposure", 4000), ("right", "trigger", None)]
     cams["right"].fail = True

@@ -3,12 +3,12 @@ image source that serves it (no rig, no network)."""
 
 from __future__ import annotations
 
-import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from bracketry.sim.clock import SteppedClock
 from bracketry.sim.frames import (
     FRAME_ID_PIXELS,
     MAX_FRAME_ID,
@@ -110,15 +110,17 @@ def test_a_side_filling_a_period_after_the_other_skips_the_trigger_it_missed(tmp
     one trigger for two (the pairer moves its frames on by one pulse for the same reason); its later fills skip one
     frame. Both sides late together is the host's lateness: nothing moves."""
     fps = 50.0
-    sched = FrameSchedule(tmp_path, None, BRACKETS_US, fps, 60, resolution=(32, 16), wait_for_render_s=0.0)
+    clock = SteppedClock()  # fills take no time but the lateness the test gives them
+    sched = FrameSchedule(tmp_path, None, BRACKETS_US, fps, 60, resolution=(32, 16), wait_for_render_s=0.0,
+                          clock=clock)
     sched._counter[:, 0] = 60
     left, right = sched.source("left"), sched.source("right")
     for m in range(20):
         e = BRACKETS_US[m % 6]
         left(e, 32, 16)
         if m == 4:
-            time.sleep(2.0 / fps)  # both late together
+            clock.sleep(2.0 / fps)  # both late together
         if m >= 8:
-            time.sleep(1.0 / fps)  # from frame 8 the right camera fills a period after the left one
+            clock.sleep(1.0 / fps)  # from frame 8 the right camera fills a period after the left one
         right(e, 32, 16)
     assert sched.resyncs == 1 and sched.served["right"] == 21
