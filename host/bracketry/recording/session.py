@@ -103,6 +103,7 @@ class RecordingSession:
         self._fps_marks: dict[str, tuple[float, int]] = {}
         self.frames_received: dict[str, int] = {}
         self._lock = threading.Lock()
+        self._frame_arrived = threading.Condition(self._lock)  # notified with every frame (stop's drain waits on it)
         self.tap = tap
         #: the latest rig status (RigStatus fields), for readers outside the pairing thread
         self.last_status: dict[str, Any] = {}
@@ -134,6 +135,7 @@ class RecordingSession:
     def _on_frame(self, frame: Any) -> None:
         with self._lock:
             self.frames_received[frame.side] = self.frames_received.get(frame.side, 0) + 1
+            self._frame_arrived.notify_all()
         try:
             self._inbox.put_nowait(("frame", frame))
         except queue.Full:
@@ -229,17 +231,18 @@ class RecordingSession:
         last = -1
         want = (expect_frames if isinstance(expect_frames, dict) else dict.fromkeys(self.cameras, expect_frames)
                 if expect_frames is not None else None)
-        while time.monotonic() < deadline:
-            with self._lock:
+        with self._frame_arrived:  # woken by every frame, not polled
+            while True:
                 counts = [self.frames_received.get(s, 0) for s in self.cameras]
-                done = want is not None and all(self.frames_received.get(s, 0) >= want.get(s, 0)
-                                                for s in self.cameras)
-            if done:
-                break
-            if sum(counts) != last:
-                last = sum(counts)
-                deadline = time.monotonic() + drain_s if expect_frames is not None else deadline
-            time.sleep(0.02)
+                if want is not None and all(self.frames_received.get(s, 0) >= want.get(s, 0) for s in self.cameras):
+                    break
+                now = time.monotonic()
+                if sum(counts) != last:
+                    last = sum(counts)
+                    deadline = now + drain_s if expect_frames is not None else deadline
+                if now >= deadline:
+                    break
+                self._frame_arrived.wait(deadline - now)
         for cam in self.cameras.values():
             cam.stop()
         if self._thread is not None:
