@@ -91,7 +91,7 @@ def lossy_run(seed: int, n: int = 12) -> tuple[list[tuple[int, str]], list[tuple
 def test_the_same_seed_loses_the_same_packets_a_different_seed_others() -> None:
     statuses_a, dropped_a, served_a = lossy_run(seed=1)
     statuses_b, dropped_b, served_b = lossy_run(seed=1)
-    statuses_c, dropped_c, _ = lossy_run(seed=2)
+    _, dropped_c, _ = lossy_run(seed=2)
     assert served_a == served_b == 13  # priming frame + 12
     assert dropped_a and dropped_a == dropped_b  # the same packets of the same frames
     assert statuses_a == statuses_b  # so the same frames are incomplete
