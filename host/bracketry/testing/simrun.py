@@ -5,8 +5,8 @@ the cameras need 127.0.0.2/.3). It starts one ``FakeCameraServer`` per side serv
 known function of side and exposure, so tests can check every exported image exactly), opens them by IP with the
 ``aravis_fake`` profile, generates TRIGGER events at ``fps`` cycling the brackets, fires the cameras at each event
 (``bracketry.cameras.triggering.SoftwareTrigger``, as the daemon does), records, and writes a JSON summary
-(``--summary``) with what was fired, dropped and served. ``--progress FILE`` gets one line
-``<trigger_seq> <host_ns>`` per fired trigger (flushed), for kill -9 tests.
+(``--summary``) with what was fired, dropped and served, and the packet-loss ``--seed``. ``--progress FILE`` gets
+one line ``<trigger_seq> <host_ns>`` per fired trigger (flushed), for kill -9 tests.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from bracketry.cameras.camera import GigECamera
-from bracketry.cameras.fake import FakeCameraServer
+from bracketry.cameras.fake import DEFAULT_SEED, FakeCameraServer
 from bracketry.cameras.profiles import CameraSettings
 from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, SoftwareTrigger
 from bracketry.events import TriggerEvent
@@ -111,6 +111,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--brackets-us", default="1000,2000,4000,8000,16000,32000")
     ap.add_argument("--addresses", default="127.0.0.2,127.0.0.3", help="left,right camera IPs")
     ap.add_argument("--lost-ratio", type=float, default=0.0, help="GVSP packet loss ratio of both fakes")
+    ap.add_argument("--seed", type=int, default=DEFAULT_SEED,
+                    help="seed of the fakes' packet loss (same seed: the same packets of the same frames lost)")
     ap.add_argument("--drop-events", default="", help="trigger_seqs whose TRIGGER event is not delivered")
     ap.add_argument("--skip-trigger", default="", help="side:seq,... pulses a camera does not see (missed trigger)")
     ap.add_argument("--packet-size", type=int, default=1500)
@@ -132,7 +134,7 @@ def main(argv: list[str] | None = None) -> int:
     period_ns = int(1e9 / args.fps)
 
     servers = {s: FakeCameraServer(addresses[s], f"SIM-{s.upper()}", image_source=functools.partial(sim_pixels, s),
-                                   lost_packet_ratio=args.lost_ratio).start() for s in SIDES}
+                                   lost_packet_ratio=args.lost_ratio, seed=args.seed).start() for s in SIDES}
     cams = {s: GigECamera(addresses[s], side=s) for s in SIDES}
     for cam in cams.values():
         cam.configure(CameraSettings(profile="aravis_fake", pixel_format="Mono16", width=args.width,
@@ -154,9 +156,11 @@ def main(argv: list[str] | None = None) -> int:
     # every buffer a fake served reaches us (the priming frame too, when the fake gave one): wait for all of them
     primed = {s: sum(1 for e in srv.exposures() if e == PRIMING_EXPOSURE_US) for s, srv in servers.items()}
     result = session.stop(drain_s=2.0, expect_frames={s: len(fired) + primed.get(s, 0) for s in cams})
-    summary = {"fired": len(fired), "dropped_events": sorted(drop_events), "skipped_triggers": sorted(skip),
+    summary = {"fired": len(fired), "seed": args.seed, "dropped_events": sorted(drop_events),
+               "skipped_triggers": sorted(skip),
                "served_exposures_us": {s: srv.exposures() for s, srv in servers.items()},
-               "fill_errors": {s: srv.fill_errors for s, srv in servers.items()}, **result}
+               "fill_errors": {s: srv.fill_errors for s, srv in servers.items()},
+               "packets_lost": {s: len(srv.relay.dropped) if srv.relay else 0 for s, srv in servers.items()}, **result}
     for cam in cams.values():
         cam.close()
     for srv in servers.values():
