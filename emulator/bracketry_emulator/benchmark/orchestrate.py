@@ -114,7 +114,8 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
                   progress: bool = False, loop: dict | None = None,
                   on_done: Callable[[dict], None] | None = None, slam: dict | None = None,
                   slam_echo: Callable[[str], None] | None = None,
-                  stats_methods: str | list[str] = "paper", write_images: bool = False) -> BenchmarkResult:
+                  stats_methods: str | list[str] = "paper", write_images: bool = False,
+                  setup_check: bool = True) -> BenchmarkResult:
     """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
     ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally,
@@ -137,6 +138,8 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     default vocabulary is being built). ``stats_methods``: the methods the statistics (and their Bonferroni count)
     cover: ``paper`` (default: the benchmarked methods among the paper's eight; ``zhang`` and plugins are reported
     but not tested), ``all`` (every benchmarked method) or a list.
+    ``setup_check``: with ORB-SLAM3 and runs still to do, first check that it can track at all with this vocabulary
+    and calibration (:mod:`~bracketry_emulator.slam.setup_check`; a failure is one line before any method runs).
     """
     paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
     specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
@@ -166,6 +169,8 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     references = {s.name: _reference(s, out) for s in specs}
     tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam_path, weights, loop, slam_opts, r,
                        references[s.name]) for s in specs for m in method_ids for r in range(repeats)]
+    if setup_check and slam_path is None and slam_opts.get("backend") == "orbslam3":
+        _check_setup(specs, tasks, method_ids, references, slam_opts, out, slam_echo)
     from bracketry_emulator.stages import StageTimes
 
     t_start = time.perf_counter()
@@ -201,6 +206,25 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
         files["stages.json"] = out / "report" / "stages.json"
         files["stages.json"].write_text(json.dumps(timing, indent=1) + "\n")
     return BenchmarkResult(results, out, files, timing)
+
+
+def _check_setup(specs: list[TrajectorySpec], tasks: list[dict], method_ids: list[str],
+                 references: dict[str, Path | None], slam_opts: dict, out: Path,
+                 echo: Callable[[str], None] | None) -> None:
+    """The ORB-SLAM3 set-up check (:func:`~bracketry_emulator.slam.setup_check.check_setup`) when some run is still
+    to do; its runs go to ``out/setup_check/``."""
+    from bracketry_emulator.benchmark.tasks import load_cached
+    from bracketry_emulator.slam.setup_check import Trajectory, check_setup
+
+    if all(load_cached(t) is not None for t in tasks):
+        return
+    trajectories = [Trajectory(s.name, s.path, s.calibration_dir(),
+                               next((r for r in (s.existing_run(m) for m in method_ids) if r is not None), None),
+                               references.get(s.name) or s.groundtruth_path()) for s in specs]
+    res = check_setup(trajectories, slam_opts["vocabulary"], out / "setup_check")
+    if echo and res is not None:
+        echo(f"set-up check: ORB-SLAM3 tracked {res.longest_tracked} of {res.n_frames} frames of the {res.what} of "
+             f"{res.trajectory} ({res.cpu_s:.1f} CPU s in ORB-SLAM3, {res.wall_s:.1f} s)")
 
 
 def stage_document(stages: Any, results: list[dict], wall_s: float, n_runs: int, n_cached: int) -> dict:

@@ -67,12 +67,16 @@ def slam_options(backend: str = "orbslam3", vocabulary: str | Path | None = None
 
 
 def resolve_options(opts: dict, echo=None) -> dict:
-    """``opts`` with the ORB-SLAM3 vocabulary resolved to a file and identified by its content."""
+    """``opts`` with the ORB-SLAM3 vocabulary resolved to a file, checked (a bad one is one line, see
+    :func:`~bracketry_emulator.slam.vocabulary_check.check_vocabulary`) and identified by its content. Options that
+    already carry a ``vocabulary_id`` are returned as they are."""
     if opts.get("backend") != "orbslam3" or opts.get("vocabulary_id"):
         return opts
+    from bracketry_emulator.slam.vocabulary_check import check_vocabulary
     from bracketry_emulator.slam.vocabulary_files import resolve_vocabulary
 
     voc = resolve_vocabulary(opts.get("vocabulary"), echo=echo)
+    check_vocabulary(voc)
     return dict(opts, vocabulary=str(voc), vocabulary_id=file_id(voc))
 
 

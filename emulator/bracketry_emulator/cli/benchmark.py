@@ -92,13 +92,17 @@ def _windows(text: str) -> tuple[float, ...]:
               help="ORB-SLAM3's loop-closing thread; off also turns relocalisation off.")
 @click.option("--slam-repeats", default=1, show_default=True, type=Integer(1, 50),
               help="SLAM runs per (trajectory, method): the report gives median and spread, statistics use medians.")
+@click.option("--setup-check/--no-setup-check", default=True, show_default=True,
+              help="ORB-SLAM3: before the methods run, check that it tracks the first seconds of a trajectory's "
+                   "middle bracket (no AE) with this vocabulary and calibration; a failure is one error line, exit 2. "
+                   "Off: for a dataset whose every trajectory starts unusably (e.g. in darkness).")
 @quiet_option("No progress bar for the closed loops.")
 def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_dir: Path, reference: str,
             scheduler: str | None, workers: int, windows_text: str, alpha: float, max_frames: int | None,
             write_images: bool, export_orbslam: bool, slam_dir: Path | None, drl_weights: Path | None,
             selection: str, crf: str,
             init_exposure_ms: float, seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: Path | None,
-            slam_pace: str, loop_closing: bool, slam_repeats: int, quiet: bool) -> int:
+            slam_pace: str, loop_closing: bool, slam_repeats: int, setup_check: bool, quiet: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
@@ -107,7 +111,8 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
     VO, RTE/RRE with evo, the distance tracked and the failure metrics. SLAM gets the emulated images in memory
     as the closed loops make them (PNGs only with --write-images or --export-orbslam). Results are cached under
     OUT/cache, so running the same command again resumes. The report is written to OUT/report (CSV, Markdown,
-    HTML, figures). Exit code 0.
+    HTML, figures). Exit code 0. With ORB-SLAM3 the vocabulary is checked first and a set-up check (ORB-SLAM3 on
+    the first seconds of a trajectory's middle bracket, no AE) must pass: else one error line, exit 2.
     """
     import os
 
@@ -141,7 +146,7 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
                            workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
                            export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
                            progress=not quiet, on_done=done, slam=slam, slam_echo=click.echo,
-                           stats_methods=stats_methods, write_images=write_images,
+                           stats_methods=stats_methods, write_images=write_images, setup_check=setup_check,
                            loop={"selection": selection, "crf": crf, "init_exposure_us": init_exposure_ms * 1000.0,
                                  "seed": seed, "ae_camera": ae_camera, "parity": parity})
     click.echo(f"report: {result.report_files.get('report.html')}")
