@@ -440,14 +440,18 @@ def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[i
                     img = _pattern(side, k, exp_us, w, h)
                 embed_frame_id(img, k)
                 frames[side][k] = img
+            if k == n_frames - 1:  # done before the last frame is counted: whoever sees it counted sees it done
+                counter[rows, 2] = time.time_ns()
+                counter[rows, 1] = 1
             counter[rows, 0] = k + 1
             if progress is not None:
                 try:
                     progress.send_bytes(b"")
                 except BrokenPipeError:
                     return  # the rig process is gone
-        counter[rows, 2] = time.time_ns()
-        counter[rows, 1] = 1
+        if n_frames == 0:
+            counter[rows, 2] = time.time_ns()
+            counter[rows, 1] = 1
     except BaseException as exc:
         counter[rows, 1] = 2
         (base / f"render_{'_'.join(sides)}.log").write_text(f"{type(exc).__name__}: {exc}\n")
