@@ -20,6 +20,21 @@ learn it and re-sync a whole camera wrongly). A frame stamped before its pulse p
 (``confirm_frames`` of them move back); a camera whose frames come whole periods later than the other cameras'
 frames of the same pulses (twice ``confirm_frames`` in a row) missed a pulse. The smallest such ``m`` is the shift.
 
+Bracket order: a frame that reports its exposure (``exposure_us_reported``, the ExposureTime chunk) is checked
+against the exposure of its pulse (the TRIGGER events' cyclic bracket table, ``bracket_index`` -> ``exposure_us``). A
+frame whose exposure is its pulse's is on its pulse (a reference, like an agreeing timestamp); one whose exposure is
+pulse ``seq + m``'s (the ``m`` the timestamps show, else the smallest ``|m|``) is a shift candidate like a timestamp
+one, timestamp or not. So the first moved frame of a confirmed shift is the first frame after the last one shown on
+its pulse, by its exposure or its timestamp: the missed pulse is placed on its own seq whatever its neighbours carry.
+Where the timestamp is clear it decides; exposures decide where it is missing or inconclusive, and only on a camera
+whose last timed frame with an exposure agreed with its timestamp (a chunk one frame behind, Aravis #312, never does).
+A host-fired camera's frame shows its pulse by time only when stamped before the next pulse (its event's host time,
+less ``tolerance_fraction`` of a period): a frame is never stamped before its own pulse. A frame as late as the other
+cameras' but after the next pulse shows nothing (all may be late, or all may have missed a pulse): a shift under
+confirmation stays pending and its set waits (up to the window) for a frame that decides; a candidate frame later
+than the other cameras' and stamped after the next pulse counts twice. Frames with neither an exposure nor a
+timestamp move with their neighbours.
+
 A trigger_seq is emitted (``PairedSet``) as soon as the event and every camera's frame are there, or when it falls
 ``window`` pulses behind the newest one seen (then with what is missing counted), or at ``flush()``.
 """
@@ -37,6 +52,10 @@ from typing import Any
 from bracketry.events import TriggerEvent
 
 log = logging.getLogger(__name__)
+
+#: a reported exposure is a pulse's when within this fraction of it or this many microseconds (as ``verify``)
+EXPOSURE_TOLERANCE_REL = 0.02
+EXPOSURE_TOLERANCE_US = 20.0
 
 
 @dataclass
@@ -80,11 +99,14 @@ class _SideState:
     offsets: deque = field(default_factory=lambda: deque(maxlen=15))  # cam ns - device ns of accepted frames
     candidate: list[int] = field(default_factory=list)  # seqs of frames agreeing on a shift
     candidate_shift: int = 0
+    candidate_weight: int = 0  # evidence of the candidates: one per frame, two for a frame that proves its shift
     recent: dict[int, int] = field(default_factory=dict)  # seq -> offset of recent frames (accepted or not)
     waiting: list = field(default_factory=list)  # frames before any event (host_time alignment)
-    last_ok_seq: int | None = None  # last frame whose timestamp agreed with its pulse
+    last_ok_seq: int | None = None  # last frame whose timestamp or exposure agreed with its pulse
     stamps: dict[int, int] = field(default_factory=dict)  # seq -> camera timestamp (host-fired cameras)
     newest_seq: int = -1  # newest trigger_seq a frame of this side was assigned
+    suspect: set[int] = field(default_factory=set)  # seqs of frames stamped after the next pulse, undecided
+    exposures_agree: int = 0  # timed frames in a row whose reported exposure agreed with their timestamp's pulse
 
     def drop_candidate(self, side: str | None = None, seq: int | None = None) -> None:
         """Forget the shift candidate; with ``side`` and ``seq``, log that a pending one was dropped at ``seq``."""
@@ -92,6 +114,7 @@ class _SideState:
             log.info("camera %s: timestamp shift candidate dropped at trigger_seq %d", side, seq)
         self.candidate = []
         self.candidate_shift = 0
+        self.candidate_weight = 0
 
 
 class Pairer:
@@ -128,6 +151,9 @@ class Pairer:
         self._last_event_seq: int | None = None
         self._state = {s: _SideState() for s in sides}
         self._period_us: float | None = None
+        self._brackets: dict[int, int] = {}  # bracket_index -> exposure_us, from the events
+        self._cycle: int | None = None  # bracket table length, once a full cycle of events was seen
+        self._bracket_repeated = False
 
     # -- input ----------------------------------------------------------------------------------------------------
     def add_event(self, event: TriggerEvent) -> None:
@@ -148,6 +174,7 @@ class Pairer:
                     self._period_us = period if self._period_us is None else 0.9 * self._period_us + 0.1 * period
         self._last_event_seq = max(seq, self._last_event_seq or 0)
         self._events[seq] = event
+        self._learn_bracket(event)
         self._touch(seq)
         for st in self._state.values():
             waiting, st.waiting = st.waiting, []
@@ -204,100 +231,232 @@ class Pairer:
         configure it, so the chunk is only recorded by default). With ``initial_alignment="host_time"`` (cameras
         whose timestamps are host time, like the Aravis fake camera) it is the latest pulse that started before the
         frame's timestamp (a first frame late by whole periods is moved back by the frames after it, stamped before
-        their pulses), and None (frame ignored: the priming trigger's) when none did. Otherwise the first frame is
+        their pulses; a frame without a timestamp: the latest pulse of its reported exposure that started before it
+        was received), and None (frame ignored: the priming trigger's) when none did. Otherwise the first frame is
         pulse 0 (k-th frame since START).
         """
         counter = getattr(frame, "counter_value", None)
         if self.initial_alignment == "counter" and counter is not None and counter > 0:
             return int(counter) - 1
         if self.initial_alignment == "host_time":
+            if not frame.cam_timestamp_ns:  # no timestamp (lost leader): the latest pulse received with its exposure
+                reported = self._frame_exposure_us(frame)
+                started = [e.trigger_seq for e in self._events.values()
+                           if e.t_start_host_ns is not None and e.t_start_host_ns <= frame.host_receive_ns
+                           and reported is not None and self._exposure_is(reported, e.exposure_us)]
+                return max(started) if started else None
             started = [e.trigger_seq for e in self._events.values()
                        if e.t_start_host_ns is not None and e.t_start_host_ns <= frame.cam_timestamp_ns]
             return max(started) if started else None
         return 0
 
+    # -- bracket order ----------------------------------------------------------------------------------------------
+    def _learn_bracket(self, event: TriggerEvent) -> None:
+        """Learn the bracket table; its length is known once every index up to the largest seen is in it and every
+        stored event agrees with it (a lost event with the last index would otherwise make the cycle one short)."""
+        index = int(event.bracket_index)
+        if index < 0:
+            return
+        self._bracket_repeated = self._bracket_repeated or index in self._brackets  # a whole cycle went by
+        self._brackets[index] = int(event.exposure_us)
+        n = max(self._brackets) + 1
+        phases = {(int(e.bracket_index) - e.trigger_seq) % n for e in self._events.values()}
+        self._cycle = n if self._bracket_repeated and len(self._brackets) == n and len(phases) == 1 else None
+
+    def _pulse_exposure_us(self, seq: int) -> int | None:
+        """Exposure of pulse ``seq``: its event's, else from the bracket table and the nearest event (None: unknown)."""
+        ev = self._events.get(seq)
+        if ev is not None:
+            return int(ev.exposure_us)
+        if self._cycle is None or not self._events:
+            return None
+        ref = self._events[min(self._events, key=lambda k: abs(k - seq))]
+        return self._brackets.get((int(ref.bracket_index) + seq - ref.trigger_seq) % self._cycle)
+
+    @staticmethod
+    def _frame_exposure_us(frame: Any) -> float | None:
+        value = getattr(frame, "exposure_us_reported", None)
+        if value is None or not math.isfinite(float(value)) or float(value) <= 0:
+            return None
+        return float(value)
+
+    @staticmethod
+    def _exposure_is(reported: float, want: int | None) -> bool:
+        return want is not None and abs(reported - want) <= max(EXPOSURE_TOLERANCE_REL * want, EXPOSURE_TOLERANCE_US)
+
+    def _exposure_shift(self, seq: int, frame: Any, hint: int | None = None) -> int | None:
+        """Bracket-order check: 0 when the frame's exposure is its pulse's, else the shift ``m`` whose pulse
+        ``seq + m`` has it (``hint`` when it fits, else the smallest ``|m|`` within one cycle, positive first);
+        None when the frame reports no exposure, the pulses' exposures are unknown or nothing matches."""
+        reported = self._frame_exposure_us(frame)
+        if reported is None:
+            return None
+        want = self._pulse_exposure_us(seq)
+        if want is None:
+            return None
+        if self._exposure_is(reported, want):
+            return 0
+        if self._cycle is None:
+            return None
+        if hint and self._exposure_is(reported, self._pulse_exposure_us(seq + hint)):
+            return hint
+        for k in range(1, self._cycle):
+            for m in (k, -k):
+                if seq + m >= 0 and self._exposure_is(reported, self._pulse_exposure_us(seq + m)):
+                    return m
+        return None
+
+    # -- timestamps -------------------------------------------------------------------------------------------------
     def _check_time(self, side: str, seq: int, frame: Any) -> int:
-        """Timestamp cross-check (see module doc); returns the frame's (possibly moved) trigger_seq."""
+        """Timestamp and bracket-order cross-check (see module doc); returns the frame's (possibly moved)
+        trigger_seq."""
         st = self._state[side]
-        if self._period_us is None or not self._events or not frame.cam_timestamp_ns:
-            return seq  # an incomplete buffer whose leader was lost carries no timestamp
+        if not self._events:
+            return seq
+        has_time = self._period_us is not None and bool(frame.cam_timestamp_ns)
+        if not has_time:  # an incomplete buffer whose leader was lost carries no timestamp: its exposure may tell
+            em = self._trusted_exposure_shift(side, seq, frame, st.candidate_shift or None)
+            return seq if em is None else self._decide(side, seq, em)
+        assert self._period_us is not None
         period_ns = self._period_us * 1000.0
         if self.initial_alignment == "host_time":
             host_ns = self._pulse_host_ns(seq)
             if host_ns is not None:
-                return self._check_host_time(side, seq, frame.cam_timestamp_ns, host_ns, period_ns)
+                return self._check_host_time(side, seq, frame, host_ns, period_ns)
         offset = frame.cam_timestamp_ns - self._pulse_device_ns(seq)
         st.recent[seq] = offset
         if len(st.recent) > 64:
             del st.recent[min(st.recent)]
-        if not st.offsets:
+        if not st.offsets:  # the first timed frame: the reference
+            self._compare_exposure(side, seq, frame, 0)
             st.offsets.append(offset)
             st.last_ok_seq = seq
             return seq
         deviation = offset - statistics.median(st.offsets)
         m = round(deviation / period_ns)
         if abs(deviation - m * period_ns) > self.tolerance_fraction * period_ns:
-            return seq  # an outlier (late frame): neither accepted as reference nor a shift
+            # an outlier (late frame): neither accepted as reference nor a shift, unless its exposure tells
+            em = self._trusted_exposure_shift(side, seq, frame, st.candidate_shift or None)
+            return seq if em is None else self._decide(side, seq, em)
+        self._compare_exposure(side, seq, frame, m)
         if m == 0:
             st.offsets.append(offset)
-            st.last_ok_seq = seq
+        return self._decide(side, seq, m)
+
+    def _compare_exposure(self, side: str, seq: int, frame: Any, m: int) -> None:
+        """A frame whose timestamp shows its pulse ``seq + m``: does its reported exposure say the same? (A camera
+        whose chunk lags a frame, Aravis #312, never agrees: its exposures are never used to place frames.)"""
+        em = self._exposure_shift(seq, frame, m or None)
+        if em is not None:
+            st = self._state[side]
+            st.exposures_agree = st.exposures_agree + 1 if em == m else 0
+
+    def _trusted_exposure_shift(self, side: str, seq: int, frame: Any, hint: int | None = None) -> int | None:
+        """``_exposure_shift`` of a camera whose last timed frame with an exposure agreed with its timestamp."""
+        return self._exposure_shift(seq, frame, hint) if self._state[side].exposures_agree > 0 else None
+
+    def _decide(self, side: str, seq: int, m: int) -> int:
+        """The frame at ``seq`` is on its pulse (``m == 0``) or shows a shift of ``m``: note it as a reference or a
+        shift candidate, and apply the shift once ``confirm_frames`` frames agree."""
+        st = self._state[side]
+        if m == 0:
+            st.last_ok_seq = seq if st.last_ok_seq is None else max(st.last_ok_seq, seq)
+            st.suspect = {k for k in st.suspect if k > seq}  # frames before one on its pulse are on theirs
             st.drop_candidate(side, seq)
             return seq
         if m != st.candidate_shift:
-            st.candidate = []
+            st.drop_candidate()
             st.candidate_shift = m
         st.candidate.append(seq)
-        if len(st.candidate) < self.confirm_frames:
+        st.candidate_weight += 1
+        if st.candidate_weight < self.confirm_frames:
             return seq
         return self._apply_shift(side, seq)
 
-    def _check_host_time(self, side: str, seq: int, cam_ns: int, host_ns: float, period_ns: float) -> int:
-        """The check of a host-fired camera's frame stamped ``cam_ns``, assigned the pulse of host time ``host_ns``
-        (see the module doc)."""
+    def _check_host_time(self, side: str, seq: int, frame: Any, host_ns: float, period_ns: float) -> int:
+        """The check of a host-fired camera's frame, assigned the pulse of host time ``host_ns`` (see the module
+        doc)."""
         st = self._state[side]
+        cam_ns = int(frame.cam_timestamp_ns)
         st.stamps[seq] = cam_ns
         if len(st.stamps) > 256:
             del st.stamps[min(st.stamps)]
         tol = self.tolerance_fraction * period_ns
         late_ns = cam_ns - host_ns
+        known: list[int] = []  # the other cameras' stamps of this seq
         if late_ns < -tol:  # before its pulse: the frame belongs to an earlier one, by at least m pulses
             m = -math.ceil((-late_ns - tol) / period_ns)
         else:  # later than another camera's frame of the same pulse by m whole periods (0: the host's lateness)
             others = [self._state[o].stamps.get(seq) for o in self.sides if o != side]
             known = [o_ns for o_ns in others if o_ns is not None]
             m = max(0, math.floor((cam_ns - min(known) + tol) / period_ns)) if known else 0
-            for other in self.sides:  # and this frame may show that another camera's candidate is only host lag
+            if not known and 0 < st.candidate_shift <= math.floor((late_ns + tol) / period_ns):
+                m = st.candidate_shift  # no other frame to compare with: as late as the pending shift says, it agrees
+            # and this frame, when on its pulse (stamped before the next one, or of its exposure: a frame as late as
+            # another camera's shifted one proves nothing), may show that another camera's candidate is only host lag
+            on_time = cam_ns < self._next_pulse_host_ns(seq, host_ns, period_ns) - tol
+            if on_time:  # stamped after its pulse and before the next one: the timestamp shows its pulse
+                self._compare_exposure(side, seq, frame, 0)
+            on_time = on_time or self._trusted_exposure_shift(side, seq, frame) == 0
+            for other in self.sides:
                 o_st = self._state[other]
                 o_ns = o_st.stamps.get(seq)
-                if (other != side and o_st.candidate_shift > 0 and seq in o_st.candidate and o_ns is not None
-                        and o_ns - cam_ns < o_st.candidate_shift * period_ns - tol):
+                if (other != side and on_time and o_st.candidate_shift > 0 and seq in o_st.candidate
+                        and o_ns is not None and o_ns - cam_ns < o_st.candidate_shift * period_ns - tol):
                     o_st.drop_candidate(other, seq)
+        em = self._trusted_exposure_shift(side, seq, frame, m or st.candidate_shift or None)
+        if em is not None:  # the bracket order is exact: it decides
+            if em == 0 and len(st.stamps) <= 1:
+                return seq  # (a late first frame may have been aligned to a later pulse: not a reference)
+            if em != 0 and st.candidate and em != st.candidate_shift:
+                st.drop_candidate()
+            return self._decide(side, seq, em)
         if m == 0:
+            if cam_ns >= self._next_pulse_host_ns(seq, host_ns, period_ns) - tol:
+                # as late as the other cameras but not before the next pulse (whose host time, when its event came,
+                # is its own: a pulse fired late by the host leaves less than a period to the next): they may all be
+                # late, or all have missed a pulse: proves nothing (a shift under confirmation stays pending); its
+                # set waits (up to the window) for a frame that decides
+                st.suspect.add(seq)
+                return seq
             if len(st.stamps) > 1:  # (a late first frame may have been aligned to a later pulse: not a reference)
-                st.last_ok_seq = seq
+                st.last_ok_seq = seq if st.last_ok_seq is None else max(st.last_ok_seq, seq)
+                st.suspect = {k for k in st.suspect if k > seq}
             st.drop_candidate(side, seq)
             return seq
         if st.candidate and (m > 0) != (st.candidate_shift > 0):
-            st.candidate = []
+            st.drop_candidate()
         # lateness only shortens an early frame's lead and lengthens a late one's lag: the smallest m is the shift
         st.candidate_shift = m if not st.candidate else min(st.candidate_shift, m)
         st.candidate.append(seq)
-        if len(st.candidate) < self.confirm_frames * (1 if m < 0 else 2):
+        # a frame later than the other cameras' and stamped after the next pulse's own host time (its event came)
+        # counts twice: a frame of its own pulse would have to be late by a whole pulse gap while theirs were not
+        next_ns = self._pulse_host_ns(seq + 1, exact=True) if m > 0 and known else None
+        st.candidate_weight += 2 if next_ns is not None and cam_ns >= next_ns else 1
+        if st.candidate_weight < self.confirm_frames * (1 if m < 0 else 2):
             return seq
         return self._apply_shift(side, seq)
 
-    def _pulse_host_ns(self, seq: int) -> float | None:
-        """Host time of pulse ``seq``: its event's, else extrapolated from the nearest earlier event with a host time
-        (None when there is none)."""
+    def _pulse_host_ns(self, seq: int, exact: bool = False) -> float | None:
+        """Host time of pulse ``seq``: its event's, else (unless ``exact``) extrapolated from the nearest earlier
+        event with a host time (None when there is none)."""
         ev = self._events.get(seq)
         if ev is not None and ev.t_start_host_ns is not None:
             return float(ev.t_start_host_ns)
+        if exact:
+            return None
         before = [k for k, e in self._events.items() if k < seq and e.t_start_host_ns is not None]
         if not before:
             return None
         ref = self._events[max(before)]
         assert ref.t_start_host_ns is not None
         return ref.t_start_host_ns + (seq - ref.trigger_seq) * (self._period_us or 0.0) * 1000.0
+
+    def _next_pulse_host_ns(self, seq: int, host_ns: float, period_ns: float) -> float:
+        """Host time of pulse ``seq + 1`` (of host time ``host_ns``): its event's (a pulse the host fired late leaves
+        less than a period to the next), else one period later."""
+        next_ns = self._pulse_host_ns(seq + 1, exact=True)
+        return host_ns + period_ns if next_ns is None else next_ns
 
     def _pulse_device_ns(self, seq: int) -> float:
         """Device time of pulse ``seq``: its event's, else extrapolated from the nearest event with the period."""
@@ -355,6 +514,7 @@ class Pairer:
                         side, m, first_moved)
         self.counters[side].timestamp_mismatches += 1
         st.offset = (st.offset or 0) + m
+        st.suspect = set()
         st.drop_candidate()
         return moved_seq
 
@@ -372,6 +532,9 @@ class Pairer:
         # its own camera has confirm_frames frames after it (the window still gives up on a silent camera)
         if any(st.last_ok_seq is not None and seq > st.last_ok_seq and st.newest_seq < seq + self.confirm_frames
                for st in self._state.values()):
+            return False
+        # a host-fired camera's frame stamped after the next pulse may be that pulse's: wait for one that decides
+        if any(seq in st.suspect for st in self._state.values()):
             return False
         return seq in self._events and all(s in slot for s in self.sides)
 
@@ -418,6 +581,8 @@ class Pairer:
         pset = PairedSet(seq, event, frames, stamp, notes)
         self.sets_emitted += 1
         self.sets_complete += pset.complete
+        for st in self._state.values():
+            st.suspect.discard(seq)
         self._forget_old()
         self.on_set(pset)
 

@@ -1,0 +1,190 @@
+"""Property tests of the pairer: a missed trigger's drop is on its own pulse, whatever its neighbours carry.
+
+Synthetic frames on the pure ``Pairer`` (no camera), derandomized (no wall clock, no example database). Each run:
+
+- ``N_PULSES`` pulses cycling the six brackets; TRIGGER events dropped at random (not the first ``FIRST_EVENT_KEPT``,
+  which the host-time alignment of the first frame needs);
+- per side, up to three skipped pulses (the camera never saw them; its frame count does not advance) at least
+  ``SKIP_SPACING`` pulses apart and ``SKIP_MARGIN`` pulses from either end (a shift needs frames after it to be seen);
+- GVSP packet loss: a frame may be incomplete without a timestamp (lost leader; its ExposureTime chunk survives), or
+  keep its timestamp but report no exposure (chunk lost); never both (such a frame next to a missed pulse could be
+  either pulse's: nothing can place it);
+- timestamps: device-clock cameras (``count``) jitter by up to ``DEVICE_JITTER`` period either way; host-fired
+  cameras (``host_time``) stamp host time, never before their pulse and up to ``HOST_LATE`` period late.
+
+Checked: every drop is on a skipped pulse and every skipped pulse is a drop; every frame is on its own pulse (so no
+frame is labelled with another pulse's exposure); no frame is emitted alone (late/duplicate/mismatch).
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
+
+from bracketry.events import TriggerEvent
+from bracketry.pairing.pairer import PairedSet, Pairer
+
+PERIOD_US = 45_454
+BRACKETS = [1000, 2000, 4000, 8000, 16000, 32000]
+N_PULSES = 90
+SKIP_MARGIN = 12
+SKIP_SPACING = 12
+FIRST_EVENT_KEPT = 3
+DEVICE_JITTER = 0.1  # periods, either way (device-clock timestamps)
+HOST_LATE = 0.3  # periods late at most (host-fired cameras: host time, late by scheduling, never early)
+SIDES = ("left", "right")
+
+
+@dataclass
+class SynthFrame:
+    side: str
+    frame_id: int
+    frame_index: int
+    status: str
+    cam_timestamp_ns: int
+    host_receive_ns: int
+    exposure_us_reported: float | None
+    true_pulse: int
+    missing_packets: int = 0
+    skipped_ids: int = 0
+    image: object = None
+
+
+def event(k: int) -> TriggerEvent:
+    return TriggerEvent(1, k, k % 6, BRACKETS[k % 6], 1_000_000 + k * PERIOD_US,
+                        5_000_000_000 + k * PERIOD_US * 1000)
+
+
+@st.composite
+def scenarios(draw: st.DrawFn) -> dict:
+    skips: dict[str, list[int]] = {}
+    for side in SIDES:
+        at, picked = SKIP_MARGIN, []
+        for _ in range(draw(st.integers(0, 3))):
+            at += draw(st.integers(0, 2 * SKIP_SPACING))
+            if at > N_PULSES - SKIP_MARGIN:
+                break
+            picked.append(at)
+            at += SKIP_SPACING
+        skips[side] = picked
+    return {
+        "mode": draw(st.sampled_from(["count", "host_time"])),
+        "skips": skips,
+        "lose_event": set(draw(st.lists(st.integers(FIRST_EVENT_KEPT, N_PULSES - 1), max_size=8))),
+        "p_no_ts": draw(st.sampled_from([0.0, 0.1, 0.3])),
+        "p_no_exposure": draw(st.sampled_from([0.0, 0.1, 0.3])),
+        "seed": draw(st.integers(0, 2**32 - 1)),  # frame details (jitter, packet loss) from random.Random(seed)
+    }
+
+
+def simulate(sc: dict) -> tuple[Pairer, list[PairedSet]]:
+    rng = random.Random(sc["seed"])
+    sets: list[PairedSet] = []
+    p = Pairer(SIDES, sets.append, window=8, initial_alignment=sc["mode"])
+    index = dict.fromkeys(SIDES, 0)
+    cam_base = {"left": 77_000_000, "right": 900_000_000}
+    for k in range(N_PULSES):
+        if k not in sc["lose_event"]:
+            p.add_event(event(k))
+        for side in SIDES:
+            if k in sc["skips"][side]:
+                continue
+            period_ns = PERIOD_US * 1000
+            if sc["mode"] == "host_time":  # host time of the pulse, plus the host's lateness
+                ts = 5_000_000_000 + k * period_ns + 1000 + int(rng.uniform(0, HOST_LATE) * period_ns)
+            else:
+                ts = cam_base[side] + k * period_ns + int(rng.uniform(-DEVICE_JITTER, DEVICE_JITTER) * period_ns)
+            roll = rng.random()
+            no_ts = roll < sc["p_no_ts"]
+            no_exposure = not no_ts and roll < sc["p_no_ts"] + sc["p_no_exposure"]
+            i = index[side]
+            p.add_frame(SynthFrame(side, i % 65535 + 1, i, "missing_packets" if no_ts else "success",
+                                   0 if no_ts else ts, 5_000_000_000 + k * period_ns + int(0.4 * period_ns),
+                                   None if no_exposure else float(BRACKETS[k % 6]), k, missing_packets=int(no_ts)))
+            index[side] += 1
+    p.flush()
+    return p, sets
+
+
+@settings(derandomize=True, database=None, max_examples=300, deadline=None, phases=[Phase.explicit, Phase.generate],
+          suppress_health_check=[HealthCheck.too_slow])
+@given(scenarios())
+def test_every_missed_trigger_is_a_drop_on_its_own_pulse(sc: dict) -> None:
+    p, sets = simulate(sc)
+    singles = [(s.trigger_seq, s.notes) for s in sets if s.notes and set(s.notes.values()) - {"timestamp_mismatch"}]
+    assert not singles
+    by_seq = {s.trigger_seq: s for s in sets}
+    # a pulse every camera missed and whose event was lost left nothing at all: no set (counted in events_missing)
+    invisible = {k for k in sc["lose_event"] if all(k in sc["skips"][side] for side in SIDES)}
+    assert sorted(by_seq) == [k for k in range(N_PULSES) if k not in invisible]
+    last_event = max(k for k in range(N_PULSES) if k not in sc["lose_event"])
+    assert p.events_missing == sum(1 for k in sc["lose_event"] if k < last_event)  # gaps before the last event
+    for side in SIDES:
+        drops = [k for k, s in sorted(by_seq.items()) if s.frames[side] is None]
+        assert drops == [k for k in sc["skips"][side] if k not in invisible], side
+        assert p.counters[side].drops == len(drops)
+        assert p.counters[side].timestamp_mismatches == len(sc["skips"][side])
+        misplaced = [(k, s.frames[side].true_pulse) for k, s in by_seq.items()
+                     if s.frames[side] is not None and s.frames[side].true_pulse != k]
+        assert not misplaced, side
+        # each frame's exposure is its set's (the bracket order holds on every recorded frame)
+        assert all(s.frames[side].exposure_us_reported in (None, BRACKETS[k % 6])
+                   for k, s in by_seq.items() if s.frames[side] is not None)
+
+
+def test_bracket_order_places_a_missed_trigger_whose_neighbours_have_no_timestamp() -> None:
+    """Right misses pulse 40; its frames of pulses 41..43 lost their leaders (no timestamp) but report exposures:
+    the drop is on 40, not after the untimed frames."""
+    sc = {"mode": "count", "skips": {"left": [], "right": [40]}, "lose_event": {41}}
+    sets: list[PairedSet] = []
+    p = Pairer(SIDES, sets.append, window=4)
+    index = dict.fromkeys(SIDES, 0)
+    for k in range(80):
+        if k not in sc["lose_event"]:
+            p.add_event(event(k))
+        for side in SIDES:
+            if side == "right" and k == 40:
+                continue
+            untimed = side == "right" and 41 <= k <= 43
+            ts = 0 if untimed else 77_000_000 + k * PERIOD_US * 1000
+            p.add_frame(SynthFrame(side, index[side] + 1, index[side], "missing_packets" if untimed else "success",
+                                   ts, 0, float(BRACKETS[k % 6]), k))
+            index[side] += 1
+    p.flush()
+    by_seq = {s.trigger_seq: s for s in sets}
+    assert [k for k, s in by_seq.items() if s.frames["right"] is None] == [40]
+    assert all(s.frames[side].true_pulse == k for k, s in by_seq.items() for side in SIDES
+               if s.frames[side] is not None)
+    assert by_seq[41].notes.get("right") == "timestamp_mismatch"
+    assert p.counters["right"].drops == 1 and p.counters["right"].unpaired == 1  # set 41: no event
+
+
+def test_a_chunk_one_frame_behind_never_moves_frames() -> None:
+    """A camera whose ExposureTime chunk lags a frame (Aravis #312) reports the previous pulse's exposure on every
+    frame: its timestamps disagree, so its exposures are never used; a missed trigger is placed by the timestamps and
+    nothing else moves, frames without a timestamp included."""
+    for mode in ("count", "host_time"):
+        sets: list[PairedSet] = []
+        p = Pairer(SIDES, sets.append, window=8, initial_alignment=mode)
+        index = dict.fromkeys(SIDES, 0)
+        for k in range(80):
+            p.add_event(event(k))
+            for side in SIDES:
+                if side == "right" and k == 40:
+                    continue
+                untimed = side == "right" and k % 7 == 3
+                base = 5_000_000_000 if mode == "host_time" else 77_000_000
+                ts = 0 if untimed else base + k * PERIOD_US * 1000 + 1000
+                exposure = BRACKETS[(k - 1) % 6] if side == "right" else BRACKETS[k % 6]
+                p.add_frame(SynthFrame(side, index[side] + 1, index[side], "missing_packets" if untimed else "success",
+                                       ts, 5_000_000_000 + k * PERIOD_US * 1000 + 2_000_000, float(exposure), k))
+                index[side] += 1
+        p.flush()
+        by_seq = {s.trigger_seq: s for s in sets}
+        assert [k for k, s in sorted(by_seq.items()) if s.frames["right"] is None] == [40], mode
+        assert all(s.frames[side].true_pulse == k for k, s in by_seq.items() for side in SIDES
+                   if s.frames[side] is not None), mode
+        assert p.counters["right"].timestamp_mismatches == 1 and p.counters["left"].timestamp_mismatches == 0, mode
