@@ -35,8 +35,8 @@ log = logging.getLogger(__name__)
 
 #: exposure (us) of the priming trigger fired after AcquisitionStart: marks a frame that is not a bracket
 PRIMING_EXPOSURE_US = 77
-#: shortest time between two software triggers: the fake camera polls its trigger register (~1 kHz), two triggers
-#: closer than that would merge into one frame
+#: shortest time between two software triggers: a camera ignores a trigger that comes while it is still taking the
+#: previous frame (the fake camera of ``bracketry.cameras.fake`` holds one instead, so it never merges two)
 SOFTWARE_TRIGGER_MIN_INTERVAL_S = 0.004
 
 
@@ -151,9 +151,10 @@ class SoftwareTrigger:
 
     A camera that fails a GVCP write is gone (each further write would wait for GVCP timeouts and hold up the other
     camera): it is skipped until the next acquisition and listed in ``failed``. Two pulses are fired at least
-    ``min_interval_s`` apart (the fake camera would merge closer ones). After every camera's TriggerSoftware, each
-    camera's exposure register is read back into its ``exposure_readbacks`` under the pulse's trigger_seq (after the
-    triggers, so the read does not spread the cameras' exposure starts; a failed read is logged and leaves no value).
+    ``min_interval_s`` apart (a camera busy with the previous frame would ignore a closer one). After every camera's
+    TriggerSoftware, each camera's exposure register is read back into its ``exposure_readbacks`` under the pulse's
+    trigger_seq (after the triggers, so the read does not spread the cameras' exposure starts; a failed read is
+    logged and leaves no value).
     """
 
     initial_alignment = "host_time"
