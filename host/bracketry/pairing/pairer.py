@@ -31,12 +31,24 @@ whose last timed frame with an exposure agreed with its timestamp (a chunk one f
 A host-fired camera's frame shows its pulse by time only when stamped before the next pulse (its event's host time,
 less ``tolerance_fraction`` of a period): a frame is never stamped before its own pulse. A frame as late as the other
 cameras' but after the next pulse shows nothing (all may be late, or all may have missed a pulse): a shift under
-confirmation stays pending and its set waits (up to the window) for a frame that decides; a candidate frame later
+confirmation stays pending and its set waits (until given up on) for a frame that decides; a candidate frame later
 than the other cameras' and stamped after the next pulse counts twice. Frames with neither an exposure nor a
 timestamp move with their neighbours.
 
-A trigger_seq is emitted (``PairedSet``) as soon as the event and every camera's frame are there, or when it falls
-``window`` pulses behind the newest one seen (then with what is missing counted), or at ``flush()``.
+A trigger_seq is emitted (``PairedSet``) as soon as the event and every camera's frame are there (and no check above
+still waits on it), else once it is given up on (then with what is missing counted), or at ``flush()``.
+
+Giving up tells a source that is behind from one that missed the pulse. Each source (the TRIGGER events, each
+camera) delivers in order, one camera's frames arriving whole periods late in bursts on a loaded host. A pulse is
+lost for a source once that source delivered something ``window`` pulses after it (twice that while a shift under
+confirmation may still move its frames): the ``confirm_frames`` frames a check waits for came, and nothing for it
+can follow. A set is given up on once every source moved on that far; a source that delivered nothing that far
+after it is only behind, and is waited for, up to the backstop: ``max_lag_s`` of pulses (at the events' period;
+never less than twice ``window``) behind the newest pulse seen from any source. The backstop bounds the memory of
+held sets and how long a dead camera holds the other camera's sets (a camera that delivers nothing for the daemon's
+``camera_stall_s``, 2 s, leaves the acquisition: its session is flushed; the backstop is below that). It costs no
+crash loss of its own: a set waits only for a camera whose frames have not reached the host, and a truncated
+recording is whole only up to the last pulse every camera's frames were written for.
 """
 
 from __future__ import annotations
@@ -123,18 +135,22 @@ class Pairer:
     Args:
         sides: camera names.
         on_set: called with each emitted ``PairedSet`` (in trigger_seq order per call of ``add_*``/``flush``).
-        window: a trigger_seq is emitted incomplete once it is this many pulses behind the newest seen.
+        window: a trigger_seq is emitted incomplete once every source delivered something this many pulses after it
+            (see the module doc).
+        max_lag_s: the backstop: a trigger_seq is emitted incomplete once it is this long (in pulses at the events'
+            period, at least ``2 * window``) behind the newest pulse seen, however far behind a camera is.
         tolerance_fraction: allowed timestamp disagreement as a fraction of the pulse period.
         confirm_frames: consecutive frames that must agree on a shift before frames are moved.
         initial_alignment: ``count`` (first frame = pulse 0), ``counter`` or ``host_time`` (see ``_initial_seq``).
     """
 
     def __init__(self, sides: tuple[str, ...] = ("left", "right"), on_set: Callable[[PairedSet], None] | None = None,
-                 *, window: int = 16, tolerance_fraction: float = 0.3, confirm_frames: int = 3,
-                 initial_alignment: str = "count") -> None:
+                 *, window: int = 16, max_lag_s: float = 1.0, tolerance_fraction: float = 0.3,
+                 confirm_frames: int = 3, initial_alignment: str = "count") -> None:
         self.sides = sides
         self.on_set = on_set or (lambda _s: None)
         self.window = window
+        self.max_lag_s = max_lag_s
         self.tolerance_fraction = tolerance_fraction
         self.confirm_frames = confirm_frames
         self.initial_alignment = initial_alignment
@@ -416,7 +432,7 @@ class Pairer:
                 # as late as the other cameras but not before the next pulse (whose host time, when its event came,
                 # is its own: a pulse fired late by the host leaves less than a period to the next): they may all be
                 # late, or all have missed a pulse: proves nothing (a shift under confirmation stays pending); its
-                # set waits (up to the window) for a frame that decides
+                # set waits (until given up on) for a frame that decides
                 st.suspect.add(seq)
                 return seq
             if len(st.stamps) > 1:  # (a late first frame may have been aligned to a later pulse: not a reference)
@@ -514,6 +530,8 @@ class Pairer:
                         side, m, first_moved)
         self.counters[side].timestamp_mismatches += 1
         st.offset = (st.offset or 0) + m
+        if m < 0:  # its frames moved back (later ones follow): so did how far it delivered
+            st.newest_seq = max(st.newest_seq + m, moved_seq)
         st.suspect = set()
         st.drop_candidate()
         return moved_seq
@@ -529,7 +547,7 @@ class Pairer:
         if self._shift_may_move(seq):
             return False
         # a frame not yet confirmed by a timestamp check (an incomplete frame carries none) may still move: wait until
-        # its own camera has confirm_frames frames after it (the window still gives up on a silent camera)
+        # its own camera has confirm_frames frames after it (the backstop still gives up on a silent camera)
         if any(st.last_ok_seq is not None and seq > st.last_ok_seq and st.newest_seq < seq + self.confirm_frames
                for st in self._state.values()):
             return False
@@ -551,13 +569,27 @@ class Pairer:
             nxt = self._emitted_upto + 1
             if nxt > self._newest:
                 return
-            # a set is given up on ``window`` pulses behind the newest; twice that while a shift under confirmation
-            # may still move its frames (an incomplete frame in the middle needs one more pulse to confirm)
-            hopeless = nxt <= self._newest - self.window * (2 if self._shift_may_move(nxt) else 1)
-            if not (everything or self._ready(nxt) or hopeless):
+            if not (everything or self._ready(nxt) or self._given_up(nxt)):
                 # complete sets further on wait for this one (ordered output), unless it is hopeless
                 return
             self._emit(nxt)
+
+    def backstop_pulses(self) -> int:
+        """The backstop in pulses: ``max_lag_s`` at the events' period, at least twice the window (the window alone
+        until the period is known)."""
+        if not self._period_us:
+            return 2 * self.window
+        return max(2 * self.window, round(self.max_lag_s * 1e6 / self._period_us))
+
+    def _given_up(self, seq: int) -> bool:
+        """Whether ``seq`` is given up on (see the module doc): every source moved ``window`` pulses past it (twice
+        that while a shift under confirmation may still move its frames: an incomplete frame in the middle needs one
+        more pulse to confirm), or it is the backstop behind the newest pulse seen."""
+        if seq <= self._newest - self.backstop_pulses():
+            return True
+        reach = seq + self.window * (2 if self._shift_may_move(seq) else 1)
+        events = self._last_event_seq if self._last_event_seq is not None else -1
+        return events >= reach and all(st.newest_seq >= reach for st in self._state.values())
 
     def _emit(self, seq: int) -> None:
         slot = self._pending.pop(seq, {})
