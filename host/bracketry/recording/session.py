@@ -80,7 +80,9 @@ class RecordingSession:
 
     Args:
         window: pairing window in pulses (see ``Pairer``); it delays writing after a drop, so it counts in the
-            crash-loss budget: 8 pulses = 0.36 s at 22 fps (+ the open chunk, 0.4 s).
+            crash-loss budget: 8 pulses = 0.36 s at 22 fps (+ the open chunk, 0.4 s). A camera that is only behind
+            (it delivered nothing ``window`` pulses after the set) is waited for up to the Pairer's backstop
+            (``max_lag_s``, 1 s): no crash loss of its own, as that camera's frames are not here yet.
         initial_alignment: how the first frame finds its pulse (see ``Pairer``); ``host_time`` for fake cameras.
         status_period_s: rig status period.
         disk_path: folder whose free space goes into the status.
