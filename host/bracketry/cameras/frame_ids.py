@@ -25,6 +25,7 @@ class FrameIdUnwrapper:
     next frames: at most ``LATE_WINDOW`` ids back), gets its own index back and ``skipped = -1``; it does not move
     the newest id, so the frames after it keep their indices. Any other repeated or backwards id (a camera reset) is
     reported with ``skipped = -1`` and takes the previous index + 1, so a reset cannot produce a huge fake gap.
+    A buffer with id 0 (no id: its GVSP leader was lost) takes the next index and stands for the next id.
     """
 
     #: how far behind the newest id a buffer may arrive and still be a late buffer (not a camera reset)
@@ -40,8 +41,15 @@ class FrameIdUnwrapper:
         return self._index
 
     def update(self, frame_id: int) -> tuple[int, int]:
-        if self._last_id is None or frame_id == 0:
-            self._last_id = frame_id if frame_id else self._last_id
+        if frame_id == 0:
+            # a buffer without an id (Aravis gives 0 when the frame's leader was lost): taken as the next id, so the
+            # frame after it, with its own id, is not counted one further (a lost leader is not a lost frame)
+            if self._last_id is not None:
+                self._last_id = self._last_id % ID_CYCLE + 1
+            self._index += 1
+            return self._index, 0
+        if self._last_id is None:
+            self._last_id = frame_id
             self._index += 1
             return self._index, 0
         delta = id_delta(self._last_id, frame_id)

@@ -84,3 +84,13 @@ def test_a_late_buffer_gets_its_own_index_and_does_not_shift_the_next_frames() -
     assert u.update(3) == (118, 0)
     # a camera reset (ids far behind) is not a late buffer: the index just goes on
     assert u.update(40000) == (119, -1)
+
+
+def test_a_buffer_without_an_id_stands_for_the_next_id() -> None:
+    """Under GVSP packet loss Aravis hands over a frame whose leader was lost with id 0: it is the frame between its
+    neighbours, so the frame after it keeps its own index (counting it as one more frame shifted every later frame
+    by one pulse, and its pulse became a drop)."""
+    u = FrameIdUnwrapper()
+    assert [u.update(i) for i in (65414, 65415, 0, 65417, 65418)] == [(0, 0), (1, 0), (2, 0), (3, 0), (4, 0)]
+    assert [u.update(i) for i in (65535, 0, 2)] == [(121, 116), (122, 0), (123, 0)]  # across the wrap (0 skipped)
+    assert u.update(0) == (124, 0) and u.update(5) == (126, 1)  # a frame really missing after it is still counted
