@@ -50,7 +50,7 @@ def main() -> None:
 
     from distributed import LocalCluster
 
-    from bracketry_emulator.benchmark import run_benchmark
+    from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
 
     with tempfile.TemporaryDirectory(prefix="bench_dask_") as tmp:
         root = Path(tmp)
@@ -59,8 +59,8 @@ def main() -> None:
         counter = iter(range(10_000))
 
         def run(**kw) -> None:
-            run_benchmark(datasets, ["ae50", "dim"], root / f"out{next(counter)}", windows_m=(1.0, 2.0), report=False,
-                          **kw)
+            run_benchmark(BenchmarkConfig(datasets, ["ae50", "dim"], root / f"out{next(counter)}", windows_m=(1.0, 2.0),
+                                          report=False, **kw))
 
         times: dict[str, list[float]] = {}
         for n_workers in (1, 2):

@@ -24,14 +24,8 @@ import numpy as np
 
 from bracketry.errors import BracketryError
 
+from ..defaults import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US
 from .base import AEMethod
-
-#: The first target exposure (us) of a method that declares none (the authors: 4 ms).
-DEFAULT_INIT_EXPOSURE_US = 4000.0
-#: Lower bound (us) of every target: the authors' only floor (Zhang's 0.02 ms).
-DEFAULT_MIN_EXPOSURE_US = 20.0
-#: Upper bound (us): 2x the sample's longest bracket (beyond it the emulation extrapolates more than one stop).
-DEFAULT_MAX_EXPOSURE_US = 64000.0
 
 S = TypeVar("S")
 

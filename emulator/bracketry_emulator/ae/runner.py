@@ -24,13 +24,14 @@ layout: :mod:`.writers`.
 from __future__ import annotations
 
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
 from bracketry.errors import BracketryError
 
 from ..dataset import open_dataset
+from ..defaults import AE_CAMERAS, CAMERAS, DEFAULT_CRF, PARITIES, PNG_COMPRESSIONS, SELECTIONS
 from ..emulation import EmulatorConfig
 from ..stages import StageTimes, ae_stage
 from .loop import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US, MethodRun
@@ -39,10 +40,11 @@ from .scheduler import LoopSettings, run_scheduled
 from .writers import write_run_files
 
 
-@dataclass
+@dataclass(frozen=True)
 class LoopConfig:
     """Settings of a closed-loop run (see the module docstring). Exposures in us; ``camera``: the cameras written
-    (left, right or both); ``ae_camera``: the camera whose image the methods see."""
+    (left, right or both); ``ae_camera``: the camera whose image the methods see. Defaults and choices:
+    :mod:`bracketry_emulator.defaults`. JSON form: :meth:`to_json`."""
 
     emulator: EmulatorConfig = field(default_factory=EmulatorConfig)
     camera: str = "both"
@@ -53,7 +55,7 @@ class LoopConfig:
     seed: int = 0
     drl_weights: str | None = None
     write_images: bool = True
-    png_compression: str = "stored"
+    png_compression: str = PNG_COMPRESSIONS[0]
     overwrite: bool = False
     max_sequences: int | None = None
     memory_budget_bytes: int = 1 << 30
@@ -61,9 +63,9 @@ class LoopConfig:
     def validate(self) -> None:
         """Raise BracketryError (one line, naming the ``bracketry emulate`` option) on a bad setting: the one
         place these settings are checked."""
-        if self.camera not in ("left", "right", "both"):
+        if self.camera not in CAMERAS:
             raise BracketryError(f"--camera must be left, right or both, got {self.camera}")
-        if self.ae_camera not in ("left", "right"):
+        if self.ae_camera not in AE_CAMERAS:
             raise BracketryError(f"--ae-camera must be left or right, got {self.ae_camera}")
         lo_ms, hi_ms, init_ms = self.min_exposure_us / 1000, self.max_exposure_us / 1000, self.init_exposure_us / 1000
         if not 0 < lo_ms < hi_ms:
@@ -71,12 +73,56 @@ class LoopConfig:
         if not lo_ms <= init_ms <= hi_ms:
             raise BracketryError(f"--init-exposure-ms {init_ms:g} is outside the bounds [--min-exposure-ms "
                                  f"{lo_ms:g}, --max-exposure-ms {hi_ms:g}]")
-        from ..emulation.writer import PNG_COMPRESSIONS
-
         if self.png_compression not in PNG_COMPRESSIONS:
             raise BracketryError(f"--png-compression must be one of {', '.join(PNG_COMPRESSIONS)}, got "
                                  f"{self.png_compression}")
         self.emulator.validate()
+
+    def to_json(self) -> dict[str, Any]:
+        """The settings that decide the closed loops' results, as a JSON object (the benchmark's cache keys and
+        ``closedloop_options.json``): selection, crf, parity, ``init_exposure_us``, seed, ``ae_camera``; the
+        exposure bounds only where they are not the defaults. Which files are written and how (cameras, images,
+        PNG encoding, overwrite, memory) and the DRL weights (a method's own input) are not in it; nor the
+        emulator's other settings (:meth:`from_json` gives their defaults, see :meth:`round_trips`)."""
+        doc: dict[str, Any] = {"selection": self.emulator.selection, "crf": str(self.emulator.crf),
+                               "init_exposure_us": self.init_exposure_us, "seed": self.seed,
+                               "ae_camera": self.ae_camera, "parity": self.emulator.parity}
+        for name in ("min_exposure_us", "max_exposure_us"):
+            if getattr(self, name) != _DEFAULTS[name]:
+                doc[name] = getattr(self, name)
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any], **given: Any) -> LoopConfig:
+        """The validated settings of :meth:`to_json`'s form (missing keys: their defaults), with ``given`` fields
+        (e.g. ``drl_weights``, ``write_images``). One line (BracketryError) on a bad setting."""
+        from ..emulation.settings import emulator_config
+
+        unknown = set(doc) - set(_JSON_DEFAULTS)
+        if unknown:
+            raise ValueError(f"unknown closed-loop option(s): {', '.join(sorted(unknown))}")
+        o = {**_JSON_DEFAULTS, **{k: v for k, v in doc.items() if v is not None}}
+        cfg = cls(emulator=emulator_config(o["selection"], str(o["crf"]), str(o["parity"])),
+                  ae_camera=o["ae_camera"], init_exposure_us=float(o["init_exposure_us"]), seed=int(o["seed"]),
+                  min_exposure_us=float(o["min_exposure_us"]), max_exposure_us=float(o["max_exposure_us"]),
+                  **given)
+        cfg.validate()
+        return cfg
+
+    def round_trips(self) -> bool:
+        """Whether :meth:`to_json` holds every setting that decides the results (the rest are how files are
+        written): else two different configs would share one JSON form (and one cache key)."""
+        out_only = ("drl_weights", "write_images", "png_compression", "overwrite", "memory_budget_bytes")
+        same = {k: getattr(self, k) for k in out_only}
+        return LoopConfig.from_json(self.to_json(), **same) == self
+
+
+_DEFAULTS = {f.name: f.default for f in fields(LoopConfig)}
+#: :meth:`LoopConfig.to_json`'s keys and their defaults
+_JSON_DEFAULTS: dict[str, Any] = {"selection": SELECTIONS[0], "crf": DEFAULT_CRF, "parity": PARITIES[0],
+                                  "init_exposure_us": _DEFAULTS["init_exposure_us"], "seed": _DEFAULTS["seed"],
+                                  "ae_camera": _DEFAULTS["ae_camera"], "min_exposure_us": _DEFAULTS["min_exposure_us"],
+                                  "max_exposure_us": _DEFAULTS["max_exposure_us"]}
 
 
 @dataclass
@@ -109,10 +155,10 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
     """
     t_start = time.perf_counter()
     cfg = config or LoopConfig()
-    for k, v in overrides.items():
+    for k in overrides:
         if not hasattr(cfg, k):
             raise TypeError(f"unknown closed-loop option {k}")
-        setattr(cfg, k, v)
+    cfg = replace(cfg, **overrides)
     cfg.validate()
     specs = list(dict.fromkeys(methods))
     if not specs:

@@ -7,20 +7,90 @@ import json
 import multiprocessing
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.benchmark.emulated_runs import all_methods, loop_config
-from bracketry_emulator.benchmark.tasks import make_task, run_task
+from bracketry_emulator.ae.runner import LoopConfig
+from bracketry_emulator.benchmark.emulated_runs import all_methods
+from bracketry_emulator.benchmark.slam import SlamOptions
+from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult, load_cached, make_task, run_task
+from bracketry_emulator.defaults import DEFAULT_ALPHA, DEFAULT_REFERENCE, DEFAULT_STATS_METHODS
 from bracketry_emulator.metrics.manifest import TrajectorySpec, expand_datasets
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
+
+OnDone = Callable[[RunResult], None]
+
+
+@dataclass(frozen=True)
+class BenchmarkConfig:
+    """What :func:`run_benchmark` does: ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
+
+    ``methods``: ``all`` / ``paper`` or a comma-separated list (or a sequence) of method ids. ``scheduler``: a Dask
+    scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally, the closed loops of
+    all methods still to run on a trajectory run first in one pass (each bracket sequence decoded once for all
+    methods, ``progress`` shows a bar); with a scheduler each task runs its own closed loop on the cluster.
+    ``drl_weights``: the DRL actor (``all`` leaves DRL out without it). ``loop``: the closed-loop settings; what
+    :meth:`LoopConfig.to_json` holds is part of every cache key, and a setting it cannot hold is refused (the
+    cameras written, the images, the DRL weights and ``overwrite`` are the benchmark's own).
+    ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
+    Locally (no scheduler, no ``slam_dir``, no ``export_orbslam``) SLAM gets the emulated images in memory
+    (:mod:`~bracketry_emulator.benchmark.stream`: every run of a trajectory is fed by its one closed-loop pass) and
+    PNGs are written only with ``write_images``; otherwise the closed loops write PNGs and SLAM reads them.
+    ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; default: the built-in VO);
+    with ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and
+    spread (statistics on the medians). Fed in memory, every run of a trajectory runs at once; on the PNG route
+    paced ORB-SLAM3 runs mostly wait, so locally twice ``workers`` of them run at once. An unresolved ORB-SLAM3
+    vocabulary is resolved after the other input was checked. ``stats_methods``: the methods the statistics (and
+    their Bonferroni count) cover: ``paper`` (default: the benchmarked methods among the paper's eight; ``zhang``
+    and plugins are reported but not tested), ``all`` (every benchmarked method) or a list.
+    ``setup_check``: with ORB-SLAM3 and runs still to do, first check that it can track at all with this vocabulary
+    and calibration (:mod:`~bracketry_emulator.slam.setup_check`; a failure is one line before any method runs).
+    Sequences may be given as lists and paths as strings: they are stored as tuples and Paths.
+    """
+
+    datasets: Sequence[str | Path | TrajectorySpec]
+    methods: str | Sequence[str]
+    out_dir: Path
+    reference: str = DEFAULT_REFERENCE
+    scheduler: str | None = None
+    workers: int = 1
+    windows_m: Sequence[float] = DEFAULT_WINDOWS_M
+    max_frames: int | None = None
+    alpha: float = DEFAULT_ALPHA
+    report: bool = True
+    export_orbslam: bool = False
+    slam_dir: Path | None = None
+    drl_weights: str | None = None
+    progress: bool = False
+    loop: LoopConfig = field(default_factory=LoopConfig)
+    slam: SlamOptions = field(default_factory=SlamOptions.builtin)
+    stats_methods: str | Sequence[str] = DEFAULT_STATS_METHODS
+    write_images: bool = False
+    setup_check: bool = True
+
+    def __post_init__(self) -> None:
+        def put(name: str, value: Any) -> None:
+            object.__setattr__(self, name, value)
+
+        for name in ("methods", "stats_methods"):
+            if not isinstance(getattr(self, name), str):
+                put(name, tuple(getattr(self, name)))
+        put("datasets", tuple(self.datasets))
+        put("windows_m", tuple(float(w) for w in self.windows_m))
+        put("out_dir", Path(self.out_dir))
+        if self.slam_dir is not None:
+            put("slam_dir", Path(self.slam_dir))
+        if self.drl_weights is not None:
+            put("drl_weights", str(self.drl_weights))
 
 
 @dataclass
 class BenchmarkResult:
-    """All task results (sorted by trajectory then method) and where the report went."""
+    """One result per (trajectory, method) in the JSON form the report reads (:meth:`RunResult.to_json`; repeats
+    combined: ``repeats``, ``repeats_ok`` and, for repeated runs, medians with ``*_runs`` / ``*_spread``), sorted by
+    trajectory then method; and where the report went."""
 
     results: list[dict]
     out_dir: Path
@@ -51,23 +121,39 @@ def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> lis
     return out
 
 
-def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[dict], out: Path, drl_weights: str | None,
-                         workers: int, progress: bool, loop: dict | None, stages: Any = None) -> None:
+def _todo(tasks: list[BenchmarkTask], trajectory: str) -> list[BenchmarkTask]:
+    """The tasks of ``trajectory`` whose closed loop is still to run (no existing run, not cached)."""
+    return [t for t in tasks if t.trajectory == trajectory and not t.existing_run and load_cached(t) is None]
+
+
+def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], out: Path, loop: LoopConfig,
+                         workers: int, progress: bool, stages: Any = None) -> None:
     """Per trajectory, the closed loops of every method whose task still needs one, in one shared-decode pass."""
     from bracketry_emulator.benchmark.emulated_runs import emulate_runs
-    from bracketry_emulator.benchmark.tasks import load_cached
 
     for spec in specs:
-        todo = list(dict.fromkeys(t["method"] for t in tasks if t["trajectory"] == spec.name
-                                  and not t["existing_run"] and load_cached(t) is None))
+        todo = list(dict.fromkeys(t.method for t in _todo(tasks, spec.name)))
         if todo:
-            emulate_runs(spec.path, todo, out / "runs" / spec.name, drl_weights=drl_weights,
-                         workers=max(0, workers), progress=progress, options=loop, stages=stages)
+            emulate_runs(spec.path, todo, out / "runs" / spec.name, loop, workers=max(0, workers),
+                         progress=progress, stages=stages)
 
 
-def _run_local(tasks: list[dict], workers: int, on_done: Callable[[dict], None] | None) -> list[dict]:
-    from bracketry_emulator.benchmark.tasks import load_cached
+def _streamed(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], out: Path, loop: LoopConfig, workers: int,
+              progress: bool, stages: Any, on_done: OnDone | None) -> list[RunResult]:
+    """Per trajectory, the tasks still to run (not cached, no existing run) in one in-memory pass (see
+    :mod:`~bracketry_emulator.benchmark.stream`); returns their results."""
+    from bracketry_emulator.benchmark.stream import stream_trajectory
 
+    out_results: list[RunResult] = []
+    for spec in specs:
+        todo = _todo(tasks, spec.name)
+        if todo:
+            out_results += stream_trajectory(spec, todo, out, loop, workers=workers, progress=progress,
+                                             stages=stages, on_done=on_done)
+    return out_results
+
+
+def _run_local(tasks: list[BenchmarkTask], workers: int, on_done: OnDone | None) -> list[RunResult]:
     todo = [t for t in tasks if load_cached(t) is None]
     workers = min(workers, len(todo))  # all cached (or one task left): no process pool to start
     if workers <= 1:
@@ -87,7 +173,7 @@ def _run_local(tasks: list[dict], workers: int, on_done: Callable[[dict], None] 
         return [f.result() for f in futures]
 
 
-def _run_dask(tasks: list[dict], scheduler: str, on_done: Callable[[dict], None] | None) -> list[dict]:
+def _run_dask(tasks: list[BenchmarkTask], scheduler: str, on_done: OnDone | None) -> list[RunResult]:
     try:
         from distributed import Client, as_completed
     except ImportError as exc:
@@ -106,101 +192,80 @@ def _run_dask(tasks: list[dict], scheduler: str, on_done: Callable[[dict], None]
         client.close()
 
 
-def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str | list[str], out_dir: str | Path,
-                  reference: str = "ae50", scheduler: str | None = None, workers: int = 1,
-                  windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, max_frames: int | None = None,
-                  alpha: float = 0.05, report: bool = True, export_orbslam: bool = False,
-                  slam_dir: str | Path | None = None, drl_weights: str | Path | None = None,
-                  progress: bool = False, loop: dict | None = None,
-                  on_done: Callable[[dict], None] | None = None, slam: dict | None = None,
-                  slam_echo: Callable[[str], None] | None = None,
-                  stats_methods: str | list[str] = "paper", write_images: bool = False,
-                  setup_check: bool = True) -> BenchmarkResult:
-    """Benchmark ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
+def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
+                  slam_echo: Callable[[str], None] | None = None) -> BenchmarkResult:
+    """Benchmark ``config.methods`` on ``config.datasets`` into ``config.out_dir`` (see :class:`BenchmarkConfig`).
 
-    ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally,
-    the closed loops of all methods still to run on a trajectory run first in one pass (each bracket sequence
-    decoded once for all methods, ``progress`` shows a bar); with a scheduler each task runs its own closed loop
-    on the cluster. ``drl_weights``: the DRL actor (``all`` leaves DRL out without it). ``loop``: closed-loop
-    settings (selection, crf, init_exposure_us, seed, ae_camera; see
-    :data:`~bracketry_emulator.benchmark.emulated_runs.LOOP_DEFAULTS`), part of every cache key.
-    ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
-    Locally (no scheduler, no ``slam_dir``, no ``export_orbslam``) SLAM gets the emulated images in memory
-    (:mod:`~bracketry_emulator.benchmark.stream`: every run of a trajectory is fed by its one closed-loop pass) and
-    PNGs are written only with ``write_images``; otherwise the closed loops write PNGs and SLAM reads them.
-    Where the time went is in the report's stage table and ``report/stages.json``
-    (:mod:`~bracketry_emulator.stages`).
-    ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO); with
-    ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and spread
-    (statistics on the medians). Fed in memory, every run of a trajectory runs at once; on the PNG route paced
-    ORB-SLAM3 runs mostly wait, so locally twice ``workers`` of them run at once.
-    An unresolved ORB-SLAM3 vocabulary is resolved after the other input was checked (``slam_echo`` says when the
-    default vocabulary is being built). ``stats_methods``: the methods the statistics (and their Bonferroni count)
-    cover: ``paper`` (default: the benchmarked methods among the paper's eight; ``zhang`` and plugins are reported
-    but not tested), ``all`` (every benchmarked method) or a list.
-    ``setup_check``: with ORB-SLAM3 and runs still to do, first check that it can track at all with this vocabulary
-    and calibration (:mod:`~bracketry_emulator.slam.setup_check`; a failure is one line before any method runs).
+    ``on_done``: called with each run's result as it completes (cached ones too). ``slam_echo``: says when the
+    default ORB-SLAM3 vocabulary is being built and what the set-up check found. Where the time went is in the
+    report's stage table and ``report/stages.json`` (:mod:`~bracketry_emulator.stages`).
     """
-    paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
-    specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
-    weights = str(drl_weights) if drl_weights else None
+    c = config
+    paths = [d for d in c.datasets if not isinstance(d, TrajectorySpec)]
+    specs = [d for d in c.datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
+    weights = c.drl_weights
     if weights is not None and not Path(weights).is_file():
         raise BracketryError(f"--drl-weights file not found: {weights}")
-    method_ids = parse_methods(methods, has_drl_weights=weights is not None)
+    method_ids = parse_methods(c.methods if isinstance(c.methods, str) else list(c.methods),
+                               has_drl_weights=weights is not None)
     from bracketry_emulator.ae.registry import get_method
 
     builtin = set(all_methods())
     for m in method_ids:  # an unknown id or a broken plugin: one line naming it, before any work
         if m not in builtin and not any(spec.existing_run(m) for spec in specs):
             get_method(m)
-    if reference not in method_ids:
-        raise BracketryError(f"reference method {reference!r} is not among the benchmarked methods {method_ids}")
-    select_stats_methods(stats_methods, method_ids, reference)  # bad names: one line before anything runs
-    out = Path(out_dir)
+    if c.reference not in method_ids:
+        raise BracketryError(f"reference method {c.reference!r} is not among the benchmarked methods {method_ids}")
+    stats_methods = c.stats_methods if isinstance(c.stats_methods, str) else list(c.stats_methods)
+    select_stats_methods(stats_methods, method_ids, c.reference)  # bad names: one line before anything runs
+    out = c.out_dir
     out.mkdir(parents=True, exist_ok=True)
-    slam_path = Path(slam_dir).resolve() if slam_dir else None
+    slam_path = c.slam_dir.resolve() if c.slam_dir else None
     if slam_path is not None and not slam_path.is_dir():
         raise BracketryError(f"--slam-trajectories folder not found: {slam_path}")
-    loop_config(loop, None)  # bad settings: one clear line before anything runs
+    loop = replace(c.loop, camera="both", drl_weights=weights, write_images=c.write_images, overwrite=False)
+    loop.validate()  # bad settings: one clear line before anything runs
+    if not loop.round_trips():
+        raise BracketryError("the benchmark's closed loops take only the settings of its options (selection, crf, "
+                             "parity, init exposure, seed, AE camera, exposure bounds)")
     from bracketry_emulator.benchmark.slam import resolve_options
 
-    slam_opts: dict = resolve_options(dict(slam), echo=slam_echo) if slam else {"backend": "builtin", "repeats": 1}
-    repeats = int(slam_opts.get("repeats", 1))
+    slam = resolve_options(c.slam, echo=slam_echo)
     references = {s.name: _reference(s, out) for s in specs}
-    tasks = [make_task(s, m, out, windows_m, max_frames, export_orbslam, slam_path, weights, loop, slam_opts, r,
-                       references[s.name]) for s in specs for m in method_ids for r in range(repeats)]
-    if setup_check and slam_path is None and slam_opts.get("backend") == "orbslam3":
-        _check_setup(specs, tasks, method_ids, references, slam_opts, out, slam_echo)
+    tasks = [make_task(s, m, out, tuple(c.windows_m), c.max_frames, c.export_orbslam, slam_path, weights, loop, slam, r,
+                       references[s.name]) for s in specs for m in method_ids for r in range(slam.repeats)]
+    if c.setup_check and slam_path is None and slam.backend == "orbslam3":
+        _check_setup(specs, tasks, method_ids, references, slam, out, slam_echo)
     from bracketry_emulator.stages import StageTimes
 
     t_start = time.perf_counter()
     stages = StageTimes()
-    paced = slam_opts.get("backend") == "orbslam3" and slam_opts.get("pace") != 0.0
-    slam_workers = workers * 2 if paced and workers > 1 else workers
-    if scheduler is None and slam_path is None and not export_orbslam:
-        streamed = _streamed(specs, tasks, out, weights, workers, progress, loop, write_images, stages, on_done)
-        runs = [*streamed, *_run_local([t for t in tasks if t["key"] not in {r["key"] for r in streamed}],
-                                       slam_workers, on_done)]
-    elif scheduler is None:
+    slam_workers = c.workers * 2 if slam.paced and c.workers > 1 else c.workers
+    if c.scheduler is None and slam_path is None and not c.export_orbslam:
+        streamed = _streamed(specs, tasks, out, loop, c.workers, c.progress, stages, on_done)
+        done_keys = {r.key for r in streamed}
+        runs = [*streamed, *_run_local([t for t in tasks if t.key not in done_keys], slam_workers, on_done)]
+    elif c.scheduler is None:
         if slam_path is None:
-            _shared_closed_loops(specs, tasks, out, weights, workers, progress, loop, stages)
+            _shared_closed_loops(specs, tasks, out, loop, c.workers, c.progress, stages)
         runs = _run_local(tasks, slam_workers, on_done)
     else:
-        runs = _run_dask(tasks, scheduler, on_done)
+        runs = _run_dask(tasks, c.scheduler, on_done)
     for r in runs:  # this invocation's SLAM and metrics seconds (cached results did no work now)
-        if not r.get("cached") and r.get("stages"):
-            stages.merge(r["stages"])
-    results = group_repeats(runs)
+        if not r.cached and r.stages:
+            stages.merge(r.stages)
+    results = group_repeats([r.to_json() for r in runs])
     results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
     files: dict[str, Path] = {}
     timing = stage_document(stages, results, time.perf_counter() - t_start, len(runs),
-                            sum(1 for r in runs if r.get("cached")))
-    if report:
+                            sum(1 for r in runs if r.cached))
+    if c.report:
         from bracketry_emulator.report import write_report
 
         with stages.time("report"):
-            files = write_report(results, out, reference=reference, methods=method_ids, alpha=alpha, slam=slam_opts,
-                                 stats_methods=select_stats_methods(stats_methods, method_ids, reference),
+            files = write_report(results, out, reference=c.reference, methods=method_ids, alpha=c.alpha,
+                                 slam=slam.to_json(),
+                                 stats_methods=select_stats_methods(stats_methods, method_ids, c.reference),
                                  stages=timing)
         timing = {**timing, "stages": stages.as_dict(), "wall_s": round(time.perf_counter() - t_start, 3)}
         files["stages.json"] = out / "report" / "stages.json"
@@ -208,12 +273,11 @@ def run_benchmark(datasets: Sequence[str | Path | TrajectorySpec], methods: str 
     return BenchmarkResult(results, out, files, timing)
 
 
-def _check_setup(specs: list[TrajectorySpec], tasks: list[dict], method_ids: list[str],
-                 references: dict[str, Path | None], slam_opts: dict, out: Path,
+def _check_setup(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], method_ids: list[str],
+                 references: dict[str, Path | None], slam: SlamOptions, out: Path,
                  echo: Callable[[str], None] | None) -> None:
     """The ORB-SLAM3 set-up check (:func:`~bracketry_emulator.slam.setup_check.check_setup`) when some run is still
     to do; its runs go to ``out/setup_check/``."""
-    from bracketry_emulator.benchmark.tasks import load_cached
     from bracketry_emulator.slam.setup_check import Trajectory, check_setup
 
     if all(load_cached(t) is not None for t in tasks):
@@ -221,7 +285,7 @@ def _check_setup(specs: list[TrajectorySpec], tasks: list[dict], method_ids: lis
     trajectories = [Trajectory(s.name, s.path, s.calibration_dir(),
                                next((r for r in (s.existing_run(m) for m in method_ids) if r is not None), None),
                                references.get(s.name) or s.groundtruth_path()) for s in specs]
-    res = check_setup(trajectories, slam_opts["vocabulary"], out / "setup_check")
+    res = check_setup(trajectories, str(slam.vocabulary), out / "setup_check")
     if echo and res is not None:
         echo(f"set-up check: ORB-SLAM3 tracked {res.longest_tracked} of {res.n_frames} frames of the {res.what} of "
              f"{res.trajectory} ({res.cpu_s:.1f} CPU s in ORB-SLAM3, {res.wall_s:.1f} s)")
@@ -244,25 +308,6 @@ def stage_document(stages: Any, results: list[dict], wall_s: float, n_runs: int,
             "slam_late_s": round(max(late), 3) if late else None,
             "trajectories": per_traj, "wall_s": round(wall_s, 3), "runs": n_runs, "runs_cached": n_cached,
             "stages": stages.as_dict()}
-
-
-def _streamed(specs: list[TrajectorySpec], tasks: list[dict], out: Path, drl_weights: str | None, workers: int,
-              progress: bool, loop: dict | None, write_images: bool, stages: Any,
-              on_done: Callable[[dict], None] | None) -> list[dict]:
-    """Per trajectory, the tasks still to run (not cached, no existing run) in one in-memory pass (see
-    :mod:`~bracketry_emulator.benchmark.stream`); returns their results."""
-    from bracketry_emulator.benchmark.stream import stream_trajectory
-    from bracketry_emulator.benchmark.tasks import load_cached
-
-    out_results: list[dict] = []
-    for spec in specs:
-        todo = [t for t in tasks if t["trajectory"] == spec.name and not t["existing_run"]
-                and load_cached(t) is None]
-        if todo:
-            out_results += stream_trajectory(spec, todo, out, drl_weights=drl_weights, workers=workers,
-                                             progress=progress, loop=loop, write_images=write_images,
-                                             stages=stages, on_done=on_done)
-    return out_results
 
 
 def _reference(spec: TrajectorySpec, out: Path) -> Path | None:

@@ -2,29 +2,76 @@
 
 Backends: ``orbslam3`` (default; ORB-SLAM3 stereo in a child process per run, see
 :mod:`bracketry_emulator.slam.orbslam3`) and ``builtin`` (the OpenCV stereo VO of :mod:`bracketry_emulator.vo`,
-fast and deterministic, for quick runs). Options are a plain dict (picklable, JSON, part of every cache key):
-
-    backend        "orbslam3" | "builtin"
-    vocabulary     DBoW2 text file (orbslam3; resolved before the run, see ``resolve_vocabulary``)
-    vocabulary_id  "<file name>:<sha256 prefix>" of that file (the cache key follows its content)
-    pace           "realtime" (the recording's own timestamps) or seconds between fed frames (0 = unpaced)
-    loop_closing   bool (orbslam3; off also turns relocalisation off)
-    repeats        runs per (trajectory, method); the report gives their median and spread
+fast and deterministic, for quick runs). Options are a :class:`SlamOptions` (frozen, picklable); its JSON form
+(:meth:`SlamOptions.to_json`) goes to reports, its result-deciding part (:meth:`SlamOptions.key_json`) into every
+cache key.
 """
 
 from __future__ import annotations
 
 import hashlib
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from bracketry.errors import BracketryError
+from bracketry_emulator.defaults import DEFAULT_SLAM_PACE, SLAM_BACKENDS
 
-BACKENDS = ("orbslam3", "builtin")
-#: defaults (chosen from the measurements in ARCHITECTURE.md: real-time feed, loop closing on)
-SLAM_DEFAULTS: dict = {"backend": "orbslam3", "vocabulary": None, "vocabulary_id": None, "pace": "realtime",
-                       "loop_closing": True, "repeats": 1}
+BACKENDS = SLAM_BACKENDS
+
+
+@dataclass(frozen=True)
+class SlamOptions:
+    """The benchmark's SLAM options; defaults chosen from the measurements in ARCHITECTURE.md (real-time feed, loop
+    closing on).
+
+    ``backend``: one of :data:`BACKENDS`. ``vocabulary``: DBoW2 text file (orbslam3; resolved before the runs, see
+    :func:`resolve_options`). ``vocabulary_id``: ``<file name>:<sha256 prefix>`` of that file (the cache key follows
+    its content). ``pace``: ``"realtime"`` (the recording's own timestamps) or seconds between fed frames (0 =
+    unpaced). ``loop_closing``: ORB-SLAM3's loop-closing thread (off also turns relocalisation off). ``repeats``: runs
+    per (trajectory, method); the report gives their median and spread.
+    """
+
+    backend: str = SLAM_BACKENDS[0]
+    vocabulary: str | None = None
+    vocabulary_id: str | None = None
+    pace: str | float = DEFAULT_SLAM_PACE
+    loop_closing: bool = True
+    repeats: int = 1
+
+    @classmethod
+    def builtin(cls, repeats: int = 1) -> SlamOptions:
+        """The built-in VO: not paced, no loop closing."""
+        return cls(backend="builtin", pace=0.0, loop_closing=False, repeats=repeats)
+
+    def to_json(self) -> dict[str, Any]:
+        """Every option as a JSON object (the report's form)."""
+        return asdict(self)
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> SlamOptions:
+        """Options from :meth:`to_json`'s form; missing fields take their defaults."""
+        return cls(**doc)
+
+    def key_json(self) -> dict[str, Any]:
+        """The options that decide a run's result (cache key): not the vocabulary's path but its content; the
+        built-in VO has none of its own."""
+        if self.backend == "builtin":
+            return {"backend": "builtin"}
+        return {"backend": self.backend, "vocabulary_id": self.vocabulary_id, "pace": self.pace,
+                "loop_closing": self.loop_closing}
+
+    @property
+    def pace_s(self) -> float | None:
+        """Seconds between fed frames; None: real time."""
+        return None if self.pace == "realtime" else float(self.pace)
+
+    @property
+    def paced(self) -> bool:
+        """ORB-SLAM3 fed at a pace (its runs mostly wait)."""
+        return self.backend == "orbslam3" and self.pace != 0.0
 
 
 def parse_pace(text: str | float | None) -> str | float:
@@ -49,62 +96,60 @@ def file_id(path: str | Path) -> str:
     return f"{Path(path).name}:{h.hexdigest()[:12]}"
 
 
-def slam_options(backend: str = "orbslam3", vocabulary: str | Path | None = None, pace: str | float | None = None,
-                 loop_closing: bool = True, repeats: int = 1, echo=None, resolve: bool = True) -> dict:
+def slam_options(backend: str = SLAM_BACKENDS[0], vocabulary: str | Path | None = None,
+                 pace: str | float | None = None, loop_closing: bool = True, repeats: int = 1, echo=None,
+                 resolve: bool = True) -> SlamOptions:
     """Checked, complete SLAM options; for ORB-SLAM3 the vocabulary is resolved (the default built once) unless
     ``resolve`` is False (then :func:`resolve_options` does it, e.g. after the rest of the input was checked)."""
     if backend not in BACKENDS:
         raise BracketryError(f"unknown SLAM backend {backend!r} (choose from {', '.join(BACKENDS)})")
     if int(repeats) < 1:
         raise BracketryError(f"--slam-repeats must be >= 1 (got {repeats})")
-    opts = dict(SLAM_DEFAULTS, backend=backend, pace=parse_pace(pace), loop_closing=bool(loop_closing),
-                repeats=int(repeats))
-    if backend == "orbslam3":
-        opts["vocabulary"] = str(vocabulary) if vocabulary else None
-        return resolve_options(opts, echo) if resolve else opts
-    opts.update(pace=0.0, loop_closing=False)  # the built-in VO is not paced and has no loop closing
-    return opts
+    pace = parse_pace(pace)
+    if backend == "builtin":  # not paced, no loop closing
+        return SlamOptions.builtin(int(repeats))
+    opts = SlamOptions(backend, str(vocabulary) if vocabulary else None, None, pace, bool(loop_closing),
+                       int(repeats))
+    return resolve_options(opts, echo) if resolve else opts
 
 
-def resolve_options(opts: dict, echo=None) -> dict:
+def resolve_options(opts: SlamOptions, echo=None) -> SlamOptions:
     """``opts`` with the ORB-SLAM3 vocabulary resolved to a file, checked (a bad one is one line, see
     :func:`~bracketry_emulator.slam.vocabulary_check.check_vocabulary`) and identified by its content. Options that
     already carry a ``vocabulary_id`` are returned as they are."""
-    if opts.get("backend") != "orbslam3" or opts.get("vocabulary_id"):
+    if opts.backend != "orbslam3" or opts.vocabulary_id:
         return opts
     from bracketry_emulator.slam.vocabulary_check import check_vocabulary
     from bracketry_emulator.slam.vocabulary_files import resolve_vocabulary
 
-    voc = resolve_vocabulary(opts.get("vocabulary"), echo=echo)
+    voc = resolve_vocabulary(opts.vocabulary, echo=echo)
     check_vocabulary(voc)
-    return dict(opts, vocabulary=str(voc), vocabulary_id=file_id(voc))
+    return replace(opts, vocabulary=str(voc), vocabulary_id=file_id(voc))
 
 
-def key_options(opts: dict | None) -> dict:
-    """The part of the options that decides a run's result (cache key): not the vocabulary's path, its content."""
-    o = dict(SLAM_DEFAULTS, **(opts or {"backend": "builtin"}))
-    if o["backend"] == "builtin":  # no options of its own
-        return {"backend": "builtin"}
-    return {k: o[k] for k in ("backend", "vocabulary_id", "pace", "loop_closing")}
-
-
-def describe(opts: dict | None) -> str:
-    """One line for the report: backend, its settings and the vocabulary."""
-    o = dict(SLAM_DEFAULTS, **(opts or {"backend": "builtin"}))
-    if o["backend"] == "builtin":
+def describe(opts: SlamOptions | dict | None) -> str:
+    """One line for the report: backend, its settings and the vocabulary (``opts``: the options or their JSON
+    form; None: the built-in VO)."""
+    o = opts if isinstance(opts, SlamOptions) else SlamOptions.from_json(opts) if opts else SlamOptions.builtin()
+    if o.backend == "builtin":
         return "built-in stereo VO (OpenCV, ORB-SLAM2-like front end, 5-frame map, no relocalisation)"
-    pace = "real time" if o["pace"] == "realtime" else ("unpaced" if float(o["pace"]) == 0 else
-                                                         f"{float(o['pace']):g} s per frame")
-    return (f"ORB-SLAM3 stereo (pyorbslam3), fed at {pace}, loop closing {'on' if o['loop_closing'] else 'off'}, "
-            f"ORB 3000 features / scale 1.2 / 13 levels / FAST 15-5, ThDepth 35, vocabulary {o['vocabulary_id']}, "
-            f"{o['repeats']} repeat(s) per run")
+    pace = "real time" if o.pace_s is None else ("unpaced" if o.pace_s == 0 else f"{o.pace_s:g} s per frame")
+    return (f"ORB-SLAM3 stereo (pyorbslam3), fed at {pace}, loop closing {'on' if o.loop_closing else 'off'}, "
+            f"ORB 3000 features / scale 1.2 / 13 levels / FAST 15-5, ThDepth 35, vocabulary {o.vocabulary_id}, "
+            f"{o.repeats} repeat(s) per run")
 
 
-def run_slam(opts: dict | None, run_dir: Path, calibration_dir: str, vo_dir: Path,
+def orbslam3_options(opts: SlamOptions) -> Any:
+    """How the ORB-SLAM3 child runs with these options (:class:`~bracketry_emulator.slam.orbslam3.OrbSlam3Options`)."""
+    from bracketry_emulator.slam.orbslam3 import OrbSlam3Options
+
+    return OrbSlam3Options(str(opts.vocabulary), pace_s=opts.pace_s, loop_closing=opts.loop_closing)
+
+
+def run_slam(opts: SlamOptions, run_dir: Path, calibration_dir: str, vo_dir: Path,
              max_frames: int | None) -> dict:
     """Localise one emulated run into ``vo_dir`` (frames.csv + CameraTrajectory<n>.txt); returns run facts."""
-    o = dict(SLAM_DEFAULTS, **(opts or {"backend": "builtin"}))
-    if o["backend"] == "builtin":
+    if opts.backend == "builtin":
         import time
 
         from bracketry_emulator.vo.runner import run_vo
@@ -112,12 +157,9 @@ def run_slam(opts: dict | None, run_dir: Path, calibration_dir: str, vo_dir: Pat
         t0 = time.perf_counter()
         vo = run_vo(run_dir, calibration_dir, vo_dir, max_frames=max_frames)
         return {"backend": "builtin", "s_per_frame": (time.perf_counter() - t0) / max(len(vo.frames), 1)}
-    from bracketry_emulator.slam.orbslam3 import OrbSlam3Options, run_orbslam3
+    from bracketry_emulator.slam.orbslam3 import run_orbslam3
 
-    pace = None if o["pace"] == "realtime" else float(o["pace"])
-    info = run_orbslam3(run_dir, calibration_dir, vo_dir,
-                        OrbSlam3Options(o["vocabulary"], pace_s=pace, loop_closing=o["loop_closing"]),
-                        max_frames=max_frames)
+    info = run_orbslam3(run_dir, calibration_dir, vo_dir, orbslam3_options(opts), max_frames=max_frames)
     return {"backend": "orbslam3", "s_per_frame": info.get("track_s_median", float("nan")), **{
         k: info[k] for k in ("settings", "vocabulary_load_s", "raw_states", "wall_s", "cpu_s", "source") if k in info}}
 

@@ -20,10 +20,15 @@ import contextlib
 import shutil
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.metrics.manifest import TrajectorySpec
 from bracketry_emulator.stages import StageTimes
+
+if TYPE_CHECKING:
+    from bracketry_emulator.ae.runner import LoopConfig
+    from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult
 
 FIFO_NAME = "frames.fifo"
 
@@ -45,56 +50,52 @@ def stream_fps(dataset_path: str | Path, max_frames: int | None) -> tuple[float,
     return ((len(times) - 1) / span_s if len(times) > 1 and span_s > 0 else 1.0), n_steps
 
 
-def _request(task: dict, fifo: Path, fps: float, n_steps: int) -> dict:
+def _request(task: BenchmarkTask, fifo: Path, fps: float, n_steps: int) -> dict:
     """The child's request; ``preview_index``: the run's middle frame, kept as the report's qualitative image."""
     return {**_backend_request(task, fifo, fps), "preview_index": n_steps // 2}
 
 
-def _backend_request(task: dict, fifo: Path, fps: float) -> dict:
-    from bracketry_emulator.benchmark.slam import SLAM_DEFAULTS
-    from bracketry_emulator.slam.orbslam3 import OrbSlam3Options, orbslam3_request
+def _backend_request(task: BenchmarkTask, fifo: Path, fps: float) -> dict:
+    from bracketry_emulator.benchmark.slam import orbslam3_options
+    from bracketry_emulator.slam.orbslam3 import orbslam3_request
 
-    o = dict(SLAM_DEFAULTS, **(task.get("slam") or {"backend": "builtin"}))
-    if o["backend"] == "builtin":
+    if task.slam.backend == "builtin":
         return {"backend": "builtin", "run_dir": None, "frames_fifo": str(fifo), "fps": fps,
-                "calibration_dir": task["calibration"], "max_frames": task["max_frames"]}
-    pace = None if o["pace"] == "realtime" else float(o["pace"])
-    return orbslam3_request(None, task["calibration"], OrbSlam3Options(o["vocabulary"], pace_s=pace,
-                                                                      loop_closing=o["loop_closing"]),
-                            task["max_frames"], fifo, fps)
+                "calibration_dir": task.calibration, "max_frames": task.max_frames}
+    return orbslam3_request(None, str(task.calibration), orbslam3_options(task.slam), task.max_frames, fifo, fps)
 
 
-def stream_trajectory(spec: TrajectorySpec, tasks: list[dict], out: Path, *, drl_weights: str | None,
-                      workers: int, progress: bool, loop: dict | None, write_images: bool,
-                      stages: StageTimes, on_done: Callable[[dict], None] | None = None) -> list[dict]:
-    """Closed loops + SLAM (in memory) + metrics of ``tasks`` (all of trajectory ``spec``, none cached, none with an
-    existing run); returns their results. See the module docstring."""
-    from bracketry_emulator.benchmark.tasks import complete_task, vo_path
+def stream_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Path, loop: LoopConfig, *,
+                      workers: int, progress: bool, stages: StageTimes,
+                      on_done: Callable[[RunResult], None] | None = None) -> list[RunResult]:
+    """Closed loops (settings ``loop``, its ``write_images`` included) + SLAM (in memory) + metrics of ``tasks`` (all
+    of trajectory ``spec``, none cached, none with an existing run); returns their results. See the module
+    docstring."""
+    from bracketry_emulator.benchmark.tasks import complete_task
     from bracketry_emulator.slam.frame_stream import FrameFeed
     from bracketry_emulator.slam.orbslam3 import SlamChild, SlamRunError, start_child, wait_child
 
     if spec.calibration_dir() is None:
         raise BracketryError(f"{spec.path}: no calibration/ folder with left/right camera_info YAMLs")
-    fps, n_steps = stream_fps(spec.path, tasks[0]["max_frames"])
+    fps, n_steps = stream_fps(spec.path, tasks[0].max_frames)
     children: dict[str, SlamChild] = {}
     errors: dict[str, str] = {}
     feeds: dict[str, list[FrameFeed]] = {}
-    methods = list(dict.fromkeys(t["method"] for t in tasks))
+    methods = list(dict.fromkeys(t.method for t in tasks))
     ok = False
     try:
         for t in tasks:
-            vo_dir = vo_path(t)
+            vo_dir = t.vo_path
             vo_dir.mkdir(parents=True, exist_ok=True)
             fifo = FrameFeed.make_fifo(vo_dir / FIFO_NAME)
             try:
-                children[t["key"]] = start_child(_request(t, fifo, fps, n_steps), vo_dir)
+                children[t.key] = start_child(_request(t, fifo, fps, n_steps), vo_dir)
             except SlamRunError as exc:  # e.g. a vocabulary gone missing: this run fails, the others go on
-                errors[t["key"]] = str(exc)
+                errors[t.key] = str(exc)
                 continue
-            feeds.setdefault(t["method"], []).append(FrameFeed(fifo, reader_pid=children[t["key"]].proc.pid))
-        run_dirs = emulate_feeding(spec.path, methods, out / "runs" / spec.name, feeds,
-                                           drl_weights=drl_weights, workers=workers, progress=progress,
-                                           options=loop, write_images=write_images, stages=stages)
+            feeds.setdefault(t.method, []).append(FrameFeed(fifo, reader_pid=children[t.key].proc.pid))
+        run_dirs = emulate_feeding(spec.path, methods, out / "runs" / spec.name, feeds, loop, workers=workers,
+                                   progress=progress, stages=stages)
         ok = True
     finally:
         if not ok:  # the closed loop failed: its SLAM runs wait for frames that will never come
@@ -105,15 +106,15 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[dict], out: Path, *, drl
                     child.proc.wait()
     results = []
     for t in tasks:
-        run_dir = run_dirs[t["method"]]
-        info, error = None, errors.get(t["key"])
-        started = children.get(t["key"])
+        run_dir = run_dirs[t.method]
+        info, error = None, errors.get(t.key)
+        started = children.get(t.key)
         if started is not None:
             try:
                 info = wait_child(started)
             except SlamRunError as exc:
                 error = str(exc)
-        (vo_path(t) / FIFO_NAME).unlink(missing_ok=True)
+        (t.vo_path / FIFO_NAME).unlink(missing_ok=True)
         result = complete_task(t, run_dir, info, error)
         if on_done:
             on_done(result)
@@ -121,18 +122,15 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[dict], out: Path, *, drl
     return results
 
 
-def emulate_feeding(dataset_path: Path, methods: list[str], runs_dir: Path, feeds: dict[str, list], *,
-                    drl_weights: str | None, workers: int, progress: bool, options: dict | None,
-                    write_images: bool, stages: StageTimes) -> dict[str, Path]:
-    """One closed-loop pass of ``methods`` over the dataset whose steps go to ``feeds`` ({method: [FrameFeed]});
-    the runs' files (ae.csv, steps, summaries; images only with ``write_images``) replace any earlier ones in
-    ``runs_dir/<method>``. Returns {method: its folder}."""
+def emulate_feeding(dataset_path: Path, methods: list[str], runs_dir: Path, feeds: dict[str, list],
+                    cfg: LoopConfig, *, workers: int, progress: bool, stages: StageTimes) -> dict[str, Path]:
+    """One closed-loop pass of ``methods`` over the dataset with settings ``cfg`` whose steps go to ``feeds``
+    ({method: [FrameFeed]}); the runs' files (ae.csv, steps, summaries; images only with ``cfg.write_images``)
+    replace any earlier ones in ``runs_dir/<method>``. Returns {method: its folder}."""
     from bracketry_emulator.ae import run_methods
-    from bracketry_emulator.benchmark.emulated_runs import _check_options, loop_config, loop_options
+    from bracketry_emulator.benchmark.emulated_runs import check_options
 
-    _check_options(runs_dir, loop_options(**(options or {})))
-    cfg = loop_config(options, drl_weights)
-    cfg.write_images = write_images
+    check_options(runs_dir, cfg)
     tmp_root = runs_dir / ".partial"
     shutil.rmtree(tmp_root, ignore_errors=True)
     tmp_root.mkdir(parents=True)

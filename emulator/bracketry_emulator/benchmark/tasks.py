@@ -12,7 +12,9 @@ A task whose cache file exists with the same key (dataset path, method, SLAM bac
 metric settings) is not recomputed, so an interrupted benchmark resumes where it stopped. Cache files are written
 atomically (temporary file + rename). A SLAM run that fails (crash, bad vocabulary or settings) gives a result with
 an ``error`` line and NaN metrics, is not cached, and the benchmark goes on.
-Tasks are plain dicts in and out (picklable for process pools and Dask).
+A task is a :class:`BenchmarkTask`, its outcome a :class:`RunResult`: frozen records (picklable for process pools
+and Dask), each with one JSON form (``to_json``/``from_json``): the task's keyed part is hashed into its cache key,
+the result's is the cache file and what the report reads.
 """
 
 from __future__ import annotations
@@ -21,75 +23,196 @@ import hashlib
 import json
 import os
 import time
+from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
-from bracketry_emulator.benchmark.emulated_runs import loop_options
-from bracketry_emulator.benchmark.slam import key_options
+from bracketry_emulator.benchmark.slam import SlamOptions
 from bracketry_emulator.metrics.evaluate import evaluate_run
 from bracketry_emulator.metrics.manifest import TrajectorySpec
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
 
+if TYPE_CHECKING:
+    from bracketry_emulator.ae.runner import LoopConfig
+
 CACHE_VERSION = 3
+
+
+def _default_loop() -> LoopConfig:
+    from bracketry_emulator.ae.runner import LoopConfig
+
+    return LoopConfig()
+
+
+@dataclass(frozen=True)
+class BenchmarkTask:
+    """One (trajectory, method, repeat) of a benchmark (:func:`make_task`). Paths are strings (as in its JSON form).
+
+    ``out``: the benchmark folder. ``groundtruth``: the TUM left-camera reference (None: none). ``calibration``: the
+    trajectory's calibration folder. ``existing_run``: the dataset's own emulated run of ``method`` (then no closed
+    loop runs). ``drl_weights``: the DRL actor (``drl`` only). ``loop``: the closed-loop settings. ``slam_dir``:
+    external SLAM trajectories evaluated instead of running SLAM. ``export_orbslam``: also export the run for
+    ORB-SLAM's stereo examples.
+    """
+
+    trajectory: str
+    subset: str
+    method: str
+    dataset: str
+    out: str
+    groundtruth: str | None = None
+    calibration: str | None = None
+    existing_run: str | None = None
+    windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M
+    max_frames: int | None = None
+    export_orbslam: bool = False
+    slam_dir: str | None = None
+    drl_weights: str | None = None
+    loop: LoopConfig = field(default_factory=_default_loop)
+    slam: SlamOptions = field(default_factory=SlamOptions.builtin)
+    repeat: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        """The task as a JSON object (the loop and SLAM options in their own JSON forms) with its ``key``."""
+        doc: dict[str, Any] = {
+            "trajectory": self.trajectory, "subset": self.subset, "method": self.method, "dataset": self.dataset,
+            "out": self.out, "groundtruth": self.groundtruth, "calibration": self.calibration,
+            "existing_run": self.existing_run, "windows_m": list(self.windows_m), "max_frames": self.max_frames,
+            "export_orbslam": self.export_orbslam, "slam_dir": self.slam_dir, "drl_weights": self.drl_weights,
+            "loop": self.loop.to_json(), "slam": self.slam.to_json(), "repeat": self.repeat}
+        doc["key"] = self.key
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> BenchmarkTask:
+        """The task of :meth:`to_json`'s form (its ``key`` is recomputed)."""
+        from bracketry_emulator.ae.runner import LoopConfig
+
+        fields_ = {k: v for k, v in doc.items() if k != "key"}
+        return cls(**{**fields_, "windows_m": tuple(doc["windows_m"]), "loop": LoopConfig.from_json(doc["loop"]),
+                      "slam": SlamOptions.from_json(doc["slam"])})
+
+    @property
+    def key(self) -> str:
+        """The cache key: what decides the result (dataset, method, references, metric settings, closed loop,
+        SLAM backend and its result-deciding options, repeat), hashed."""
+        doc = self.to_json_keyed()
+        key_src = json.dumps(doc, sort_keys=True)
+        return hashlib.sha256(f"v{CACHE_VERSION}:{key_src}".encode()).hexdigest()[:16]
+
+    def to_json_keyed(self) -> dict[str, Any]:
+        """The part of the JSON form the cache key covers."""
+        return {"dataset": self.dataset, "method": self.method, "groundtruth": self.groundtruth,
+                "calibration": self.calibration, "existing_run": self.existing_run,
+                "windows_m": list(self.windows_m), "max_frames": self.max_frames, "slam_dir": self.slam_dir,
+                "drl_weights": self.drl_weights, "loop": self.loop.to_json(), "repeat": self.repeat,
+                "slam": self.slam.key_json()}
+
+    @property
+    def run_name(self) -> str:
+        """``<method>``, or ``<method>.r<repeat>`` for repeat r > 0."""
+        return self.method if self.repeat == 0 else f"{self.method}.r{self.repeat}"
+
+    @property
+    def cache_path(self) -> Path:
+        """``out/cache/<trajectory>/<run name>.json``."""
+        return Path(self.out) / "cache" / self.trajectory / f"{self.run_name}.json"
+
+    @property
+    def vo_path(self) -> Path:
+        """Where the task's SLAM output goes: ``out/vo/<trajectory>/<run name>``."""
+        return Path(self.out) / "vo" / self.trajectory / self.run_name
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """The outcome of one task: where its run and SLAM output are, the SLAM backend and its speed, the metrics of
+    :func:`~bracketry_emulator.metrics.evaluate.evaluate_run` (or :func:`failed_metrics` with an ``error`` line),
+    this run's SLAM and metrics seconds (``stages``, :class:`~bracketry_emulator.stages.StageTimes` ``as_dict``),
+    whether it came from the cache. ``slam_input``: how SLAM got the images (``png`` / ``stream``);
+    ``slam_late_s``: how far a paced run fell behind its clock."""
+
+    trajectory: str
+    subset: str
+    method: str
+    repeat: int
+    key: str
+    run_dir: str
+    vo_dir: str
+    metrics: dict[str, Any]
+    slam: str
+    s_per_frame: float
+    stages: dict[str, Any] = field(default_factory=dict)
+    slam_input: str | None = None
+    slam_late_s: float | None = None
+    error: str | None = None
+    cached: bool = False
+
+    def to_json(self, cached: bool = True) -> dict[str, Any]:
+        """The result as one flat JSON object (base fields, metrics, SLAM facts; ``cached`` last unless ``cached``
+        is False: the cache file's form)."""
+        base = {"trajectory": self.trajectory, "subset": self.subset, "method": self.method, "repeat": self.repeat,
+                "key": self.key, "run_dir": self.run_dir, "vo_dir": self.vo_dir, **self.metrics, "slam": self.slam,
+                "s_per_frame": self.s_per_frame}
+        if self.error is not None:
+            return {**base, "error": self.error, **({"cached": self.cached} if cached else {}),
+                    "stages": self.stages}
+        doc = {**base, "stages": self.stages}
+        if self.slam_input is not None:
+            doc["slam_input"] = self.slam_input
+        if self.slam_late_s is not None:
+            doc["slam_late_s"] = self.slam_late_s
+        if cached:
+            doc["cached"] = self.cached
+        return doc
+
+    @classmethod
+    def from_json(cls, doc: dict[str, Any]) -> RunResult:
+        """The result of :meth:`to_json`'s form (every key not a field is a metric, order kept)."""
+        names = set(cls.__dataclass_fields__) - {"metrics"}
+        return cls(**{k: v for k, v in doc.items() if k in names},
+                   metrics={k: v for k, v in doc.items() if k not in names})
 
 
 def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M,
               max_frames: int | None = None, export_orbslam: bool = False, slam_dir: Path | None = None,
-              drl_weights: str | None = None, loop: dict | None = None, slam: dict | None = None,
-              repeat: int = 0, groundtruth: Path | None = None) -> dict:
-    """A picklable task description.
+              drl_weights: str | None = None, loop: LoopConfig | None = None, slam: SlamOptions | None = None,
+              repeat: int = 0, groundtruth: Path | None = None) -> BenchmarkTask:
+    """The task of ``method`` on trajectory ``spec``.
 
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO).
     ``repeat``: which repeat of the (trajectory, method) run this is (0-based; part of the key and the paths).
     ``groundtruth``: a TUM left-camera reference replacing the spec's (e.g. made from its ``reference.yaml``).
 
     ``drl_weights``: the DRL actor's .pth (used by the ``drl`` method's closed loop; part of its cache key).
-    ``loop``: closed-loop settings (:data:`~bracketry_emulator.benchmark.emulated_runs.LOOP_DEFAULTS`; part of the key).
+    ``loop``: closed-loop settings (None: the defaults; part of the key in :meth:`LoopConfig.to_json`'s form).
 
     ``export_orbslam``: also write the run in ORB-SLAM's stereo-example layout to
     ``out/orbslam/<trajectory>/<method>/``. ``slam_dir``: evaluate external SLAM trajectories
     ``slam_dir/<trajectory>/<method>/CameraTrajectory*.txt`` instead of running the built-in VO.
     """
-    slam_opts: dict = dict(slam) if slam else {"backend": "builtin"}
-    task: dict = {
-        "trajectory": spec.name, "subset": spec.subset, "method": method,
-        "dataset": str(spec.path), "out": str(out_dir),
-        "groundtruth": (str(groundtruth) if groundtruth else
-                        str(spec.groundtruth_path()) if spec.groundtruth_path() else None),
-        "calibration": str(spec.calibration_dir()) if spec.calibration_dir() else None,
-        "existing_run": str(spec.existing_run(method)) if spec.existing_run(method) else None,
-        "windows_m": [float(w) for w in windows_m], "max_frames": max_frames,
-        "export_orbslam": bool(export_orbslam), "slam_dir": str(slam_dir) if slam_dir else None,
-        "drl_weights": str(Path(drl_weights).resolve()) if drl_weights and method == "drl" else None,
-        "loop": loop_options(**(loop or {})),
-        "slam": slam_opts, "repeat": int(repeat),
-    }
-    key_src = json.dumps({**{k: task[k] for k in ("dataset", "method", "groundtruth", "calibration", "existing_run",
-                                                  "windows_m", "max_frames", "slam_dir", "drl_weights", "loop",
-                                                  "repeat")},
-                          "slam": key_options(slam_opts)}, sort_keys=True)
-    task["key"] = hashlib.sha256(f"v{CACHE_VERSION}:{key_src}".encode()).hexdigest()[:16]
-    return task
+    gt = groundtruth or spec.groundtruth_path()
+    calibration, existing = spec.calibration_dir(), spec.existing_run(method)
+    return BenchmarkTask(
+        trajectory=spec.name, subset=spec.subset, method=method, dataset=str(spec.path), out=str(out_dir),
+        groundtruth=str(gt) if gt else None, calibration=str(calibration) if calibration else None,
+        existing_run=str(existing) if existing else None, windows_m=tuple(float(w) for w in windows_m),
+        max_frames=max_frames, export_orbslam=bool(export_orbslam), slam_dir=str(slam_dir) if slam_dir else None,
+        drl_weights=str(Path(drl_weights).resolve()) if drl_weights and method == "drl" else None,
+        loop=replace(loop, drl_weights=None) if loop is not None else _default_loop(),
+        slam=slam or SlamOptions.builtin(), repeat=int(repeat))
 
 
-def _run_name(task: dict) -> str:
-    r = int(task.get("repeat", 0))
-    return task["method"] if r == 0 else f"{task['method']}.r{r}"
-
-
-def cache_path(task: dict) -> Path:
-    return Path(task["out"]) / "cache" / task["trajectory"] / f"{_run_name(task)}.json"
-
-
-def load_cached(task: dict) -> dict | None:
+def load_cached(task: BenchmarkTask) -> RunResult | None:
     """The cached result of ``task`` if present and made with the same key."""
-    p = cache_path(task)
+    p = task.cache_path
     if not p.is_file():
         return None
     try:
-        result = json.loads(p.read_text())
+        doc = json.loads(p.read_text())
     except (OSError, ValueError):
         return None
-    return result if result.get("key") == task["key"] else None
+    return RunResult.from_json(doc) if doc.get("key") == task.key else None
 
 
 def _write_atomic(path: Path, text: str) -> None:
@@ -120,17 +243,12 @@ def _tune_malloc() -> None:
         pass
 
 
-def run_task(task: dict) -> dict:
-    """Run (or load from the cache) one task and return its result dict.
-
-    Result keys: trajectory, subset, method, repeat, key, run_dir, vo_dir, slam (backend), s_per_frame,
-    cached (bool), ``error`` (one line, only when the SLAM run failed) and the metrics of
-    :func:`~bracketry_emulator.metrics.evaluate.evaluate_run`.
-    """
+def run_task(task: BenchmarkTask) -> RunResult:
+    """Run (or load from the cache) one task and return its result (``error``: one line, only when the SLAM run
+    failed)."""
     cached = load_cached(task)
     if cached is not None:
-        cached["cached"] = True
-        return cached
+        return replace(cached, cached=True)
     import cv2
 
     cv2.setNumThreads(1)  # one core per task: deterministic, and workers do not fight over cores
@@ -139,41 +257,36 @@ def run_task(task: dict) -> dict:
     from bracketry_emulator.benchmark.emulated_runs import emulate_run
     from bracketry_emulator.benchmark.slam import run_slam
 
-    out = Path(task["out"])
-    if task["calibration"] is None:
-        raise BracketryError(f"{task['dataset']}: no calibration/ folder with left/right camera_info YAMLs")
-    if task["existing_run"]:
-        run_dir = Path(task["existing_run"])
+    out = Path(task.out)
+    if task.calibration is None:
+        raise BracketryError(f"{task.dataset}: no calibration/ folder with left/right camera_info YAMLs")
+    if task.existing_run:
+        run_dir = Path(task.existing_run)
     else:
-        run_dir = emulate_run(Path(task["dataset"]), task["method"], out / "runs" / task["trajectory"],
-                              drl_weights=task.get("drl_weights"), options=task.get("loop"))
-    if task.get("export_orbslam"):
+        run_dir = emulate_run(Path(task.dataset), task.method, out / "runs" / task.trajectory,
+                              replace(task.loop, drl_weights=task.drl_weights))
+    if task.export_orbslam:
         from bracketry_emulator.vo.orbslam import export_orbslam
 
-        export_orbslam(run_dir, task["calibration"], out / "orbslam" / task["trajectory"] / task["method"])
-    vo_dir = vo_path(task)
-    if task.get("slam_dir"):
+        export_orbslam(run_dir, task.calibration, out / "orbslam" / task.trajectory / task.method)
+    vo_dir = task.vo_path
+    if task.slam_dir:
         from bracketry_emulator.vo.orbslam import import_orbslam
 
-        slam = Path(task["slam_dir"]) / task["trajectory"] / task["method"]
+        slam = Path(task.slam_dir) / task.trajectory / task.method
         import_orbslam(slam, run_dir / "times_images_left.txt", vo_dir)
         return complete_task(task, run_dir, {"backend": "external", "s_per_frame": float("nan")})
     t0, c0 = time.perf_counter(), time.thread_time()
     try:
-        info = run_slam(task.get("slam"), run_dir, task["calibration"], vo_dir, task["max_frames"])
+        info = run_slam(task.slam, run_dir, task.calibration, vo_dir, task.max_frames)
     except BracketryError as exc:  # this run only: a clear line in the report, the benchmark goes on
         return complete_task(task, run_dir, None, str(exc),
                              slam_s=(time.perf_counter() - t0, time.thread_time() - c0))
     return complete_task(task, run_dir, info, slam_s=(time.perf_counter() - t0, time.thread_time() - c0))
 
 
-def vo_path(task: dict) -> Path:
-    """Where a task's SLAM output goes: ``out/vo/<trajectory>/<method>[.r<repeat>]``."""
-    return Path(task["out"]) / "vo" / task["trajectory"] / _run_name(task)
-
-
-def complete_task(task: dict, run_dir: Path, info: dict | None, error: str | None = None,
-                  slam_s: tuple[float, float] | None = None) -> dict:
+def complete_task(task: BenchmarkTask, run_dir: Path, info: dict | None, error: str | None = None,
+                  slam_s: tuple[float, float] | None = None) -> RunResult:
     """The result of a task whose SLAM run is over: its metrics (timed), written to the cache; or, with ``error``
     (the SLAM run failed), NaN metrics and the error line, not cached.
 
@@ -182,29 +295,25 @@ def complete_task(task: dict, run_dir: Path, info: dict | None, error: str | Non
     run (:mod:`~bracketry_emulator.stages`)."""
     from bracketry_emulator.stages import StageTimes
 
-    vo_dir = vo_path(task)
+    vo_dir = task.vo_path
     stages = StageTimes()
     if info is not None and "wall_s" in info:
         stages.add("slam", info["wall_s"], info.get("cpu_s", float("nan")))
     elif slam_s is not None:
         stages.add("slam", *slam_s)
-    base = {"trajectory": task["trajectory"], "subset": task["subset"], "method": task["method"],
-            "repeat": int(task.get("repeat", 0)), "key": task["key"], "run_dir": str(run_dir),
-            "vo_dir": str(vo_dir)}
+    base: dict[str, Any] = {"trajectory": task.trajectory, "subset": task.subset, "method": task.method,
+                            "repeat": task.repeat, "key": task.key, "run_dir": str(run_dir), "vo_dir": str(vo_dir)}
     if error is not None or info is None:
-        return {**base, **failed_metrics(), "slam": task.get("slam", {}).get("backend", "builtin"),
-                "s_per_frame": float("nan"), "error": error or "the SLAM run failed", "cached": False,
-                "stages": stages.as_dict()}
+        return RunResult(**base, metrics=failed_metrics(), slam=task.slam.backend, s_per_frame=float("nan"),
+                         error=error or "the SLAM run failed", stages=stages.as_dict())
     with stages.time("metrics"):
-        metrics = evaluate_run(vo_dir, task["groundtruth"], tuple(task["windows_m"]))
-    s_per_frame = info.get("s_per_frame", info.get("track_s_median", float("nan")))  # ORB-SLAM3: median track
-    result = {**base, **metrics, "slam": info["backend"], "s_per_frame": s_per_frame, "stages": stages.as_dict()}
-    if info.get("source"):
-        result["slam_input"] = info["source"]
-    if info.get("pace_s", 0.0) != 0.0 and "max_late_s" in info:  # a paced run: how far it fell behind its clock
-        result["slam_late_s"] = info["max_late_s"]
-    _write_atomic(cache_path(task), json.dumps(result))
-    result["cached"] = False
+        metrics = evaluate_run(vo_dir, task.groundtruth, task.windows_m)
+    paced = info.get("pace_s", 0.0) != 0.0 and "max_late_s" in info  # how far a paced run fell behind its clock
+    result = RunResult(**base, metrics=metrics, slam=info["backend"],
+                       s_per_frame=info.get("s_per_frame", info.get("track_s_median", float("nan"))),  # ORB-SLAM3
+                       stages=stages.as_dict(), slam_input=info.get("source") or None,
+                       slam_late_s=info["max_late_s"] if paced else None)
+    _write_atomic(task.cache_path, json.dumps(result.to_json(cached=False)))
     return result
 
 

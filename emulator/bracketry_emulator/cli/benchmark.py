@@ -19,6 +19,19 @@ from bracketry.cli.options import (
     quiet_option,
 )
 from bracketry.errors import BracketryError
+from bracketry_emulator.defaults import (
+    AE_CAMERAS,
+    DEFAULT_ALPHA,
+    DEFAULT_CRF,
+    DEFAULT_INIT_EXPOSURE_US,
+    DEFAULT_REFERENCE,
+    DEFAULT_SLAM_PACE,
+    DEFAULT_STATS_METHODS,
+    MAX_EXPOSURE_OPTION_MS,
+    PARITIES,
+    SELECTIONS,
+    SLAM_BACKENDS,
+)
 
 
 def _windows(text: str) -> tuple[float, ...]:
@@ -45,18 +58,18 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--methods", "-m", default="all", show_default=True,
               help="'all' or 'paper' (the paper's eight; drl with --drl-weights) or a comma-separated list of AE "
                    "method ids.")
-@click.option("--stats-methods", default="paper", show_default=True,
+@click.option("--stats-methods", default=DEFAULT_STATS_METHODS, show_default=True,
               help="Methods in the statistics and their Bonferroni count: 'paper' (zhang and plugins are reported, "
                    "not tested), 'all', or a comma-separated list.")
 @click.option("--out", "out_dir", required=True, type=output_dir(existing="resume"),
               help="Output folder; an existing one is resumed (its cache is reused), not replaced.")
-@click.option("--reference", default="ae50", show_default=True, help="Reference method of the statistics.")
+@click.option("--reference", default=DEFAULT_REFERENCE, show_default=True, help="Reference method of the statistics.")
 @click.option("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (default: local processes).")
 @click.option("--workers", default=0, show_default=True, type=WORKERS,
               help="Local worker processes, 0 = one per CPU (1 = in this process; ignored with --scheduler).")
 @click.option("--windows", "windows_text", default="5:50:1", show_default=True,
               help="RTE/RRE windows in metres: START:STOP:STEP or a list.")
-@click.option("--alpha", default=0.05, show_default=True, type=Number(0, 1, min_open=True, max_open=True),
+@click.option("--alpha", default=DEFAULT_ALPHA, show_default=True, type=Number(0, 1, min_open=True, max_open=True),
               help="Significance level before the Bonferroni correction, in (0, 1).")
 @click.option("--max-frames", default=None, type=Integer(2), help="Only the first N frames of each run (N >= 2).")
 @click.option("--write-images", is_flag=True,
@@ -70,23 +83,25 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--drl-weights", type=input_file(), default=None, envvar="BRACKETRY_DRL_WEIGHTS",
               help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth; env "
                    "BRACKETRY_DRL_WEIGHTS). Without it 'all' leaves DRL out.")
-@click.option("--selection", type=click.Choice(["highernosat", "upstream", "fusion"]), default="highernosat",
-              show_default=True, help="Closed loops: the emulator's source-bracket selection.")
-@click.option("--crf", default="srgb", show_default=True, help="Closed loops: camera response, 'srgb' or a pcalib.txt.")
-@click.option("--init-exposure-ms", type=Number(0.0, 1000.0, min_open=True), default=4.0, show_default=True,
+@click.option("--selection", type=click.Choice(SELECTIONS), default=SELECTIONS[0], show_default=True,
+              help="Closed loops: the emulator's source-bracket selection.")
+@click.option("--crf", default=DEFAULT_CRF, show_default=True,
+              help="Closed loops: camera response, 'srgb' or a pcalib.txt.")
+@click.option("--init-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
+              default=DEFAULT_INIT_EXPOSURE_US / 1000.0, show_default=True,
               help="Closed loops: first target exposure of every method (ms).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Closed loops: seed of stochastic methods.")
-@click.option("--ae-camera", type=click.Choice(["left", "right"]), default="left", show_default=True,
+@click.option("--ae-camera", type=click.Choice(AE_CAMERAS), default=AE_CAMERAS[0], show_default=True,
               help="Closed loops: the camera whose image the methods see.")
-@click.option("--parity", type=click.Choice(["default", "upstream"]), default="default", show_default=True,
+@click.option("--parity", type=click.Choice(PARITIES), default=PARITIES[0], show_default=True,
               help="Closed loops: the methods as their papers describe them (default) or as the authors' code runs "
                    "them (upstream: with their emulation arithmetic; needs --crf pcalib_inside1.txt).")
-@click.option("--slam", "slam_backend", type=click.Choice(["orbslam3", "builtin"]), default="orbslam3",
+@click.option("--slam", "slam_backend", type=click.Choice(SLAM_BACKENDS), default=SLAM_BACKENDS[0],
               show_default=True, help="Localisation: ORB-SLAM3 stereo, or the built-in VO (fast, deterministic).")
 @click.option("--vocabulary", type=input_file(), default=None,
               help="ORB-SLAM3 vocabulary (e.g. ORBvoc.txt; env PYORBSLAM3_VOCAB). Default: the project's own, "
                    "built once into the user cache (never downloaded).")
-@click.option("--slam-pace", default="realtime", show_default=True,
+@click.option("--slam-pace", default=DEFAULT_SLAM_PACE, show_default=True,
               help="ORB-SLAM3 feed: 'realtime' (the recording's timestamps) or seconds per frame (0 = unpaced).")
 @click.option("--loop-closing/--no-loop-closing", default=True, show_default=True,
               help="ORB-SLAM3's loop-closing thread; off also turns relocalisation off.")
@@ -119,7 +134,8 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
     from bracketry_emulator.blas_policy import one_blas_thread
 
     one_blas_thread()  # the closed loops run in worker processes beside the SLAM runs; before numpy loads
-    from bracketry_emulator.benchmark import run_benchmark
+    from bracketry_emulator.ae import LoopConfig
+    from bracketry_emulator.benchmark import BenchmarkConfig, RunResult, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
 
     if scheduler is not None and not scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
@@ -130,24 +146,27 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
 
     slam = slam_options(slam_backend, vocabulary, slam_pace, loop_closing, slam_repeats, resolve=False)
 
-    def done(r: dict) -> None:
-        rep = f" (repeat {r['repeat'] + 1})" if slam_repeats > 1 else ""
-        if r.get("error"):
-            click.echo(f"failed {r['trajectory']} / {r['method']}{rep}: {r['error']}")
-            return
-        state = "cached" if r.get("cached") else "done"
-        outcome = "success" if r["success"] else f"failed at {r['time_before_failure_s']:.1f} s"
-        rte = f"RTE refused: {r['rte_refused']}" if r.get("rte_refused") else f"RTE {r['rte_pct']:.2f} %"
-        click.echo(f"{state:6s} {r['trajectory']} / {r['method']}{rep}: {outcome}, "
-                   f"{rte}, coverage {100 * r['coverage_mean']:.1f} %, "
-                   f"matches {r['matches_mean']:.0f}")
-
-    result = run_benchmark(list(datasets), methods, out_dir, reference=reference, scheduler=scheduler,
-                           workers=workers, windows_m=windows_m, max_frames=max_frames, alpha=alpha,
-                           export_orbslam=export_orbslam, slam_dir=slam_dir, drl_weights=drl_weights,
-                           progress=not quiet, on_done=done, slam=slam, slam_echo=click.echo,
-                           stats_methods=stats_methods, write_images=write_images, setup_check=setup_check,
-                           loop={"selection": selection, "crf": crf, "init_exposure_us": init_exposure_ms * 1000.0,
+    loop = LoopConfig.from_json({"selection": selection, "crf": crf, "init_exposure_us": init_exposure_ms * 1000.0,
                                  "seed": seed, "ae_camera": ae_camera, "parity": parity})
+
+    def done(r: RunResult) -> None:
+        rep = f" (repeat {r.repeat + 1})" if slam_repeats > 1 else ""
+        if r.error:
+            click.echo(f"failed {r.trajectory} / {r.method}{rep}: {r.error}")
+            return
+        m = r.metrics
+        state = "cached" if r.cached else "done"
+        outcome = "success" if m["success"] else f"failed at {m['time_before_failure_s']:.1f} s"
+        rte = f"RTE refused: {m['rte_refused']}" if m.get("rte_refused") else f"RTE {m['rte_pct']:.2f} %"
+        click.echo(f"{state:6s} {r.trajectory} / {r.method}{rep}: {outcome}, "
+                   f"{rte}, coverage {100 * m['coverage_mean']:.1f} %, "
+                   f"matches {m['matches_mean']:.0f}")
+
+    config = BenchmarkConfig(datasets, methods, out_dir, reference=reference, scheduler=scheduler, workers=workers,
+                             windows_m=windows_m, max_frames=max_frames, alpha=alpha, export_orbslam=export_orbslam,
+                             slam_dir=slam_dir, drl_weights=str(drl_weights) if drl_weights else None,
+                             progress=not quiet, loop=loop, slam=slam, stats_methods=stats_methods,
+                             write_images=write_images, setup_check=setup_check)
+    result = run_benchmark(config, on_done=done, slam_echo=click.echo)
     click.echo(f"report: {result.report_files.get('report.html')}")
     return EXIT_OK

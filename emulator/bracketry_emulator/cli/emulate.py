@@ -20,9 +20,17 @@ from bracketry.cli.options import (
     quiet_option,
 )
 from bracketry.errors import BracketryError
-
-#: the longest exposure any AE method may ask for (ms): a second is far beyond any bracket of the rig
-MAX_EXPOSURE_MS = 1000.0
+from bracketry_emulator.defaults import (
+    AE_CAMERAS,
+    CAMERAS,
+    DEFAULT_INIT_EXPOSURE_US,
+    DEFAULT_MAX_EXPOSURE_US,
+    DEFAULT_MIN_EXPOSURE_US,
+    MAX_EXPOSURE_OPTION_MS,
+    PARITIES,
+    PNG_COMPRESSIONS,
+    SELECTIONS,
+)
 
 
 def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str, depth: int,
@@ -58,18 +66,18 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 @click.option("--out", "-o", "out_dir", required=True, type=output_dir(),
               help="Output folder (new or empty): one sub-folder per method, summary.json, exposures.csv, "
                    "exposure_times.png.")
-@click.option("--selection", type=click.Choice(["highernosat", "upstream", "fusion"]), default="highernosat",
+@click.option("--selection", type=click.Choice(SELECTIONS), default=SELECTIONS[0],
               show_default=True, help="Source-bracket selection of the emulator.")
 @click.option("--crf", default=None,
               help="Camera response: 'srgb' or a pcalib.txt file [default: srgb; with --parity upstream the dataset's "
                    "calibration/pcalib*.txt].")
-@click.option("--parity", type=click.Choice(["default", "upstream"]), default="default", show_default=True,
+@click.option("--parity", type=click.Choice(PARITIES), default=PARITIES[0], show_default=True,
               help="'upstream' reproduces the authors' emulation (their pcalib lifting, truncation, closer_least_sat) "
                    "and runs shim, kim and zhang as their code does; 'default' runs each method as its paper "
                    "describes it.")
-@click.option("--camera", type=click.Choice(["left", "right", "both"]), default="both", show_default=True,
+@click.option("--camera", type=click.Choice(CAMERAS), default=CAMERAS[-1], show_default=True,
               help="Cameras to emulate and write.")
-@click.option("--ae-camera", type=click.Choice(["left", "right"]), default="left", show_default=True,
+@click.option("--ae-camera", type=click.Choice(AE_CAMERAS), default=AE_CAMERAS[0], show_default=True,
               help="Camera whose emulated image the AE methods see (the authors: left).")
 @click.option("--depth", type=click.Choice(["12", "8"]), default="12", show_default=True,
               help="Bit depth of written images (12: 16-bit PNG of 12-bit codes; 8: code >> 4).")
@@ -84,13 +92,16 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
               show_default=True, help="Fusion: global motion compensation between the brackets.")
 @click.option("--deghost-sigma", type=Number(0.0, 1e6, min_open=True), default=None,
               help="Fusion: drop pixels of a non-reference bracket more than this many noise sigmas off the reference.")
-@click.option("--init-exposure-ms", type=Number(0.0, MAX_EXPOSURE_MS, min_open=True), default=4.0, show_default=True,
+@click.option("--init-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
+              default=DEFAULT_INIT_EXPOSURE_US / 1000.0, show_default=True,
               help="First target exposure of every method (the authors: 4 ms).")
-@click.option("--min-exposure-ms", type=Number(0.0, MAX_EXPOSURE_MS, min_open=True), default=0.02,
+@click.option("--min-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
+              default=DEFAULT_MIN_EXPOSURE_US / 1000.0,
               show_default=True, help="Lower bound applied to every method's output (ms).")
-@click.option("--max-exposure-ms", type=Number(0.0, MAX_EXPOSURE_MS, min_open=True), default=64.0,
+@click.option("--max-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
+              default=DEFAULT_MAX_EXPOSURE_US / 1000.0,
               show_default=True,
-              help=f"Upper bound applied to every method's output (ms, at most {MAX_EXPOSURE_MS:g}).")
+              help=f"Upper bound applied to every method's output (ms, at most {MAX_EXPOSURE_OPTION_MS:g}).")
 @click.option("--drl-weights", type=input_file(), default=None,
               help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth).")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of stochastic methods (Kim's GP).")
@@ -99,7 +110,7 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
                    "process; 1 = in this process).")
 @click.option("--max-sequences", type=count(1), default=None, help="Stop after this many bracket sequences.")
 @click.option("--no-images", is_flag=True, help="Do not write images (exposure trajectories and summaries only).")
-@click.option("--png-compression", type=click.Choice(["stored", "fast", "small", "opencv"]), default="stored",
+@click.option("--png-compression", type=click.Choice(PNG_COMPRESSIONS), default=PNG_COMPRESSIONS[0],
               show_default=True,
               help="Lossless PNG encoding of the images: stored (no compression, fastest, 2 bytes a pixel), fast "
                    "(Huffman only), small (zlib level 1, smallest), opencv (cv2.imwrite defaults, as the authors); "

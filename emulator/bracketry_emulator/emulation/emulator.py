@@ -27,6 +27,7 @@ from bracketry.errors import BracketryError
 from ..crf import Lifting, Response, load_response
 from ..crf.response import Rounding
 from ..dataset.model import BracketSequence
+from ..defaults import SELECTIONS
 from .align import Motion
 from .fusion import FusionResult, fuse, fusion_brackets
 from .kernel import LutCache, apply_lut
@@ -35,7 +36,6 @@ from .selection import SatCount, saturation_fraction, select_highernosat, select
 
 Selection = Literal["highernosat", "upstream", "fusion"]
 Parity = Literal["default", "upstream"]
-SELECTIONS: tuple[str, ...] = ("highernosat", "upstream", "fusion")
 
 
 @dataclass(frozen=True)

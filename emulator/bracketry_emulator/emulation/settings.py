@@ -8,6 +8,7 @@ from typing import Any
 
 from bracketry.errors import BracketryError
 
+from ..defaults import PARITIES
 from .emulator import EmulatorConfig
 
 
@@ -30,7 +31,7 @@ def emulator_config(selection: str = "highernosat", crf: str | Path = "srgb", pa
     With ``parity="upstream"`` the default selection ``highernosat`` becomes ``upstream`` (the authors'
     closer_least_sat goes with their arithmetic). Raises BracketryError (one line)."""
     check_crf(crf)
-    if parity not in ("default", "upstream"):
+    if parity not in PARITIES:
         raise BracketryError(f"--parity must be default or upstream, got {parity}")
     if parity == "upstream" and selection == "highernosat":
         selection = "upstream"

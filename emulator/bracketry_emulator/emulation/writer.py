@@ -40,6 +40,7 @@ from bracketry.errors import BracketryError
 
 from ..dataset.imageio import png_codec
 from ..dataset.model import BracketSequence
+from ..defaults import PNG_COMPRESSIONS
 from .emulator import EmulatedImage
 
 STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_ms", "factor", "selection",
@@ -51,8 +52,6 @@ def _png_chunk(tag: bytes, data: bytes) -> bytes:
     return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(tag)))
 
 
-#: the ``png_compression`` choices (module docstring)
-PNG_COMPRESSIONS: tuple[str, ...] = ("stored", "fast", "small", "opencv")
 #: our encoder's choices: (zlib level, zlib strategy)
 _DEFLATE = {"stored": (0, zlib.Z_DEFAULT_STRATEGY), "fast": (1, zlib.Z_HUFFMAN_ONLY),
             "small": (1, zlib.Z_DEFAULT_STRATEGY)}

@@ -147,7 +147,7 @@ def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]
 def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     """Step 3: all AE methods in closed loop (one shared-decode pass, with a progress bar), VO, metrics, statistics
     and the report."""
-    from bracketry_emulator.benchmark.orchestrate import parse_methods, run_benchmark
+    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, parse_methods, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
 
     methods = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
@@ -160,16 +160,16 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
          f"(one process per method, no PNG round trip), then metrics per method")
     bar: Any = None
 
-    def done(r: dict) -> None:
+    def done(r: Any) -> None:  # a RunResult
         nonlocal bar
         if bar is None:  # after the closed loops' own bar
             bar = Progress("SLAM + metrics", total=len(methods), unit="method")
-        bar.set_postfix(r["method"])
+        bar.set_postfix(r.method)
         bar.update(1)
 
     try:
-        return run_benchmark([dataset], methods, out, reference="ae50", workers=p.workers,
-                             drl_weights=p.drl_weights, progress=True, on_done=done, slam=slam)
+        return run_benchmark(BenchmarkConfig([dataset], methods, out, reference="ae50", workers=p.workers,
+                                             drl_weights=p.drl_weights, progress=True, slam=slam), on_done=done)
     finally:
         if bar is not None:
             bar.close()

@@ -254,15 +254,15 @@ def test_closed_loop_equals_the_authors_on_a_synthetic_trajectory(borealhdr_samp
 
 def test_all_is_the_papers_eight_and_the_mode_is_in_the_benchmark_key(tmp_path: Path) -> None:
     from bracketry_emulator.ae import expand_methods
-    from bracketry_emulator.benchmark.emulated_runs import loop_config
     from bracketry_emulator.benchmark.tasks import make_task
     from bracketry_emulator.metrics.manifest import TrajectorySpec
 
     assert expand_methods("all", has_drl_weights=True) == ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl"]
     assert "drl" not in expand_methods("all", has_drl_weights=False)
     assert expand_methods("all,zhang", has_drl_weights=False)[-1] == "zhang"
-    up = loop_config({"parity": "upstream"}, None)
+    up = LoopConfig.from_json({"parity": "upstream"})
     assert up.emulator.parity == "upstream" and up.emulator.selection == "upstream"
     spec = TrajectorySpec(name="t", path=tmp_path)
-    keys = {make_task(spec, "shim", tmp_path, loop={"parity": p})["key"] for p in ("default", "upstream")}
+    keys = {make_task(spec, "shim", tmp_path, loop=LoopConfig.from_json({"parity": p})).key
+            for p in ("default", "upstream")}
     assert len(keys) == 2

@@ -9,7 +9,7 @@ import pytest
 
 from bracketry.cli import main as cli_main
 from bracketry.errors import BracketryError
-from bracketry_emulator.benchmark import make_task, run_benchmark
+from bracketry_emulator.benchmark import BenchmarkConfig, RunResult, make_task, run_benchmark
 from bracketry_emulator.benchmark.tasks import load_cached
 from bracketry_emulator.benchmark.toyworld import ToyWorld
 from bracketry_emulator.metrics import expand_datasets
@@ -48,7 +48,7 @@ def _essential(results: list[dict]) -> str:
 @pytest.fixture(scope="module")
 def local_run(datasets, tmp_path_factory):
     out = tmp_path_factory.mktemp("bench_local")
-    return run_benchmark(datasets, METHODS, out, reference="ae50", windows_m=WINDOWS)
+    return run_benchmark(BenchmarkConfig(datasets, METHODS, out, reference="ae50", windows_m=WINDOWS))
 
 
 def test_bench_local_run_and_report(local_run) -> None:
@@ -79,16 +79,16 @@ def test_bench_local_run_and_report(local_run) -> None:
 def test_bench_interrupted_run_resumes(datasets, local_run, tmp_path: Path) -> None:
     seen: list[str] = []
 
-    def stop_after_two(r: dict) -> None:
-        seen.append(r["method"])
+    def stop_after_two(r: RunResult) -> None:
+        seen.append(r.method)
         if len(seen) == 2:
             raise KeyboardInterrupt  # as a Ctrl-C in the middle of the benchmark
 
     with pytest.raises(KeyboardInterrupt):
-        run_benchmark(datasets, METHODS, tmp_path, windows_m=WINDOWS, on_done=stop_after_two)
+        run_benchmark(BenchmarkConfig(datasets, METHODS, tmp_path, windows_m=WINDOWS), on_done=stop_after_two)
     cached = sorted(p.name for p in (tmp_path / "cache").rglob("*.json"))
     assert len(cached) == 2
-    resumed = run_benchmark(datasets, METHODS, tmp_path, windows_m=WINDOWS)
+    resumed = run_benchmark(BenchmarkConfig(datasets, METHODS, tmp_path, windows_m=WINDOWS))
     assert [r["cached"] for r in resumed.results] == [True, True, False, False, False, False]
     assert _essential(resumed.results) == _essential(local_run.results)
     # a cache entry made with other settings is not reused
@@ -103,7 +103,8 @@ def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Pa
     # dashboard off (no Bokeh); the scheduler's small HTTP server goes to a free loopback port
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
                                   dashboard_address="127.0.0.1:0", scheduler_kwargs={"dashboard": False}) as cluster:
-        res = run_benchmark(datasets, METHODS, tmp_path, windows_m=WINDOWS, scheduler=cluster.scheduler_address)
+        res = run_benchmark(BenchmarkConfig(datasets, METHODS, tmp_path, windows_m=WINDOWS,
+                                            scheduler=cluster.scheduler_address))
     assert not any(r["cached"] for r in res.results)
     assert _essential(res.results) == _essential(local_run.results)
     assert json.loads((tmp_path / "report" / "results.json").read_text())[0]["trajectory"] == "traj1"

@@ -13,7 +13,7 @@ import pytest
 
 from bracketry.cli import main as cli_main
 from bracketry_emulator.ae import run_methods
-from bracketry_emulator.benchmark import run_benchmark
+from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
 from bracketry_emulator.slam.frame_stream import FrameFeed, read_stream
 from bracketry_emulator.vo import run_vo
 from bracketry_emulator.vo.runner import list_side_images, read_gray8
@@ -57,7 +57,8 @@ def test_streamed_images_equal_the_written_pngs(world: Path, tmp_path: Path, wor
 def test_streamed_slam_results_equal_the_png_route(world: Path, tmp_path: Path) -> None:
     """The built-in VO (deterministic) fed in memory gives the same per-frame log and trajectory as run on the PNG
     files of the same closed loop; the report ends with the stage table; without --write-images no PNG is written."""
-    res = run_benchmark([world], ["ae50"], tmp_path / "b", reference="ae50", windows_m=(1.0,), write_images=True)
+    res = run_benchmark(BenchmarkConfig([world], ["ae50"], tmp_path / "b", reference="ae50", windows_m=(1.0,),
+                                        write_images=True))
     (r,) = res.results
     assert r["slam_input"] == "stream" and not r.get("error")
     vo = run_vo(r["run_dir"], world / "calibration", tmp_path / "png_route")
@@ -79,13 +80,13 @@ def test_streamed_slam_results_equal_the_png_route(world: Path, tmp_path: Path) 
     assert md.rstrip().splitlines()[-1].startswith("| benchmark (wall clock) |")  # the report ends with it
     assert "## Where the time went" in md and "s per trajectory-minute" in md and "logical CPUs" in md
     # the default: no PNG at all, the same results, the steps still recorded
-    res2 = run_benchmark([world], ["ae50"], tmp_path / "c", reference="ae50", windows_m=(1.0,))
+    res2 = run_benchmark(BenchmarkConfig([world], ["ae50"], tmp_path / "c", reference="ae50", windows_m=(1.0,)))
     run_dir = Path(res2.results[0]["run_dir"])
     assert not list(run_dir.rglob("*.png")) and len((run_dir / "steps.csv").read_text().splitlines()) > 5
     assert (res2.out_dir / "report" / "qualitative.png").stat().st_size > 1000
     assert (Path(res2.results[0]["vo_dir"]) / "frames.csv").read_text() == (vo.out_dir / "frames.csv").read_text()
     assert "png_write" not in json.loads((res2.out_dir / "report" / "stages.json").read_text())["stages"]
     # cached on a second call: no work now, said in the table's legend
-    again = run_benchmark([world], ["ae50"], tmp_path / "c", reference="ae50", windows_m=(1.0,))
+    again = run_benchmark(BenchmarkConfig([world], ["ae50"], tmp_path / "c", reference="ae50", windows_m=(1.0,)))
     assert again.results[0]["cached"] and "came from the cache" in (again.out_dir / "report" / "report.md"
                                                                     ).read_text()

@@ -9,7 +9,8 @@ import pytest
 
 from bracketry.cli import main as cli_main
 from bracketry.errors import BracketryError
-from bracketry_emulator.benchmark import run_benchmark
+from bracketry_emulator.ae import LoopConfig
+from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
 from bracketry_emulator.dataset import open_dataset
 from bracketry_emulator.emulation import Emulator, EmulatorConfig, RunWriter
 from bracketry_emulator.metrics import evaluate_run
@@ -66,7 +67,7 @@ def test_bench_synth_vo_reports_loss_when_saturated(world: Path, runs: Path, tmp
 
 
 def test_bench_synth_closed_loop_benchmark(world: Path, tmp_path: Path) -> None:
-    res = run_benchmark([world], ["ae50", "fix"], tmp_path, reference="ae50", windows_m=WINDOWS)
+    res = run_benchmark(BenchmarkConfig([world], ["ae50", "fix"], tmp_path, reference="ae50", windows_m=WINDOWS))
     assert [r["method"] for r in res.results] == ["ae50", "fix"]
     for r in res.results:
         assert (Path(r["run_dir"]) / "steps.csv").is_file()  # emulated by the AE closed loop
@@ -80,11 +81,11 @@ def test_bench_synth_closed_loop_benchmark(world: Path, tmp_path: Path) -> None:
     first = json.loads((Path(res.results[0]["run_dir"]) / "summary.json").read_text())
     # other closed-loop settings in the same folder: refused in one line, nothing overwritten
     with pytest.raises(BracketryError, match=r"other settings .*init_exposure_us 4000\.0 -> 8000\.0"):
-        run_benchmark([world], ["ae50", "fix"], tmp_path, reference="ae50", windows_m=WINDOWS,
-                      loop={"init_exposure_us": 8000.0})
+        run_benchmark(BenchmarkConfig([world], ["ae50", "fix"], tmp_path, reference="ae50", windows_m=WINDOWS,
+                                      loop=LoopConfig(init_exposure_us=8000.0)))
     assert json.loads((Path(res.results[0]["run_dir"]) / "summary.json").read_text()) == first
     # ... and honoured in a new folder
-    res8 = run_benchmark([world], ["ae50"], tmp_path / "b8", reference="ae50", windows_m=WINDOWS,
-                         loop={"init_exposure_us": 8000.0})
+    res8 = run_benchmark(BenchmarkConfig([world], ["ae50"], tmp_path / "b8", reference="ae50", windows_m=WINDOWS,
+                                         loop=LoopConfig(init_exposure_us=8000.0)))
     steps = (Path(res8.results[0]["run_dir"]) / "steps.csv").read_text().splitlines()
     assert steps[1].split(",")[2] == "8.000000", steps[:2]  # target_exposure_ms of the first step

@@ -10,7 +10,7 @@ import pytest
 from scipy.spatial.transform import Rotation
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.benchmark import run_benchmark
+from bracketry_emulator.benchmark import BenchmarkConfig, SlamOptions, run_benchmark
 from bracketry_emulator.benchmark.toyworld import ToyWorld
 from bracketry_emulator.metrics import evaluate_run
 from bracketry_emulator.metrics.reference import extrinsic_matrix, write_camera_reference
@@ -69,7 +69,8 @@ def test_bench_reference_euroc_and_kitti_give_the_camera_rte(toy, tmp_path: Path
     assert m_kitti["rte_pct"] == pytest.approx(m_gt["rte_pct"], rel=1e-3)
 
     # the benchmark uses a folder's reference.yaml (here there is no groundtruth.txt at all)
-    res = run_benchmark([d], ["ae50"], tmp_path / "bench", windows_m=(1.0,), slam={"backend": "builtin"})
+    res = run_benchmark(BenchmarkConfig([d], ["ae50"], tmp_path / "bench", windows_m=(1.0,),
+                                        slam=SlamOptions.builtin()))
     assert res.results[0]["rte_pct"] == pytest.approx(m_gt["rte_pct"], rel=1e-3)
     assert res.results[0]["reference"] == "groundtruth"
 
@@ -79,7 +80,7 @@ def test_bench_no_reference_is_explicit(toy, tmp_path: Path) -> None:
     bare = tmp_path / "bare"
     shutil.copytree(d / "calibration", bare / "calibration")
     shutil.copytree(d / "ae50", bare / "ae50")
-    res = run_benchmark([bare], ["ae50"], tmp_path / "bench", windows_m=(1.0,))
+    res = run_benchmark(BenchmarkConfig([bare], ["ae50"], tmp_path / "bench", windows_m=(1.0,)))
     r = res.results[0]
     assert np.isnan(r["rte_pct"]) and r["reference"].startswith("no reference")
     assert "RTE/RRE: no reference" in (res.out_dir / "report" / "report.md").read_text()

@@ -1,0 +1,40 @@
+"""Defaults and choices of the closed loop and the benchmark, each defined once (no imports: the CLIs read them
+while declaring their options, before anything heavy loads).
+
+Exposures in us (in ms on the command line and in output files).
+"""
+
+from __future__ import annotations
+
+#: the first target exposure (us) of a method that declares none (the authors: 4 ms)
+DEFAULT_INIT_EXPOSURE_US = 4000.0
+#: the longest exposure any option may ask for (ms): a second is far beyond any bracket of the rig
+MAX_EXPOSURE_OPTION_MS = 1000.0
+#: lower bound (us) of every target: the authors' only floor (Zhang's 0.02 ms)
+DEFAULT_MIN_EXPOSURE_US = 20.0
+#: upper bound (us): 2x the sample's longest bracket (beyond it the emulation extrapolates more than one stop)
+DEFAULT_MAX_EXPOSURE_US = 64000.0
+
+#: the emulator's source-bracket selections; the default first
+SELECTIONS: tuple[str, ...] = ("highernosat", "upstream", "fusion")
+#: the methods as their papers describe them, or as the authors' code runs them; the default first
+PARITIES: tuple[str, ...] = ("default", "upstream")
+#: camera response: the sample's sRGB-encoded codes (or a pcalib.txt path)
+DEFAULT_CRF = "srgb"
+#: the camera whose image the AE methods see (the authors: left); the default first
+AE_CAMERAS: tuple[str, ...] = ("left", "right")
+#: the cameras a closed loop writes; the default last
+CAMERAS: tuple[str, ...] = ("left", "right", "both")
+#: lossless PNG encodings of written images (emulation/writer.py); the default first
+PNG_COMPRESSIONS: tuple[str, ...] = ("stored", "fast", "small", "opencv")
+
+#: localisation backends of the benchmark (benchmark/slam.py); the default first
+SLAM_BACKENDS: tuple[str, ...] = ("orbslam3", "builtin")
+#: ORB-SLAM3's feed: the recording's own timestamps
+DEFAULT_SLAM_PACE = "realtime"
+#: the benchmark's reference method of the statistics
+DEFAULT_REFERENCE = "ae50"
+#: significance level before the Bonferroni correction
+DEFAULT_ALPHA = 0.05
+#: the methods the statistics cover: the paper's (``all``, or a comma-separated list)
+DEFAULT_STATS_METHODS = "paper"
