@@ -44,16 +44,14 @@ zhang_src=emulator/bracketry_emulator/ae/_zhang_terms.c
 pngcodec_src=emulator/bracketry_emulator/dataset/_pngcodec.c
 kernels_src=emulator/bracketry_emulator/ae/_upstream_kernels.c
 synth_src=emulator/bracketry_emulator/synth/_kernels.c
-arena_src=emulator/bracketry_emulator/ae/_arena_cache.c
 if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ] || [ "$lut12_src" -nt "$stamp" ] \
    || [ "$zhang_src" -nt "$stamp" ] || [ "$pngcodec_src" -nt "$stamp" ] || [ "$kernels_src" -nt "$stamp" ] \
-   || [ "$synth_src" -nt "$stamp" ] || [ "$arena_src" -nt "$stamp" ] \
+   || [ "$synth_src" -nt "$stamp" ] \
    || ! ls emulator/bracketry_emulator/emulation/_lut12*.so >/dev/null 2>&1 \
    || ! ls emulator/bracketry_emulator/ae/_zhang_terms*.so >/dev/null 2>&1 \
    || ! ls emulator/bracketry_emulator/dataset/_pngcodec*.so >/dev/null 2>&1 \
    || ! ls emulator/bracketry_emulator/ae/_upstream_kernels*.so >/dev/null 2>&1 \
-   || ! ls emulator/bracketry_emulator/synth/_kernels*.so >/dev/null 2>&1 \
-   || ! ls emulator/bracketry_emulator/ae/_arena_cache*.so >/dev/null 2>&1; then
+   || ! ls emulator/bracketry_emulator/synth/_kernels*.so >/dev/null 2>&1; then
   .venv/bin/python -m pip install -q -e '.[all]'
   touch "$stamp"
 else

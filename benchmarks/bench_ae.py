@@ -39,6 +39,7 @@ from bracketry_emulator.ae.drl import save_random_actor
 from bracketry_emulator.crf import load_pcalib
 from bracketry_emulator.dataset import open_dataset
 from bracketry_emulator.emulation.reference import UpstreamFormula, closer_least_sat, upstream_saturation
+from bracketry_emulator.runtime_policy import apply_profile
 
 METHODS = ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl"]
 
@@ -113,7 +114,7 @@ def main() -> int:
     n_all = len(open_dataset(dataset).sequences())
     n_seq = 2 if args.quick else n_all
     repeats = args.repeats or (1 if args.quick else 2)
-    cv2.setNumThreads(1)
+    apply_profile("timing")
     tmp = Path(tempfile.mkdtemp(prefix="bench_ae_"))
     try:
         weights = str(save_random_actor(tmp / "actor.pth", seed=0))

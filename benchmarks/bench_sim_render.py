@@ -41,6 +41,7 @@ import numpy as np
 
 from bracketry.sim.frames import cycle_time_s, noise_bank, world_frame
 from bracketry_emulator.extensions import extensions_disabled
+from bracketry_emulator.runtime_policy import apply_profile
 from bracketry_emulator.synth import World
 from bracketry_emulator.synth.kernels import synth_kernels
 from bracketry_emulator.synth.world import parse_resolution
@@ -119,9 +120,7 @@ def main() -> None:
     if args.child:
         _processes(parse_resolution(args.resolution), args.preset, args.process_cycles)
         return
-    import cv2
-
-    cv2.setNumThreads(1)
+    apply_profile("timing")
     if synth_kernels() is None:
         raise SystemExit("error: bracketry_emulator.synth._kernels is not built (run ./setup.sh)")
     res = parse_resolution(args.resolution)

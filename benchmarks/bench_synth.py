@@ -19,6 +19,7 @@ import time  # noqa: E402
 
 import cv2  # noqa: E402
 
+from bracketry_emulator.runtime_policy import apply_profile  # noqa: E402
 from bracketry_emulator.synth import World  # noqa: E402
 
 GOAL_MS = 50.0
@@ -56,7 +57,7 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="fewer repetitions")
     ap.add_argument("--preset", default="forest-winter")
     args = ap.parse_args()
-    cv2.setNumThreads(1)
+    apply_profile("timing")
     n = 5 if args.quick else 15
     rows = {}
     for res in ((960, 600), (1920, 1200)):

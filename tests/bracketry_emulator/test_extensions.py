@@ -14,7 +14,7 @@ from bracketry_emulator.extensions import clear_extension_cache, extensions_disa
 
 BUILT = ["bracketry_emulator.emulation._lut12", "bracketry_emulator.dataset._pngcodec",
          "bracketry_emulator.ae._zhang_terms", "bracketry_emulator.ae._upstream_kernels",
-         "bracketry_emulator.synth._kernels", "bracketry_emulator.ae._arena_cache"]
+         "bracketry_emulator.synth._kernels"]
 
 
 @pytest.fixture

@@ -222,37 +222,15 @@ def _write_atomic(path: Path, text: str) -> None:
     os.replace(tmp, path)
 
 
-def _tune_malloc() -> None:
-    """Undo a small fixed glibc trim threshold (Dask's nanny sets ``MALLOC_TRIM_THRESHOLD_=65536`` for workers).
-
-    With that variable glibc also freezes its mmap threshold at 128 KiB, so every image-sized numpy temporary is a
-    fresh mmap + page faults + munmap: measured 2x the CPU time of a VO task. Raising both thresholds with
-    ``mallopt`` restores in-process speed; memory is still returned to the OS above 256 MiB of free heap.
-    """
-    import ctypes
-    import ctypes.util
-    import sys
-
-    if not sys.platform.startswith("linux"):
-        return
-    try:
-        libc = ctypes.CDLL(ctypes.util.find_library("c") or "libc.so.6")
-        libc.mallopt(-3, 64 * 1024 * 1024)  # M_MMAP_THRESHOLD
-        libc.mallopt(-1, 256 * 1024 * 1024)  # M_TRIM_THRESHOLD
-    except (OSError, AttributeError):
-        pass
-
-
 def run_task(task: BenchmarkTask) -> RunResult:
     """Run (or load from the cache) one task and return its result (``error``: one line, only when the SLAM run
     failed)."""
     cached = load_cached(task)
     if cached is not None:
         return replace(cached, cached=True)
-    import cv2
+    from bracketry_emulator.runtime_policy import apply_profile
 
-    cv2.setNumThreads(1)  # one core per task: deterministic, and workers do not fight over cores
-    _tune_malloc()
+    apply_profile("task")  # one core per task (workers side by side), a heap that reuses image-sized temporaries
     from bracketry.errors import BracketryError
     from bracketry_emulator.benchmark.emulated_runs import emulate_run
     from bracketry_emulator.benchmark.slam import run_slam

@@ -131,9 +131,9 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
     """
     import os
 
-    from bracketry_emulator.blas_policy import one_blas_thread
+    from bracketry_emulator.runtime_policy import apply_profile
 
-    one_blas_thread()  # the closed loops run in worker processes beside the SLAM runs; before numpy loads
+    apply_profile("benchmark")  # before numpy loads
     from bracketry_emulator.ae import LoopConfig
     from bracketry_emulator.benchmark import BenchmarkConfig, RunResult, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options

@@ -128,12 +128,9 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     cameras, the images are written, and the method picks the next target from the --ae-camera image. Each decoded
     bracket sequence is shared by all methods; methods run in parallel worker processes.
     """
-    from bracketry_emulator.blas_policy import one_blas_thread
+    from bracketry_emulator.runtime_policy import apply_profile
 
-    one_blas_thread()  # the work is spread over processes; before numpy loads (just below)
-    from bracketry_emulator.gc_policy import fewer_collections
-
-    fewer_collections()  # a batch process: the imports of matplotlib / scipy below and in the workers collect less
+    apply_profile("emulate")  # before numpy loads (just below); the forked workers inherit it
     from bracketry_emulator.ae import LoopConfig, expand_methods, run_methods
 
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
@@ -149,9 +146,6 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
         _check_pth(drl_weights)
     if overwrite:
         remove_earlier_run(out_dir)
-    from bracketry_emulator.ae.memory import reuse_freed_memory
-
-    reuse_freed_memory()  # a batch process: full-frame temporaries reuse memory instead of faulting pages in
     summary = run_methods(dataset, specs, out_dir, workers=workers, config=cfg, progress=not quiet)
     click.echo(f"{len(summary.runs)} method(s) x {summary.n_sequences} sequence(s), cameras "
                f"{','.join(summary.sides)}, in {summary.wall_s:.1f} s -> {summary.out_dir}")

@@ -62,11 +62,8 @@ def _times(run_dir: str, n: int) -> list[int]:
 
 def _track_builtin(request: dict) -> dict:
     """The built-in VO over the run's frames (no pacing: it is deterministic)."""
-    import cv2
-
     from bracketry_emulator.vo.runner import track_frames
 
-    cv2.setNumThreads(1)
     frames, _fps = _frames(request)
     t0 = time.perf_counter()
     vo = track_frames(frames, request["calibration_dir"], request["out_dir"], max_frames=request.get("max_frames"))
@@ -76,8 +73,6 @@ def _track_builtin(request: dict) -> dict:
 
 
 def _track(request: dict) -> dict:
-    import cv2
-
     from bracketry.errors import BracketryError
     from bracketry_emulator.features.coverage import grid_coverage
     from bracketry_emulator.features.orb import OrbExtractor
@@ -87,7 +82,6 @@ def _track(request: dict) -> dict:
     from bracketry_emulator.vo.runner import FRAME_FIELDS, estimate_row_offset
     from bracketry_emulator.vo.tum import write_tum
 
-    cv2.setNumThreads(1)
     opts = request["options"]
     out = Path(request["out_dir"])
     frames, fps_run = _frames(request)
@@ -181,6 +175,9 @@ def main(argv: list[str]) -> int:
         print("usage: python -m bracketry_emulator.slam.orbslam3_child REQUEST.json", file=sys.stderr)
         return 2
     request = json.loads(Path(argv[0]).read_text())
+    from bracketry_emulator.runtime_policy import apply_profile
+
+    apply_profile("slam_child")
     try:
         summary = _track_builtin(request) if request.get("backend") == "builtin" else _track(request)
     except Exception as exc:  # one line for the parent's report; the C++ side printed its own story above

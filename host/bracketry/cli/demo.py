@@ -27,9 +27,9 @@ from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Number, input_file, op
 def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, drl_weights: Path | None,
             slam: str | None, slam_pace: str) -> int:
     """Run the whole pipeline on the embedded default: simulated rig -> recording -> AE benchmark -> report."""
-    from bracketry_emulator.blas_policy import one_blas_thread
+    from bracketry_emulator.runtime_policy import apply_profile
 
-    one_blas_thread()  # every process of the demo (the closed loops beside seven SLAM runs); before numpy loads
+    apply_profile("demo")  # every process of the demo (closed loops beside seven SLAM runs); before numpy loads
     from bracketry.demo.pipeline import plan, run
     from bracketry_emulator.benchmark.slam import parse_pace
 

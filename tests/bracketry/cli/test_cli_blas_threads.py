@@ -1,5 +1,6 @@
-"""The commands that run work in parallel processes (demo, benchmark, emulate) ask for one OpenBLAS thread before
-numpy loads OpenBLAS: that only works while importing the CLI and those commands does not import numpy."""
+"""The commands that run work in parallel processes (demo, benchmark, emulate) apply their runtime profile (one
+OpenBLAS thread among its settings) before numpy loads OpenBLAS: that only works while importing the CLI and those
+commands does not import numpy."""
 
 from __future__ import annotations
 
@@ -22,15 +23,15 @@ def test_cli_commands_set_blas_threads_before_numpy_loads() -> None:
     for name in COMMANDS:
         spec = importlib.util.find_spec(name)
         assert spec is not None and spec.origin is not None
-        assert "one_blas_thread()" in Path(spec.origin).read_text(), name
+        assert "apply_profile(" in Path(spec.origin).read_text(), name
 
 
 def test_one_blas_thread_keeps_a_thread_count_the_caller_set(monkeypatch: pytest.MonkeyPatch) -> None:
-    from bracketry_emulator.blas_policy import one_blas_thread
+    from bracketry_emulator.runtime_policy import set_blas_threads
 
     monkeypatch.delenv("OPENBLAS_NUM_THREADS", raising=False)
-    one_blas_thread()
+    set_blas_threads(1)
     assert os.environ["OPENBLAS_NUM_THREADS"] == "1"
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")
-    one_blas_thread()
+    set_blas_threads(1)
     assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
