@@ -4,16 +4,16 @@ A run's sequences are numbered by their ``position`` in the run (0, 1, ...); the
 sequence slots (position ``p`` in slot ``p % slots``), each ``side`` x ``exposure`` frames of uint16 HxW raw Bayer
 codes, C order. A decode task is ``(position, sequence index, side index, exposure index)``.
 
-Decode once per run, shared by every process: :meth:`FrameBuffer.ensure` claims a frame in a shared state table
-(one byte per frame and position, under a lock inherited by the forked workers); the first process that needs a frame
-decodes it, every other one waits for it, so each bracket is decoded at most once per trajectory and only when a
-method's target needs it.
+Decode once per run, shared by every process: :meth:`FrameBuffer.fetch` is the one call that puts a frame in the
+buffer: the first thread (of any process) that needs a frame decodes it, every other one waits for it (on a condition
+shared with the forked workers), so each bracket is decoded at most once per trajectory and only when a method's
+target needs it. :meth:`FrameBuffer.prefetch` asks for frames ahead, on a pool's threads.
 
 Slot reuse: each reader (a worker; :meth:`FrameBuffer.release`) tells which positions it no longer reads; a frame of
 position ``p`` is written only once every reader is past position ``p - slots`` (the sequence that held the slot
-before). A ring of a few slots keeps the frames on pages already mapped: fresh pages of a shared map are allocated and
-zeroed by the kernel on first touch (and mapped again in every process that reads them), which cost a fifth of the
-system time of a run when every sequence had its own slot.
+before; waited for on the same condition). A ring of a few slots keeps the frames on pages already mapped: fresh
+pages of a shared map are allocated and zeroed by the kernel on first touch (and mapped again in every process that
+reads them), which cost a fifth of the system time of a run when every sequence had its own slot.
 """
 
 from __future__ import annotations
@@ -22,7 +22,6 @@ import contextlib
 import functools
 import mmap
 import multiprocessing as mp
-import time
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -39,50 +38,8 @@ DecodeTask = tuple[int, int, int, int]
 #: :meth:`FrameBuffer.release` position of a reader that reads nothing more (finished or failed)
 RELEASED_ALL = 1 << 62
 
-#: states of a frame in the shared table: free, claimed (queued on a decode thread, not started), done, failed,
-#: being decoded
-_FREE, _CLAIMED, _DONE, _FAILED, _RUNNING = 0, 1, 2, 3, 4
-
-
-class _Elsewhere:
-    """A frame that another process (or an earlier call) decodes: :meth:`result` waits until it is in the buffer,
-    decoding it in the calling thread when its decode has not started (claimed, still queued behind other frames on
-    some decode thread) or was released. Future-like (``result``, ``exception``, ``cancel``, ``cancelled``)."""
-
-    def __init__(self, frames: FrameBuffer, task: DecodeTask) -> None:
-        self.frames, self.task = frames, task
-
-    def result(self, timeout: float | None = None) -> None:
-        fb = self.frames
-        i = fb.state_index(self.task)
-        delay = 0.0002
-        while True:
-            state = fb.state[i]
-            if state == _DONE:
-                return
-            if state == _FAILED:
-                _, seq_i, side_i, exp_i = self.task
-                seq = fb.sequences[seq_i]
-                source = getattr(seq.frames[fb.sides[side_i]][seq.exposures_us[exp_i]], "source", "?")
-                raise BracketryError(f"cannot decode {source} (failed in another worker process)")
-            if state in (_FREE, _CLAIMED) and fb.take(self.task):  # not started anywhere: decode it here
-                fb.run_taken(self.task)
-                return
-            time.sleep(delay)
-            delay = min(delay * 2, 0.005)
-
-    def exception(self, timeout: float | None = None) -> BaseException | None:
-        try:
-            self.result()
-        except BaseException as exc:
-            return exc
-        return None
-
-    def cancel(self) -> bool:
-        return False
-
-    def cancelled(self) -> bool:
-        return False
+#: states of a frame in the shared table: free, queued on a decode thread (not started), being decoded, done, failed
+_FREE, _QUEUED, _RUNNING, _DONE, _FAILED = 0, 1, 2, 3, 4
 
 
 class FrameBuffer:
@@ -105,14 +62,16 @@ class FrameBuffer:
         #: set: decodes are timed there (stage ``decode``; see :mod:`~bracketry_emulator.stages`)
         self.stages: Any = None
         self.mmap = mmap.mmap(-1, slots * self.sequence_bytes(len(sides), n_exp, shape))
-        #: one byte per frame of every position (free, claimed, done, failed, running), shared with forked workers;
-        #: guarded by ``lock``
+        #: one byte per frame of every position (free, queued, running, done, failed), shared with forked workers;
+        #: changed under ``_changed``, which is notified when a frame is done or failed and when a reader releases
         self.state = mmap.mmap(-1, max(1, self.positions * len(sides) * n_exp))
-        self.lock = mp.get_context("fork").Lock() if "fork" in mp.get_all_start_methods() else mp.Lock()
+        ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
+        self._changed = ctx.Condition(ctx.Lock())
         # shared int64s: per reader the first position it may still read, then the abort flag
         self._sync = mmap.mmap(-1, 8 * (max(1, readers) + 1))
         self._released = memoryview(self._sync).cast("q")
         self.readers = max(1, readers)
+        self._errors: dict[int, BaseException] = {}  # this process's failed decodes, by state index
 
     @staticmethod
     def sequence_bytes(n_sides: int, n_exp: int, shape: tuple[int, int]) -> int:
@@ -129,24 +88,96 @@ class FrameBuffer:
     def release(self, reader: int, pos: int) -> None:
         """Reader ``reader`` reads no frame of the positions before ``pos`` any more (their slots may be refilled;
         :data:`RELEASED_ALL`: it reads nothing more)."""
-        self._released[reader] = pos
+        with self._changed:
+            self._released[reader] = pos
+            self._changed.notify_all()
 
     def abort(self) -> None:
         """Make every thread waiting for a slot (in any process) raise instead (a reader failed or the run stops)."""
         self._released[self.readers] = 1
+        if self._changed.acquire(timeout=5):  # not held forever by a worker that died
+            try:
+                self._changed.notify_all()
+            finally:
+                self._changed.release()
+
+    def fetch(self, task: DecodeTask, *, wait: bool = True) -> None:
+        """Return once frame ``task`` is in the buffer: decoded here when nobody has started it (free, or queued on
+        a decode thread), else waited for (decoded by another thread or worker). ``wait=False``: return at once when
+        another thread decodes it. Raises a decode's error (BracketryError when it failed in another process)."""
+        i = self._index(task)
+        with self._changed:
+            while True:
+                state = self.state[i]
+                if state == _DONE:
+                    return
+                if state == _FAILED:
+                    raise self._failure(task, i)
+                if state in (_FREE, _QUEUED):
+                    self.state[i] = _RUNNING
+                    break
+                if not wait:
+                    return
+                self._changed.wait()
+        try:
+            self._decode(task)
+        except BaseException as exc:
+            self._errors[i] = exc
+            self._set(i, _FAILED)
+            raise
+        self._set(i, _DONE)
+
+    def prefetch(self, tasks: list[DecodeTask], pool: ThreadPoolExecutor) -> list[Future[None]]:
+        """Queue the frames nobody has asked for yet on ``pool``'s threads (:meth:`fetch` without waiting; a
+        frame queued in any process is not queued again). Returns the queued decodes (cancelling one that has not
+        started gives its frame back to whoever fetches it)."""
+        out = []
+        for task in tasks:
+            i = self._index(task)
+            with self._changed:
+                if self.state[i] != _FREE:
+                    continue
+                self.state[i] = _QUEUED
+            fut = pool.submit(self.fetch, task, wait=False)
+            fut.add_done_callback(functools.partial(self._unqueue_if_cancelled, i))
+            out.append(fut)
+        return out
+
+    def _index(self, task: DecodeTask) -> int:
+        pos, _, side_i, exp_i = task
+        return (pos * len(self.sides) + side_i) * self.n_exp + exp_i
+
+    def _set(self, i: int, state: int) -> None:
+        with self._changed:
+            self.state[i] = state
+            self._changed.notify_all()
+
+    def _failure(self, task: DecodeTask, i: int) -> BaseException:
+        own = self._errors.get(i)
+        if own is not None:
+            return own
+        _, seq_i, side_i, exp_i = task
+        seq = self.sequences[seq_i]
+        source = getattr(seq.frames[self.sides[side_i]][seq.exposures_us[exp_i]], "source", "?")
+        return BracketryError(f"cannot decode {source} (failed in another worker process)")
+
+    def _unqueue_if_cancelled(self, i: int, fut: Future[None]) -> None:
+        if fut.cancelled():
+            with self._changed:
+                if self.state[i] == _QUEUED:
+                    self.state[i] = _FREE
 
     def _wait_writable(self, pos: int) -> None:
         """Return once every reader released position ``pos - slots`` (the slot's previous sequence)."""
         need = pos - self.slots + 1
         released = self._released
-        delay = 0.0002
-        while min(released[r] for r in range(self.readers)) < need:
-            if released[self.readers]:
-                raise BracketryError("the run was aborted")
-            time.sleep(delay)
-            delay = min(delay * 2, 0.005)
+        with self._changed:
+            while min(released[r] for r in range(self.readers)) < need:
+                if released[self.readers]:
+                    raise BracketryError("the run was aborted")
+                self._changed.wait()
 
-    def _decode_one(self, task: DecodeTask) -> None:
+    def _decode(self, task: DecodeTask) -> None:
         self._wait_writable(task[0])
         if self.stages is None:
             return self._load(task)
@@ -164,74 +195,6 @@ class FrameBuffer:
             raise BracketryError(f"sequence {seq.index}: frame shape {img.shape} differs from {self.shape}")
         if img is not view:
             view[...] = img
-
-    def state_index(self, task: DecodeTask) -> int:
-        pos, _, side_i, exp_i = task
-        return (pos * len(self.sides) + side_i) * self.n_exp + exp_i
-
-    def claim(self, task: DecodeTask) -> bool:
-        """Mark a free frame as being decoded by the caller; False when it is claimed, decoded or failed."""
-        i = self.state_index(task)
-        with self.lock:
-            if self.state[i] != _FREE:
-                return False
-            self.state[i] = _CLAIMED
-            return True
-
-    def take(self, task: DecodeTask) -> bool:
-        """Start decoding a frame that is free or claimed but not started (the caller then calls
-        :meth:`run_taken`); False when it is being decoded, decoded or failed."""
-        i = self.state_index(task)
-        with self.lock:
-            if self.state[i] not in (_FREE, _CLAIMED):
-                return False
-            self.state[i] = _RUNNING
-            return True
-
-    def run_taken(self, task: DecodeTask) -> None:
-        """Decode a frame the caller took; its state becomes done (or failed, then the error is raised)."""
-        i = self.state_index(task)
-        try:
-            self._decode_one(task)
-        except BaseException:
-            self.state[i] = _FAILED
-            raise
-        self.state[i] = _DONE
-
-    def run_claimed(self, task: DecodeTask) -> None:
-        """Decode a frame the caller claimed, unless a thread waiting for it took it over meanwhile (then wait until
-        that one has decoded it); raises when the decode failed."""
-        if self.take(task):
-            self.run_taken(task)
-        else:
-            _Elsewhere(self, task).result()
-
-    def ensure(self, tasks: list[DecodeTask], pool: ThreadPoolExecutor) -> list[Any]:
-        """Each frame decoded once for every process: the frames nobody has claimed are decoded on ``pool``'s
-        threads, the others are waited for. Returns one future-like handle per task (``result()`` waits; a
-        cancelled decode releases its claim)."""
-        out: list[Any] = []
-        for task in tasks:
-            if self.claim(task):
-                fut = pool.submit(self.run_claimed, task)
-                fut.add_done_callback(functools.partial(self._release_if_cancelled, task))
-                out.append(fut)
-            else:
-                out.append(_Elsewhere(self, task))
-        return out
-
-    def wait(self, task: DecodeTask) -> None:
-        """Return once a claimed frame is in the buffer, decoded by any thread or worker, or here when its decode
-        has not started yet (instead of waiting for the decode threads' queue). Raises BracketryError when its
-        decode failed elsewhere (a decode that fails here raises its own error)."""
-        _Elsewhere(self, task).result()
-
-    def _release_if_cancelled(self, task: DecodeTask, fut: Future[None]) -> None:
-        if fut.cancelled():
-            i = self.state_index(task)
-            with self.lock:
-                if self.state[i] == _CLAIMED:
-                    self.state[i] = _FREE
 
     def close(self) -> None:
         """Free the maps (a BufferError while numpy views of it are alive: then it is freed with them)."""

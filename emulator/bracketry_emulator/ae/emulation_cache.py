@@ -9,6 +9,7 @@ bracket's saturated fraction once per decoded bracket. Same rules and results as
 from __future__ import annotations
 
 from bisect import bisect_left
+from collections.abc import Callable
 
 import numpy as np
 
@@ -66,6 +67,30 @@ class EmulationCache:
         if hit is None:
             hit = self._source[key] = self.emulator.select_stereo(images, target_us, decide)
         return hit
+
+    def stereo(self, seq_index: int, brackets: dict[str, dict[int, np.ndarray]], target_us: float,
+               ae_camera: str) -> dict[str, EmulatedImage]:
+        """Every side of ``brackets`` ({side: {exposure_us: uint16 HxW}}: the sequence's brackets; only those
+        :func:`needed_brackets` names are read) emulated at ``target_us``, all from ONE source bracket (one stereo
+        capture). With ``parity`` upstream, ``ae_camera`` alone decides the source, as the authors' left emulator
+        does (their right emulator decides on its own, which the joint decision corrects)."""
+        cfg = self.emulator.config
+        needed = needed_brackets(tuple(next(iter(brackets.values()))), target_us, cfg.selection)
+        subsets = {side: {e: frames[e] for e in needed} for side, frames in brackets.items()}
+        decide = (ae_camera,) if cfg.parity == "upstream" else None
+        source = self.source(seq_index, subsets, target_us, decide)
+        return {side: self.emulate(seq_index, side, subsets[side], target_us, source) for side in subsets}
+
+    def ae_choice(self, ae_camera: str) -> Callable[[dict[int, np.ndarray], float], int]:
+        """``(ae_images, target_us) -> source bracket (us)``: the decision :meth:`stereo` takes with ``parity``
+        upstream, from ``ae_camera``'s brackets alone; callable on any thread (a new emulator per call: this
+        cache's emulator belongs to the thread that calls :meth:`stereo`)."""
+        config, response = self.emulator.config, self.emulator.response
+
+        def choose(ae_images: dict[int, np.ndarray], target_us: float) -> int:
+            return Emulator(config, response).select_stereo({ae_camera: ae_images}, target_us, (ae_camera,))
+
+        return choose
 
     def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float,
                 source_us: int | None = None) -> EmulatedImage:

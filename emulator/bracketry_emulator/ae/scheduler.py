@@ -3,17 +3,15 @@
 The methods are split over ``workers`` forked processes, balanced by the cost each method declares
 (:func:`~.registry.method_traits`: ``step_cost``; methods of one ``step_group`` take identical first steps and stay
 on one worker, whose writer then links images instead of encoding them again; methods of one ``start_up`` share it
-on one worker where the balance allows). The decoded sequences live in one
-shared :class:`~.decode.FrameBuffer`, a ring of :data:`RING_SLOTS` sequences at most (within the memory budget): a
-slot is refilled once every worker is past the sequence it held. Every worker advances its methods through the
-sequences, one by one (all methods of a worker take step k before any takes step k+1). Frames are
-decoded on demand on a decode thread of each worker, only the brackets the methods' current targets can select
-(:func:`~.emulation_cache.needed_brackets`), the next sequence's as soon as a method's next target is known, and
-ONCE for all workers (the buffer's shared state table: a frame another worker decodes is waited for, not decoded
-again). One worker runs in this process instead, the same way (two decode threads).
+on one worker where the balance allows). Every worker steps its methods through the sequences, one by one (all
+methods of a worker take step k before any takes step k+1), and writes their images (:mod:`.writers`). One worker
+runs in this process instead, the same way.
 
-Each method's loop is :func:`~.loop.iter_loop`; images are emulated once per (sequence, side, target) for all the
-methods of a worker (:class:`~.emulation_cache.EmulationCache`) and written by :mod:`.writers`.
+Frames: one shared :class:`~.decode.FrameBuffer`, a ring of :data:`RING_SLOTS` sequences at most (within the memory
+budget), each frame decoded once for all workers; a worker's :class:`~.frame_source.FrameSource` decodes what its
+methods' targets need (:mod:`.decode_plan`), the next sequence's as soon as a method's next target is known. Images:
+emulated once per (sequence, side, target) for all the methods of a worker (:class:`~.emulation_cache.EmulationCache`).
+Each method's loop is :func:`~.loop.iter_loop`.
 """
 
 from __future__ import annotations
@@ -27,7 +25,7 @@ import os
 import threading
 import traceback
 from collections.abc import Callable, Iterator
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
@@ -38,10 +36,12 @@ import numpy as np
 from bracketry.errors import BracketryError
 
 from ..dataset import BracketSequence
-from ..emulation import EmulatedImage, Emulator, EmulatorConfig, RunWriter
+from ..emulation import EmulatorConfig, RunWriter
 from ..stages import StageTimes
-from .decode import RELEASED_ALL, DecodeTask, FrameBuffer, frame_shape
-from .emulation_cache import EmulationCache, needed_brackets
+from .decode import FrameBuffer, frame_shape
+from .decode_plan import decode_strategy
+from .emulation_cache import EmulationCache
+from .frame_source import FrameSource
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
 from .registry import MethodTraits, get_method
 from .writers import ImageSink, LinkingRunWriter, method_folder
@@ -112,7 +112,9 @@ def partition(traits: dict[str, MethodTraits], n: int) -> list[list[str]]:
 
 
 class Worker:
-    """Advances a group of methods through the sequences; the same object serves in-process and forked modes."""
+    """Steps a group of methods through the sequences and writes their images; the same object serves in-process
+    and forked modes. Its frames come from a :class:`~.frame_source.FrameSource` (what to decode: the run's
+    :func:`~.decode_plan.decode_strategy`)."""
 
     def __init__(self, specs: list[str], settings: LoopSettings, sequences: list[BracketSequence], out_dir: Path,
                  frames: FrameBuffer, write_threads: int = 1, feeds: dict[str, list[Any]] | None = None,
@@ -125,20 +127,13 @@ class Worker:
         #: {method: [objects with RunWriter.write_step and close]}: each step's images also go there (e.g. to a
         #: SLAM process, :class:`~bracketry_emulator.slam.frame_stream.FrameFeed`); closed by :meth:`close`
         self.feeds = feeds or {}
-        #: set: decode on demand (only the brackets the methods' targets need) on this pool's threads
-        self.decode_pool: ThreadPoolExecutor | None = None
-        self._decoded: dict[tuple[int, int, int], Any] = {}  # (position, side, exposure index): future-like
-        # --parity upstream, single-bracket selections: the AE camera alone decides each step's source bracket, so
-        # the other cameras need only that bracket of a pair: a decode thread picks it once the AE camera's pair is
-        # decoded (:meth:`_decode_picked`). (position, target us): (the pick's future, the AE camera's pair of tasks).
-        self._ae_i = s.emulate_sides.index(s.ae_camera)
-        self._pick_alone = (s.emulator.parity == "upstream" and s.emulator.selection in ("upstream", "highernosat")
-                            and len(s.emulate_sides) > 1)
-        self._picks: dict[tuple[int, float], tuple[Future[list[DecodeTask]], list[DecodeTask]]] = {}
         self.sequences = sequences
-        self.frames = frames
         frames.stages = self.stages
         self.emu = EmulationCache(s.emulator)
+        ae_i = s.emulate_sides.index(s.ae_camera)
+        strategy = decode_strategy(s.emulator.selection, s.emulator.parity, len(s.emulate_sides), ae_i)
+        self.source = FrameSource(frames, sequences, s.emulate_sides, strategy, self.emu.ae_choice(s.ae_camera),
+                                  reader)
         self.sink = ImageSink(write_threads if s.write_images else 0, stages=self.stages)
         self.targets: dict[str, float] = {}
         self.runs: dict[str, MethodRun] = {}
@@ -157,60 +152,30 @@ class Worker:
                                                   s.overwrite, self.sink, s.png_compression,
                                                   s.emulator.parity, images=s.write_images)
 
-    def run(self, seq_indices: list[int], progress: Callable[[int], None]) -> None:
-        """Advance every method of this worker through the given sequences (position = place in the list).
-
-        Frames are decoded on demand on :attr:`decode_pool`'s threads (set it first), only the brackets that the
-        methods' targets can select, once for every worker (:meth:`FrameBuffer.ensure`): a method's next target is
-        known as soon as its step is done, so the next sequence's frames decode while the other methods run. Each
-        position is released (:meth:`FrameBuffer.release`) once every method of this worker took its step (the
-        emulated images are copies: nothing reads the buffer's frames of that position later)."""
-        assert self.decode_pool is not None, "set decode_pool before run"
+    def run(self, seq_indices: list[int], progress: Callable[[int], None], decode_pool: ThreadPoolExecutor) -> None:
+        """Step every method of this worker through the given sequences (position = place in the list): all take
+        step k before any takes step k+1. A method's next target is known as soon as its step is done: the next
+        sequence's frames it needs decode on ``decode_pool``'s threads while the other methods step."""
         self.emu.clear()
-        self._decoded.clear()
-        self._picks.clear()
+        self.source.start(decode_pool)
         try:
             for pos, seq_i in enumerate(seq_indices):
-                seq = self.sequences[seq_i]
                 self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
                 self._brackets = {}
-                self.frames.release(self.reader, pos)
-                for t in self.targets.values():
-                    self._prefetch(pos, seq_i, t)
-                self._wait_needed(pos, seq_i)
+                self._brackets = self.source.load(pos, seq_i, self.targets.values())
                 self._seq_i = seq_i
-                self._brackets = {side: {e: self.frames.view(pos, si, ei) for ei, e in enumerate(seq.exposures_us)}
-                                  for si, side in enumerate(self.settings.emulate_sides)}
                 nxt = seq_indices[pos + 1] if pos + 1 < len(seq_indices) else None
                 for spec, loop in self._loops.items():
                     step = next(loop)
                     self.runs[spec].steps.append(step)
                     self.targets[spec] = step.next_exposure_us
                     if nxt is not None:
-                        self._prefetch(pos + 1, nxt, self.targets[spec])
+                        self.source.prefetch(pos + 1, nxt, step.next_exposure_us)
                     progress(1)
         finally:
             self._brackets = {}
-            handles = [*(f for f, _ in self._picks.values()), *self._decoded.values()]
-            for f in handles:
-                f.cancel()
-            for f in handles:
-                if not f.cancelled():
-                    f.exception()  # wait: no decode of this worker may write into the buffer after this
-            self.frames.release(self.reader, RELEASED_ALL)  # finished or failed: nobody waits for this worker
+            self.source.finish()
         self.emu.clear()
-
-    def _images(self, seq_i: int, target_us: float) -> dict[str, EmulatedImage]:
-        """Every emulated side of the current sequence at ``target_us``, all from one source bracket."""
-        s = self.settings
-        seq = self.sequences[seq_i]
-        needed = needed_brackets(seq.exposures_us, target_us, s.emulator.selection)
-        subsets = {side: {e: self._brackets[side][e] for e in needed} for side in s.emulate_sides}
-        # one source bracket for every camera of the step; --parity upstream: the AE camera decides alone, as the
-        # authors' left emulator (their right emulator decides on its own, which the joint decision corrects)
-        decide = (s.ae_camera,) if s.emulator.parity == "upstream" else None
-        source = self.emu.source(seq_i, subsets, target_us, decide)
-        return {side: self.emu.emulate(seq_i, side, subsets[side], target_us, source) for side in s.emulate_sides}
 
     def _emulate(self, spec: str, seq_i: int, target_us: float) -> Frame:
         """The ``emulate`` of method ``spec``'s loop: the AE camera's image of the current sequence at ``target_us``.
@@ -221,7 +186,7 @@ class Worker:
         s = self.settings
         seq = self.sequences[seq_i]
         with self.stages.time("emulation"):
-            images = self._images(seq_i, target_us)
+            images = self.emu.stereo(seq_i, self._brackets, target_us, s.ae_camera)
         self.writers[spec].write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
         for feed in self.feeds.get(spec, ()):
             feed.write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
@@ -230,80 +195,6 @@ class Worker:
                      ae_img.source_exposure_us, seq.index,
                      {"side": s.ae_camera, "response": self.emu.emulator.response,
                       "shared_gray": self.emu.shared_gray(seq_i, s.ae_camera, target_us)})
-
-    def _needed_keys(self, seq: BracketSequence, targets: list[float]) -> list[tuple[int, int]]:
-        """(side index, exposure index) of the frames that emulating ``targets`` from ``seq`` can use."""
-        exps = {e for t in targets for e in needed_brackets(seq.exposures_us, t, self.settings.emulator.selection)}
-        return [(si, ei) for si in range(len(self.settings.emulate_sides)) for ei, e in enumerate(seq.exposures_us)
-                if e in exps]
-
-    def _prefetch(self, pos: int, seq_i: int, target_us: float) -> None:
-        """Start decoding (on the pool's threads) the frames of ``seq_i`` that ``target_us`` needs, once each; with
-        :attr:`_pick_alone` and a pair of brackets, the other cameras' frame once the AE camera's pair tells which."""
-        assert self.decode_pool is not None
-        keys = self._needed_keys(self.sequences[seq_i], [target_us])
-        pick = self._pick_alone and len({ei for _, ei in keys}) > 1
-        if pick:
-            keys = [(si, ei) for si, ei in keys if si == self._ae_i]
-        tasks = [(pos, seq_i, si, ei) for si, ei in keys if (pos, si, ei) not in self._decoded]
-        futures = self.frames.ensure(tasks, self.decode_pool)
-        for (_, _, si, ei), f in zip(tasks, futures, strict=True):
-            self._decoded[(pos, si, ei)] = f
-        if pick and (pos, float(target_us)) not in self._picks:
-            pair = [(pos, seq_i, si, ei) for si, ei in keys]  # claimed before: no decode thread waits on a task
-            fut = self.decode_pool.submit(self._decode_picked, pos, seq_i, target_us, pair)  # queued after it
-            self._picks[(pos, float(target_us))] = (fut, pair)
-
-    def _decode_picked(self, pos: int, seq_i: int, target_us: float, pair: list[DecodeTask]) -> list[DecodeTask]:
-        """On a decode thread (or the worker's thread when it has not started): wait for the AE camera's pair of
-        brackets, decide the step's source bracket as :meth:`_images` does (the AE camera alone), decode the other
-        cameras' frame of it unless another thread or worker has claimed it. Returns those frames' tasks."""
-        for task in pair:
-            self.frames.wait(task)
-        s = self.settings
-        seq = self.sequences[seq_i]
-        exps = needed_brackets(seq.exposures_us, target_us, s.emulator.selection)
-        views = {s.ae_camera: {e: self.frames.view(pos, self._ae_i, seq.exposures_us.index(e)) for e in exps}}
-        # a new emulator (the worker's caches belong to its main thread), the same decision
-        source = Emulator(s.emulator, self.emu.emulator.response).select_stereo(views, target_us, (s.ae_camera,))
-        ei = seq.exposures_us.index(source)
-        tasks = [(pos, seq_i, si, ei) for si in range(len(s.emulate_sides)) if si != self._ae_i]
-        for task in tasks:
-            if self.frames.claim(task):
-                self.frames.run_claimed(task)
-        return tasks
-
-    def _wait_needed(self, pos: int, seq_i: int) -> None:
-        """Wait until every frame the current targets need is in the buffer (decoded by any worker; the frames whose
-        decode has not started are decoded by this thread first, instead of waiting for the decode thread's
-        queue)."""
-        seq = self.sequences[seq_i]
-        targets = list(dict.fromkeys(float(t) for t in self.targets.values()))
-        frames: list[tuple[int, int]] = []
-        for t in targets:
-            pick = self._picks.get((pos, t))
-            frames += [(si, ei) for si, ei in self._needed_keys(seq, [t]) if pick is None or si == self._ae_i]
-        frames = list(dict.fromkeys(frames))
-        for si, ei in frames:
-            if self.frames.take((pos, seq_i, si, ei)):
-                self.frames.run_taken((pos, seq_i, si, ei))
-        for si, ei in frames:
-            self._wait_frame(pos, seq_i, si, ei)
-        for t in targets:
-            pick = self._picks.get((pos, t))
-            if pick is not None:
-                fut, pair = pick
-                # not started on the decode thread (queued behind other frames): pick and decode here
-                tasks = self._decode_picked(pos, seq_i, t, pair) if fut.cancel() else fut.result()
-                for task in tasks:
-                    self.frames.wait(task)
-
-    def _wait_frame(self, pos: int, seq_i: int, si: int, ei: int) -> None:
-        try:
-            self.frames.wait((pos, seq_i, si, ei))
-        except BracketryError:
-            self._decoded[(pos, si, ei)].result()  # a decode of this worker failed: raise its own error
-            raise
 
     def close(self) -> tuple[dict[str, MethodRun], dict[str, dict[str, float]]]:
         """Finish the writes and the feeds; returns (the runs, this worker's stage times)."""
@@ -381,9 +272,8 @@ def _run_in_process(make: Callable[[], Worker], n_seq: int, progress: Callable[[
     try:
         with ThreadPoolExecutor(min(2, os.cpu_count() or 1), thread_name_prefix="bracketry-decode") as pool:
             w = make()
-            w.decode_pool = pool
             try:
-                w.run(list(range(n_seq)), progress)
+                w.run(list(range(n_seq)), progress, pool)
             except BaseException:
                 with contextlib.suppress(Exception):
                     w.sink.close()  # finish the images already submitted; the first error is the one raised
@@ -401,12 +291,12 @@ def _worker_loop(conn: Connection, worker: Callable[[], Worker]) -> None:
     try:
         w = worker()
         # one decode thread per worker: the frames its methods need next decode while its methods run
-        pool = w.decode_pool = ThreadPoolExecutor(1, thread_name_prefix="bracketry-decode")
+        pool = ThreadPoolExecutor(1, thread_name_prefix="bracketry-decode")
         conn.send(("ready", None))
         while True:
             cmd, arg = conn.recv()
             if cmd == "run":
-                w.run(arg, lambda n: conn.send(("progress", n)))
+                w.run(arg, lambda n: conn.send(("progress", n)), pool)
                 conn.send(("ran", None))
             elif cmd == "close":
                 conn.send(("closed", w.close()))

@@ -52,8 +52,9 @@ def sequences(counter: Any, n_seq: int = 2, exps: tuple[int, ...] = (1000, 2000,
 
 def _ensure_all(fb: FrameBuffer, tasks: list[tuple[int, int, int, int]]) -> None:
     with ThreadPoolExecutor(1) as pool:
-        for handle in fb.ensure(tasks, pool):
-            handle.result()
+        fb.prefetch(tasks, pool)
+        for task in tasks:
+            fb.fetch(task)
 
 
 def test_frames_decode_once_across_forked_workers() -> None:
@@ -77,19 +78,83 @@ def test_frames_decode_once_across_forked_workers() -> None:
     fb.close()
 
 
+def _read_positions(fb: FrameBuffer, reader: int, delay_s: float, conn: Any) -> None:
+    """A worker reading every frame of positions 0..3 in turn, holding each position ``delay_s``."""
+    from bracketry_emulator.ae.decode import RELEASED_ALL
+
+    ok = True
+    with ThreadPoolExecutor(1) as pool:
+        for pos in range(4):
+            fb.release(reader, pos)
+            tasks = [(pos, pos, si, ei) for si in range(2) for ei in range(3)]
+            fb.prefetch(tasks[::-1] if reader else tasks, pool)
+            for task in tasks:
+                fb.fetch(task)
+            for wait in (0.0, delay_s):  # read again after the pause: nobody refilled the slot meanwhile
+                time.sleep(wait)
+                ok = ok and all(np.array_equal(fb.view(p, si, ei), frame_value(q, si, ei)) for p, q, si, ei in tasks)
+    fb.release(reader, RELEASED_ALL)
+    conn.send(ok)
+
+
+def test_two_workers_share_a_two_slot_ring() -> None:
+    """Two forked workers fetch every frame of four positions through two slots, one of them slow: each frame is
+    decoded once, and the fast one waits (on the buffer's condition) until the slow one released a slot's sequence
+    before refilling it."""
+    ctx = mp.get_context("fork")
+    counter = ctx.Value("i", 0)
+    fb = FrameBuffer(sequences(counter, n_seq=4), ("left", "right"), SHAPE, 3, slots=2, positions=4, readers=2)
+    pipes = [ctx.Pipe() for _ in range(2)]
+    procs = [ctx.Process(target=_read_positions, args=(fb, r, 0.05 if r else 0.0, pipes[r][1])) for r in range(2)]
+    for p in procs:
+        p.start()
+    for (parent, _), p in zip(pipes, procs, strict=True):
+        assert parent.poll(60) and parent.recv() is True
+        p.join(30)
+        assert p.exitcode == 0
+    assert counter.value == 4 * 2 * 3
+    fb.close()
+
+
+def _fetch_and_report(fb: FrameBuffer, task: tuple[int, int, int, int], conn: Any) -> None:
+    try:
+        fb.fetch(task)
+        conn.send("ok")
+    except Exception as exc:
+        conn.send(str(exc))
+
+
 def test_a_failed_decode_is_reported_to_the_waiting_worker() -> None:
-    counter = mp.Value("i", 0)
+    """A decode that fails raises its own error where it ran (again on every later fetch there), and a clear
+    'failed in another worker process' in a worker that waited for it."""
+    ctx = mp.get_context("fork")
+    counter = ctx.Value("i", 0)
     seqs = sequences(counter)
-    seqs[0].frames["left"][1000].load = lambda: np.zeros((3, 3), np.uint16)  # the wrong shape
+    gate = ctx.Event()
+
+    def wrong_shape() -> np.ndarray:
+        gate.wait(30)
+        return np.zeros((3, 3), np.uint16)
+
+    seqs[0].frames["left"][1000].load = wrong_shape
     fb = FrameBuffer(seqs, ("left", "right"), SHAPE, 3, slots=1)
     task = (0, 0, 0, 0)
     with ThreadPoolExecutor(1) as pool:
-        (mine,) = fb.ensure([task], pool)
-        (theirs,) = fb.ensure([task], pool)  # claimed already: waits for the first
+        (mine,) = fb.prefetch([task], pool)
+        assert fb.prefetch([task], pool) == []  # queued already: not again
+        while fb.state[0] != 2:  # running on the decode thread (blocked on the gate)
+            time.sleep(0.01)
+        parent, child = ctx.Pipe()
+        other = ctx.Process(target=_fetch_and_report, args=(fb, task, child))
+        other.start()  # waits for this process's decode
+        time.sleep(0.2)
+        gate.set()
         with pytest.raises(Exception, match="differs"):
             mine.result()
-        with pytest.raises(Exception, match="failed"):
-            theirs.result()
+        with pytest.raises(Exception, match="differs"):
+            fb.fetch(task)
+        assert parent.poll(30) and "failed in another worker process" in parent.recv()
+        other.join(30)
     fb.close()
 
 
@@ -109,8 +174,8 @@ def test_a_waiting_thread_decodes_a_frame_still_queued() -> None:
     first.load = blocked
     fb = FrameBuffer(seqs, ("left", "right"), SHAPE, 3, slots=1)
     with ThreadPoolExecutor(1) as pool:
-        busy, queued = fb.ensure([(0, 0, 0, 0), (0, 0, 1, 2)], pool)
-        fb.wait((0, 0, 1, 2))  # decoded here while the decode thread is blocked on the first frame
+        busy, queued = fb.prefetch([(0, 0, 0, 0), (0, 0, 1, 2)], pool)
+        fb.fetch((0, 0, 1, 2))  # decoded here while the decode thread is blocked on the first frame
         assert np.array_equal(fb.view(0, 1, 2), frame_value(0, 1, 2)) and counter.value == 1
         assert not busy.done()
         gate.set()
@@ -144,6 +209,7 @@ def test_upstream_parity_decodes_only_the_source_bracket_of_the_other_camera(
     the picked bracket of each pair (each once); the outputs equal those of a run decoding both brackets."""
     from bracketry_emulator.ae import LoopConfig, run_methods
     from bracketry_emulator.ae import scheduler as sch
+    from bracketry_emulator.ae.decode_plan import EveryCamera
     from bracketry_emulator.ae.emulation_cache import needed_brackets
     from bracketry_emulator.emulation.settings import emulator_config
 
@@ -184,13 +250,8 @@ def test_upstream_parity_decodes_only_the_source_bracket_of_the_other_camera(
     assert sum(side == "right" for _, side, _ in picked) < sum(side == "left" for _, side, _ in picked)
     assert {"shorter", "longer"} <= kinds  # the AE camera picked each bracket of a pair somewhere
 
-    init = sch.Worker.__init__
-
-    def both_brackets(self: sch.Worker, *args: Any, **kwargs: Any) -> None:
-        init(self, *args, **kwargs)
-        self._pick_alone = False
-
-    monkeypatch.setattr(sch.Worker, "__init__", both_brackets)
+    monkeypatch.setattr(sch, "decode_strategy", lambda selection, parity, n_sides, ae_side: EveryCamera(selection,
+                                                                                                          n_sides))
     everything = run(tmp_path / "both")
     assert set(picked) < set(everything)
     for f in sorted((tmp_path / "both").rglob("*")):
@@ -207,7 +268,7 @@ def test_a_ring_slot_is_refilled_only_once_every_reader_passed_its_sequence() ->
     assert not np.shares_memory(fb.view(1, 0, 0), fb.view(0, 0, 0))
     _ensure_all(fb, [(0, 0, 0, 0), (1, 1, 0, 0)])  # both slots filled at once: nobody has to release anything
     with ThreadPoolExecutor(1) as pool:
-        (third,) = fb.ensure([(2, 2, 0, 0)], pool)
+        (third,) = fb.prefetch([(2, 2, 0, 0)], pool)
         fb.release(0, 1)  # reader 0 is past position 0, reader 1 still reads it
         with pytest.raises(TimeoutError):
             third.result(timeout=0.3)
@@ -216,7 +277,7 @@ def test_a_ring_slot_is_refilled_only_once_every_reader_passed_its_sequence() ->
         third.result(timeout=30)
     assert np.array_equal(fb.view(2, 0, 0), frame_value(2, 0, 0)) and counter.value == 3
     with ThreadPoolExecutor(1) as pool:
-        (fourth,) = fb.ensure([(3, 3, 0, 0)], pool)  # slot 1: reader 0 is still at position 1
+        (fourth,) = fb.prefetch([(3, 3, 0, 0)], pool)  # slot 1: reader 0 is still at position 1
         fb.abort()
         with pytest.raises(Exception, match="aborted"):
             fourth.result(timeout=30)
