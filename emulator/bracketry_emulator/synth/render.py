@@ -1,7 +1,7 @@
 """Ray casting of the synthetic world, vectorised in numpy: one camera pose -> per-pixel radiance and range.
 
 Per camera side, the unit ray of every pixel (with the lens distortion) is precomputed once. A render rotates those
-rays into the world (one 3x3 x 3xN product), then:
+rays into the world (:func:`rotate_rays`), then:
 
 - the ground (z = 0) is intersected analytically and looked up in pre-lit textures with ``cv2.remap`` (three
   resolutions blended by the pixel footprint, the channel of each RGGB pixel selected by offsetting into the
@@ -14,10 +14,17 @@ rays into the world (one 3x3 x 3xN product), then:
   batch per primitive type, the nearest hit per pixel is kept (``np.minimum.at``) and only the winners are shaded.
 
 The per-pixel passes run in row blocks of about 50k pixels so that their temporaries stay in the CPU cache.
+
+A frame is the same bits on every x86-64 CPU: no BLAS (whose kernel, picked by CPU, rounds differently: numpy's
+``@``, ``np.dot``, ``np.linalg``), only elementwise float64/float32 arithmetic in a fixed order, and no float32
+transcendental function whose rounding follows numpy's SIMD dispatch (:func:`exp_f32`, :func:`sin_f32`; float64
+sin, cos, arctan2, hypot and sqrt are the same under every dispatch). ``tests/bracketry_emulator/synth/
+test_synth_cpu_independence.py`` renders under each OpenBLAS kernel and numpy's baseline dispatch.
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -49,6 +56,85 @@ def _remap_flat(src: np.ndarray, u: np.ndarray, v: np.ndarray, cols: int = 1024)
     res = cv2.remap(src, u.reshape(rows, cols), v.reshape(rows, cols), cv2.INTER_LINEAR,
                     borderMode=cv2.BORDER_REPLICATE)
     return res.ravel()[:m]
+
+
+def rotate_rays(R: np.ndarray, rays: np.ndarray, block: int = 4 * _BLOCK_PIXELS) -> np.ndarray:
+    """``R.astype(float32) @ rays`` (float32 (3, N)), the same bits on every CPU.
+
+    numpy's ``@`` calls OpenBLAS's sgemm, whose kernel (and so rounding) depends on the CPU: the pre-AVX2 kernels
+    changed 0.35 % of the pixels of a frame, some from black to white. Each component here is the chain the AVX2 and
+    AVX-512 kernels compute, ``fma(r2, z, fma(r1, y, r0 * x))`` rounded to float32 at each step (bit for bit theirs,
+    measured on every ray of 60 frames), with elementwise float64 products (exact for float32 factors) and sums."""
+    R32 = np.asarray(R, dtype=np.float32).astype(np.float64)
+    f32, f64 = np.float32, np.float64
+    n = rays.shape[1]
+    out = np.empty((3, n), f32)
+    m = min(block, n)
+    xyz = np.empty((3, m), f64)
+    acc, prod, rnd = np.empty(m, f64), np.empty(m, f64), np.empty(m, f32)
+    for s0 in range(0, n, block):  # cache-sized chunks
+        k = min(block, n - s0)
+        x, y, z = xyz[0, :k], xyz[1, :k], xyz[2, :k]
+        xyz[:, :k] = rays[:, s0:s0 + k]
+        a, b, r = acc[:k], prod[:k], rnd[:k]
+        for i in range(3):
+            np.multiply(x, R32[i, 0], out=a)
+            r[...] = a  # each step rounded to float32, as the kernel's fused multiply-adds do
+            a[...] = r
+            np.multiply(y, R32[i, 1], out=b)
+            a += b
+            r[...] = a
+            a[...] = r
+            np.multiply(z, R32[i, 2], out=b)
+            a += b
+            out[i, s0:s0 + k] = a
+    return out
+
+
+def rotate_rows(v: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """``v @ M`` of float64 points (..., 3) and a (3, k) matrix as explicit sums in a fixed order (the same bits on
+    every CPU; numpy's ``@`` calls BLAS)."""
+    v = np.asarray(v, dtype=np.float64)
+    x, y, z = v[..., 0], v[..., 1], v[..., 2]
+    return np.stack([(x * M[0, j] + y * M[1, j]) + z * M[2, j] for j in range(M.shape[1])], axis=-1)
+
+
+def norm_rows(v: np.ndarray) -> np.ndarray:
+    """Euclidean norm along the last axis (length 2 or 3) as explicit sums in index order (float64)."""
+    v = np.asarray(v, dtype=np.float64)
+    total = v[..., 0] * v[..., 0]
+    for k in range(1, v.shape[-1]):
+        total += v[..., k] * v[..., k]
+    return np.sqrt(total)
+
+
+_LN2_HI = 6.93147180369123816490e-01  # ln 2 to 32 bits: k * _LN2_HI is exact for |k| < 2**20
+_LN2_LO = 1.90821492927058770002e-10
+_EXP_TAYLOR = [1.0 / math.factorial(k) for k in range(12, -1, -1)]
+
+
+def exp_f32(x: np.ndarray) -> np.ndarray:
+    """``exp`` of float32 values <= 0 as float32, the same bits on every CPU.
+
+    numpy's float32 exp depends on its SIMD dispatch (AVX2/AVX-512 and the baseline round differently); this one
+    uses only float64 +, *, rint and ldexp (IEEE-exact everywhere): x = k ln 2 + r with |r| <= ln 2 / 2, exp(r) by
+    its Taylor series to r^12 (relative error below 2e-16), scaled by 2^k, rounded to float32 once."""
+    xd = np.maximum(np.asarray(x, dtype=np.float64), -200.0)  # exp(-200) is 0 in float32
+    k = np.rint(xd * (1.0 / math.log(2.0)))
+    r = xd - k * _LN2_HI
+    r -= k * _LN2_LO
+    p = r * _EXP_TAYLOR[0]
+    p += _EXP_TAYLOR[1]
+    for c in _EXP_TAYLOR[2:]:
+        p *= r
+        p += c
+    return np.ldexp(p, k.astype(np.int32)).astype(np.float32)
+
+
+def sin_f32(x: np.ndarray) -> np.ndarray:
+    """``sin`` of float32 values as float32, the same bits on every CPU: numpy's float32 sin rounds differently under
+    its SIMD dispatch, its float64 sin does not (measured), so the float64 sine rounded to float32."""
+    return np.sin(np.asarray(x, dtype=np.float64)).astype(np.float32)
 
 
 def pseudo_angle(x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -111,7 +197,7 @@ class SideRenderer:
         x0, x1 = self.fov_xn
         y0, y1 = self.fov_yn
         planes = np.array([[1.0, 0.0, -x0], [-1.0, 0.0, x1], [0.0, 1.0, -y0], [0.0, -1.0, y1], [0.0, 0.0, 1.0]])
-        self.frustum = planes / np.linalg.norm(planes, axis=1, keepdims=True)
+        self.frustum = planes / norm_rows(planes)[:, None]
         self.cyl_albedo_flat = np.ascontiguousarray(scene.prims.cyl_albedo, dtype=np.float32).ravel()
         self.bark_flat = np.ascontiguousarray(scene.bark, dtype=np.float32).ravel()
         lt = scene.lighting
@@ -238,7 +324,7 @@ class SideRenderer:
         sky += cm["hor"]
         cosang = dx * self.sun[0] + dy * self.sun[1] + dz * self.sun[2]
         ang = np.sqrt(np.maximum(f32(2.0) * (f32(1.0) - cosang), 0.0))
-        sky += cm["halo"] * np.exp(-ang * f32(1.0 / lt.halo_rad))
+        sky += cm["halo"] * exp_f32(-ang * f32(1.0 / lt.halo_rad))
         sky[ang < lt.disk_rad] = lt.disk_radiance
         if not may_hit:
             return sky, np.full(sky.shape, np.inf, f32)
@@ -249,9 +335,9 @@ class SideRenderer:
     # ------------------------------------------------------------------ primitives
     def _visible_spheres(self, centres: np.ndarray, radii: np.ndarray, R: np.ndarray, p: np.ndarray) -> np.ndarray:
         """Indices of bounding spheres (centres (N, 3), radii (N,)) that may be seen (frustum and range test)."""
-        cam = (centres - p) @ R
-        dist = cam @ self.frustum.T  # (N, 5) signed distances to the side planes and the image plane
-        ok = np.all(dist >= -radii[:, None], axis=1) & (np.linalg.norm(cam, axis=1) < _MAX_OBJ_RANGE_M + radii)
+        cam = rotate_rows(centres - p, R)
+        dist = rotate_rows(cam, self.frustum.T)  # (N, 5) signed distances to the side planes and the image plane
+        ok = np.all(dist >= -radii[:, None], axis=1) & (norm_rows(cam) < _MAX_OBJ_RANGE_M + radii)
         return np.nonzero(ok)[0]
 
     def _rects(self, lo: np.ndarray, hi: np.ndarray, R: np.ndarray, p: np.ndarray) -> np.ndarray:
@@ -268,7 +354,7 @@ class SideRenderer:
         coefficients); the rectangle holds every pixel centre inside."""
         if corners.shape[0] == 0:
             return np.zeros((0, 4), np.int64)
-        cam = (corners - p) @ R  # (N, 8, 3) camera frame
+        cam = rotate_rows(corners - p, R)  # (N, 8, 3) camera frame
         z = cam[..., 2]
         ea, eb = cam[:, _EDGES[:, 0]], cam[:, _EDGES[:, 1]]
         za, zb = ea[..., 2], eb[..., 2]
@@ -286,8 +372,8 @@ class SideRenderer:
         y0 = np.maximum(np.where(valid, yn, big).min(axis=1), self.fov_yn[0])
         y1 = np.minimum(np.where(valid, yn, -big).max(axis=1), self.fov_yn[1])
         centre = corners.mean(axis=1)
-        size = np.linalg.norm(corners[:, 7] - corners[:, 0], axis=1)
-        dist = np.linalg.norm(centre - p, axis=1)
+        size = norm_rows(corners[:, 7] - corners[:, 0])
+        dist = norm_rows(centre - p)
         ok = valid.any(axis=1) & (x0 < x1) & (y0 < y1) & (dist < _MAX_OBJ_RANGE_M + size)
         f = np.linspace(0.0, 1.0, 5)
         ox = np.concatenate([f, np.ones(5), f, np.zeros(5)])
@@ -327,7 +413,7 @@ class SideRenderer:
         # bounded by a box turned towards the camera (tighter on screen than the axis-aligned one)
         m = len(pieces)
         toward = o[:2] - pieces[:, :2]
-        toward /= np.maximum(np.linalg.norm(toward, axis=1, keepdims=True), 1e-9)
+        toward /= np.maximum(norm_rows(toward)[:, None], 1e-9)
         across = np.column_stack([-toward[:, 1], toward[:, 0]])
         r = pieces[:, 2:3]
         base = np.column_stack([pieces[:, :2] - r * toward - r * across, pieces[:, 3]])
@@ -467,10 +553,10 @@ class SideRenderer:
         ob = obj[win]
         prims = self.scene.prims
         # cheap solid texture from the normal
-        tex = 1.0 + 0.25 * np.sin(nx * 23.0 + ob) * np.sin(ny * 19.0 - ob) * np.sin(nz * 17.0)
+        tex = 1.0 + 0.25 * np.sin(nx * 23.0 + ob) * np.sin(ny * 19.0 - ob) * sin_f32(nz * 17.0)
         albedo = prims.sph_albedo[ob, ch] * tex
         if self.scene.snow_caps:
-            cap = (prims.sph_kind[ob] == 0) & (nz + 0.15 * np.sin(nx * 11.0 + ny * 7.0) > 0.55)
+            cap = (prims.sph_kind[ob] == 0) & (nz + 0.15 * sin_f32(nx * 11.0 + ny * 7.0) > 0.55)
             albedo = np.where(cap, np.float32(0.85) * (1.0 + 0.04 * (ch == 2)), albedo)
         return albedo * self._light(nx, ny, nz, ch)
 
@@ -532,7 +618,7 @@ class SideRenderer:
         h, w = self.shape
         n = h * w
         o = np.asarray(p_w, dtype=np.float64)
-        d = R_wc.astype(np.float32) @ self.rays  # (3, N) world directions
+        d = rotate_rays(R_wc, self.rays)  # (3, N) world directions
         dz = d[2]
         dz_max = -o[2] / self.scene.treeline_radius_m  # rays below this slope hit the ground inside the treeline
         is_ground = dz < dz_max

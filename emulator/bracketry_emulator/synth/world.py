@@ -19,7 +19,7 @@ from bracketry_emulator.synth.calibration import SIDES, StereoCalibration, defau
 from bracketry_emulator.synth.camera_model import CameraModel
 from bracketry_emulator.synth.render import RenderResult, SideRenderer
 from bracketry_emulator.synth.scene import PRESETS, Scene, build_scene
-from bracketry_emulator.synth.trajectory import LoopTrajectory
+from bracketry_emulator.synth.trajectory import LoopTrajectory, mat_mul
 
 DEFAULT_RESOLUTION = (960, 600)
 _SCENE_CACHE: OrderedDict[tuple, Scene] = OrderedDict()
@@ -113,20 +113,22 @@ class World:
         """Pose of a camera in the scene frame (z up): (R_wc float64 (3, 3), optical centre p_w float64 (3,) m)."""
         self._check_side(side)
         R, p = self.trajectory.pose(float(t_s))
-        return R, p + R @ self.calibration.offset_m(side)
+        return R, p + mat_mul(R, self.calibration.offset_m(side))
 
     def pose(self, t_s: float, side: str = "left") -> np.ndarray:
         """Ground-truth pose: camera-to-frame transform, float64 (4, 4), in the ground-truth frame (the left camera's
         optical frame at t = 0), i.e. what ``groundtruth.txt`` holds for the left camera."""
         R, p = self.world_pose(t_s, side)
         T = np.eye(4)
-        T[:3, :3] = self._R_gw @ R
-        T[:3, 3] = self._R_gw @ (p - self._p0)
+        T[:3, :3] = mat_mul(self._R_gw, R)
+        T[:3, 3] = mat_mul(self._R_gw, p - self._p0)
         return T
 
     def gt_from_world(self, points_w: np.ndarray) -> np.ndarray:
-        """Scene-frame points (N, 3) -> ground-truth-frame points (N, 3)."""
-        return (np.asarray(points_w, dtype=np.float64) - self._p0) @ self._R_gw.T
+        """Scene-frame points (N, 3) -> ground-truth-frame points (N, 3) (explicit sums: the same on every CPU)."""
+        v = np.asarray(points_w, dtype=np.float64) - self._p0
+        R = self._R_gw
+        return np.stack([(v[:, 0] * R[k, 0] + v[:, 1] * R[k, 1]) + v[:, 2] * R[k, 2] for k in range(3)], axis=1)
 
     # ------------------------------------------------------------------ rendering
     def _renderer(self, side: str) -> SideRenderer:

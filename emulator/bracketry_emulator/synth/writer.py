@@ -35,7 +35,7 @@ import numpy as np
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.synth.calibration import write_calibration
-from bracketry_emulator.synth.trajectory import quat_from_matrix
+from bracketry_emulator.synth.trajectory import mat_mul, quat_from_matrix
 from bracketry_emulator.synth.world import World
 
 #: Default first timestamp (ns since the Unix epoch) of synthetic recordings: 2023-11-14 22:13:20 UTC.
@@ -74,6 +74,15 @@ def write_common(world: World, out_dir: Path, extra: dict) -> None:
     info = {"world": world.describe()}
     info.update(extra)
     world.camera.write_json(out_dir / "camera_model.json", info)
+
+
+def relative_pose(T0: np.ndarray, T: np.ndarray) -> np.ndarray:
+    """inv(T0) @ T of rigid 4x4 poses (rotation transposed, no LAPACK or BLAS: the same bits on every CPU)."""
+    R0t = np.ascontiguousarray(T0[:3, :3].T)
+    out = np.eye(4)
+    out[:3, :3] = mat_mul(R0t, T[:3, :3])
+    out[:3, 3] = mat_mul(R0t, T[:3, 3] - T0[:3, 3])
+    return out
 
 
 def tum_line(t_ns: int, T: np.ndarray) -> str:
@@ -120,7 +129,7 @@ def write_trajectory(world: World, out_dir: Path, seconds: float = 10.0,
             done += 1
             if progress is not None:
                 progress(done, total)
-        T = world.pose(t_s) if start_s == 0.0 else np.linalg.inv(world.pose(start_s)) @ world.pose(t_s)
+        T = world.pose(t_s) if start_s == 0.0 else relative_pose(world.pose(start_s), world.pose(t_s))
         gt_lines.append(tum_line(t_ns, T))
     (out_dir / "groundtruth.txt").write_text("\n".join(gt_lines) + "\n")
     summary = {"frames": n_frames, "cycles": cycles, "sides": list(sides), "fps": fps,
