@@ -22,8 +22,8 @@ MIRRORS: dict[str, Path | None] = {
     "hw": repo_root() / "hw",
     "demo": None,
 }
-#: the only test file allowed at the top of tests/ (this check)
-TOP_LEVEL_TESTS = {"test_tests_layout.py"}
+#: the only test files allowed at the top of tests/: checks of the whole tree (this one, the layers)
+TOP_LEVEL_TESTS = {"test_tests_layout.py", "test_layers.py"}
 
 
 def _python_files() -> list[Path]:

@@ -1,10 +1,12 @@
-"""Defaults and choices of the closed loop and the benchmark, each defined once (no imports: the CLIs read them
-while declaring their options, before anything heavy loads).
+"""Defaults and choices of the closed loop and the benchmark, each defined once (nothing heavy imported: the CLIs
+read them while declaring their options).
 
 Exposures in us (in ms on the command line and in output files).
 """
 
 from __future__ import annotations
+
+from bracketry.png import PNG_COMPRESSIONS as PNG_COMPRESSIONS
 
 #: the first target exposure (us) of a method that declares none (the authors: 4 ms)
 DEFAULT_INIT_EXPOSURE_US = 4000.0
@@ -25,8 +27,8 @@ DEFAULT_CRF = "srgb"
 AE_CAMERAS: tuple[str, ...] = ("left", "right")
 #: the cameras a closed loop writes; the default last
 CAMERAS: tuple[str, ...] = ("left", "right", "both")
-#: lossless PNG encodings of written images (emulation/writer.py); the default first
-PNG_COMPRESSIONS: tuple[str, ...] = ("stored", "fast", "small", "opencv")
+#: PNG_COMPRESSIONS: lossless PNG encodings of written images, the default first (imported above: defined with the PNG
+#: writer both packages share)
 
 #: localisation backends of the benchmark (benchmark/slam.py); the default first
 SLAM_BACKENDS: tuple[str, ...] = ("orbslam3", "builtin")

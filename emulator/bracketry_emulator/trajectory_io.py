@@ -1,13 +1,27 @@
-"""TUM trajectory files: one pose per line, ``t_s tx ty tz qx qy qz qw`` (camera-to-world, metres, seconds)."""
+"""Trajectory files, below every module that writes or reads them (VO, the SLAM backends, metrics, the report).
+
+- TUM files: one pose per line, ``t_s tx ty tz qx qy qz qw`` (camera-to-world, metres, seconds);
+- a localisation folder's segments: ``CameraTrajectory<n>.txt`` (TUM, one per tracked segment, ``n`` from 0 as the
+  ORB-SLAM forks number their maps);
+- its per-frame log ``frames.csv`` (:data:`FRAME_FIELDS`).
+"""
 
 from __future__ import annotations
 
+import csv
+import re
+from collections.abc import Iterable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
 from bracketry.errors import BracketryError
+
+#: the columns of ``frames.csv``, one row per frame fed to the localisation
+FRAME_FIELDS = ("t_ns", "state", "segment", "n_keypoints", "coverage", "n_stereo", "n_ref_matches", "n_map_matches",
+                "reason")
 
 
 def write_tum(path: str | Path, times_s: np.ndarray | list[float], poses_wc: np.ndarray | list[np.ndarray]) -> None:
@@ -33,3 +47,43 @@ def read_tum(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
         poses[:, :3, :3] = Rotation.from_quat(data[:, 4:8]).as_matrix()
         poses[:, :3, 3] = data[:, 1:4]
     return data[:, 0], poses
+
+
+def read_segments(trajectory_dir: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
+    """The ``CameraTrajectory*.txt`` segments of a folder (ours or ORB-SLAM2's), ordered by their number."""
+    files = list(Path(trajectory_dir).glob("CameraTrajectory*.txt"))
+
+    def key(p: Path) -> int:
+        m = re.search(r"(\d+)$", p.stem)
+        return int(m.group(1)) if m else -1
+
+    return [read_tum(p) for p in sorted(files, key=key)]
+
+
+def write_frames_csv(path: Path, frames: Iterable[Any]) -> None:
+    """Write ``frames.csv``: one row per frame, each an object with the attributes :data:`FRAME_FIELDS` (the VO's
+    ``FrameResult``)."""
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(FRAME_FIELDS)
+        for f in frames:
+            w.writerow([f.t_ns, f.state, f.segment, f.n_keypoints, f"{f.coverage:.6f}", f.n_stereo, f.n_ref_matches,
+                        f.n_map_matches, f.reason])
+
+
+def _count(text: str) -> int | float:
+    """A count column: int, or NaN when unknown (imported ORB-SLAM runs)."""
+    v = float(text)
+    return int(v) if np.isfinite(v) else float("nan")
+
+
+def read_frames_csv(path: str | Path) -> list[dict]:
+    """Rows of a ``frames.csv`` with numeric fields converted (unknown counts are NaN)."""
+    rows = []
+    with Path(path).open(newline="") as fh:
+        for r in csv.DictReader(fh):
+            rows.append({"t_ns": int(r["t_ns"]), "state": r["state"], "segment": int(r["segment"]),
+                         "n_keypoints": _count(r["n_keypoints"]), "coverage": float(r["coverage"]),
+                         "n_stereo": _count(r["n_stereo"]), "n_ref_matches": _count(r["n_ref_matches"]),
+                         "n_map_matches": _count(r["n_map_matches"]), "reason": r.get("reason") or ""})
+    return rows

@@ -14,7 +14,7 @@ from typing import Any
 from bracketry.errors import BracketryError
 from bracketry_emulator.ae.runner import LoopConfig
 from bracketry_emulator.benchmark.emulated_runs import all_methods
-from bracketry_emulator.benchmark.slam import SlamOptions
+from bracketry_emulator.benchmark.slam import SlamOptions, describe
 from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult, load_cached, make_task, run_task
 from bracketry_emulator.defaults import DEFAULT_ALPHA, DEFAULT_REFERENCE, DEFAULT_STATS_METHODS
 from bracketry_emulator.metrics.manifest import TrajectorySpec, expand_datasets
@@ -264,7 +264,7 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
 
         with stages.time("report"):
             files = write_report(results, out, reference=c.reference, methods=method_ids, alpha=c.alpha,
-                                 slam=slam.to_json(),
+                                 localisation=describe(slam),
                                  stats_methods=select_stats_methods(stats_methods, method_ids, c.reference),
                                  stages=timing)
         timing = {**timing, "stages": stages.as_dict(), "wall_s": round(time.perf_counter() - t_start, 3)}

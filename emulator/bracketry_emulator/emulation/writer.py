@@ -9,100 +9,45 @@ One stereo step = one capture: every side's image of a step must come from the s
 :meth:`~.emulator.Emulator.select_stereo`), and all sides carry the same name and timestamp, those of the first
 side's source frame (the authors' SLAM entry program pairs left and right by identical file names).
 
-PNG encoding (``png_compression``, every choice a lossless gray PNG that any reader, OpenCV and the authors' tools
-included, decodes to exactly the same codes; time and size of each on this project's machine: emulator/DATASET.md):
-
-- ``stored``: deflate without compression (:func:`encode_png`, level 0): the fastest, the largest (2 bytes a pixel;
-  the noisy 12-bit raw mosaic compresses poorly anyway). Built in one pass by the compiled ``_pngcodec`` extension
-  (the bytes Python's ``zlib.compress(raw, 0)`` makes, blocks, Adler-32 and CRC included), by zlib where it was not
-  built;
-- ``fast``: deflate with Huffman coding only (zlib level 1, ``Z_HUFFMAN_ONLY``);
-- ``small``: deflate with string matching (zlib level 1): the smallest of the four, the slowest;
-- ``opencv``: ``cv2.imwrite``'s defaults, as the authors' script writes its images (the default of
-  :class:`RunWriter`).
+PNG encoding (``png_compression``): one of :data:`bracketry.png.PNG_COMPRESSIONS`, the PNG writer both packages
+share (its docstring gives the choices); ``opencv`` is the default of :class:`RunWriter`, as the authors' script
+writes its images. ``stored`` is built in one pass by the compiled ``_pngcodec`` extension where it was built (the
+bytes Python's ``zlib.compress(raw, 0)`` makes, blocks, Adler-32 and CRC included), by zlib elsewhere.
 """
 
 from __future__ import annotations
 
 import csv
-import functools
-import os
-import struct
-import zlib
 from pathlib import Path
 from types import TracebackType
 from typing import IO
 
-import cv2
 import numpy as np
 
+from bracketry import png
 from bracketry.errors import BracketryError
+from bracketry.png import PNG_COMPRESSIONS, write_file
+from bracketry.png import WRITE_PIECE_BYTES as WRITE_PIECE_BYTES
 
 from ..dataset.imageio import png_codec
 from ..dataset.model import BracketSequence
-from ..defaults import PNG_COMPRESSIONS
 from .emulator import EmulatedImage
 
 STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_ms", "factor", "selection",
                 "mode")
-_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
-
-
-def _png_chunk(tag: bytes, data: bytes) -> bytes:
-    return struct.pack(">I", len(data)) + tag + data + struct.pack(">I", zlib.crc32(data, zlib.crc32(tag)))
-
-
-#: our encoder's choices: (zlib level, zlib strategy)
-_DEFLATE = {"stored": (0, zlib.Z_DEFAULT_STRATEGY), "fast": (1, zlib.Z_HUFFMAN_ONLY),
-            "small": (1, zlib.Z_DEFAULT_STRATEGY)}
-
-
-@functools.lru_cache(maxsize=8)
-def _stored_blocks(raw_bytes: int) -> bytes:
-    """The sizes (native uint16 each) of the stored deflate blocks that ``zlib.compress(raw, 0)`` makes of
-    ``raw_bytes`` bytes: the layout depends on zlib (its version) and the length only, never on the bytes, so the
-    compiled encoder reproduces zlib's stream exactly (learnt once per length from zeros)."""
-    z = zlib.compress(bytes(raw_bytes), 0)
-    sizes, pos = [], 2
-    while True:
-        final, size = z[pos] & 1, int.from_bytes(z[pos + 1:pos + 3], "little")
-        if z[pos] & 6:
-            raise RuntimeError("zlib level 0 did not write stored blocks")
-        sizes.append(size)
-        pos += 5 + size
-        if final:
-            break
-    if z[:2] != b"\x78\x01" or pos + 4 != len(z) or sum(sizes) != raw_bytes:
-        raise RuntimeError("unexpected zlib stored stream")
-    return np.array(sizes, np.uint16).tobytes()
 
 
 def encode_png(image: np.ndarray, compression: str = "stored") -> bytes:
-    """A lossless gray PNG of ``image`` (uint16 HxW -> 16-bit, uint8 HxW -> 8-bit), no row filter, deflated as
-    ``compression`` says (``stored``, ``fast`` or ``small``, see the module docstring). Any PNG reader returns
-    exactly ``image``. Raises ValueError for another dtype, shape or compression."""
-    if image.ndim != 2 or image.dtype not in (np.uint8, np.uint16):
-        raise ValueError(f"encode_png needs uint8 or uint16 HxW, got {image.dtype} {image.shape}")
-    if compression not in _DEFLATE:
-        raise ValueError(f"unknown PNG compression {compression!r} (use {', '.join(_DEFLATE)})")
-    level, strategy = _DEFLATE[compression]
-    h, w = image.shape
-    nbytes = image.dtype.itemsize
-    ihdr = struct.pack(">IIBBBBB", w, h, 8 * nbytes, 0, 0, 0, 0)  # gray, deflate, no filter, no interlace
+    """:func:`bracketry.png.encode_png`; ``stored`` built in one pass by the compiled ``_pngcodec`` extension where it
+    was built (the same bytes, without the copies). Raises ValueError for another dtype, shape or compression."""
     codec = png_codec()
-    if level == 0 and codec is not None:  # the same bytes, built in one pass without the copies
-        head = _PNG_SIGNATURE + _png_chunk(b"IHDR", ihdr)
-        blocks = _stored_blocks(h * (1 + nbytes * w))
-        return codec.encode_stored(np.ascontiguousarray(image), h, w, nbytes, head, blocks)
-    raw = np.empty((h, 1 + nbytes * w), np.uint8)
-    raw[:, 0] = 0  # filter type None
-    raw[:, 1:].view(">u2" if nbytes == 2 else np.uint8)[...] = image  # PNG samples are big-endian
-    if level == 0:
-        data = zlib.compress(raw.data, 0)
-    else:
-        z = zlib.compressobj(level, zlib.DEFLATED, 15, 9, strategy)
-        data = z.compress(raw.data) + z.flush()
-    return b"".join((_PNG_SIGNATURE, _png_chunk(b"IHDR", ihdr), _png_chunk(b"IDAT", data), _png_chunk(b"IEND", b"")))
+    if compression == "stored" and codec is not None:
+        png.check_image(image, compression)
+        h, w = image.shape
+        nbytes = image.dtype.itemsize
+        return codec.encode_stored(np.ascontiguousarray(image), h, w, nbytes, png.png_head(image),  # type: ignore[no-any-return]
+                                   png.stored_blocks(h * (1 + nbytes * w)))
+    return png.encode_png(image, compression)
 
 
 def encode_png_stored(image: np.ndarray) -> bytes:
@@ -110,32 +55,13 @@ def encode_png_stored(image: np.ndarray) -> bytes:
     return encode_png(image, "stored")
 
 
-#: bytes per ``write()`` of :func:`write_file`: on this project's machine (ext4, Linux 6.18) one write() of 2 MB or
-#: more costs 7-10x the time of the same bytes in pieces of 64 KB-1 MB (4.6 MB: ~10 ms against ~1 ms)
-WRITE_PIECE_BYTES = 1 << 18
-
-
-def write_file(path: Path, data: bytes) -> None:
-    """Write ``data`` to a new (or truncated) file at ``path``, in pieces of :data:`WRITE_PIECE_BYTES` (no copies).
-    Raises OSError."""
-    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC | os.O_CLOEXEC, 0o666)
-    try:
-        view = memoryview(data)
-        done = 0
-        while done < len(view):
-            done += os.write(fd, view[done:done + WRITE_PIECE_BYTES])
-    finally:
-        os.close(fd)
-
-
 def write_png(path: Path, image: np.ndarray, compression: str = "stored") -> None:
-    """Write ``image`` as a lossless PNG (``compression``: one of :data:`PNG_COMPRESSIONS`). Raises OSError when the
-    file cannot be written (BracketryError for OpenCV's encoder, which gives no reason)."""
-    if compression == "opencv":
-        if not cv2.imwrite(str(path), image):
-            raise BracketryError(f"cannot write {path}")
-        return
-    write_file(path, encode_png(image, compression))
+    """:func:`bracketry.png.write_png`, ``stored`` through the compiled encoder (:func:`encode_png`). Raises OSError
+    when the file cannot be written (BracketryError for OpenCV's encoder, which gives no reason)."""
+    if compression == "stored":
+        write_file(path, encode_png(image, compression))
+    else:
+        png.write_png(path, image, compression)
 
 
 def write_png_stored(path: Path, image: np.ndarray) -> None:

@@ -2,27 +2,13 @@
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 import numpy as np
 
 from bracketry_emulator.metrics.failures import robustness, tracked_distance_fraction
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M, relative_errors, trajectory_rte_rre
-from bracketry_emulator.vo.runner import read_frames_csv
-from bracketry_emulator.vo.tum import read_tum
-
-
-def read_segments(trajectory_dir: str | Path) -> list[tuple[np.ndarray, np.ndarray]]:
-    """The ``CameraTrajectory*.txt`` segments of a folder (ours or ORB-SLAM2's), ordered by their number."""
-    files = list(Path(trajectory_dir).glob("CameraTrajectory*.txt"))
-
-    def key(p: Path) -> int:
-        m = re.search(r"(\d+)$", p.stem)
-        return int(m.group(1)) if m else -1
-
-    return [read_tum(p) for p in sorted(files, key=key)]
-
+from bracketry_emulator.trajectory_io import read_frames_csv, read_segments, read_tum
 
 #: next to a ground truth file: time stamps (ns, one per line) of frames whose pose is not known
 UNKNOWN_POSES_FILE = "groundtruth_unknown.txt"

@@ -179,7 +179,7 @@ def image_times_ns(folder: str | Path) -> list[int]:
 
 def write_camera_reference(folder: str | Path, out_file: str | Path) -> Path | None:
     """Turn the folder's ``reference.yaml`` into a TUM left-camera reference at its image times (None: no yaml)."""
-    from bracketry_emulator.vo.tum import write_tum
+    from bracketry_emulator.trajectory_io import write_tum
 
     spec = load_reference_spec(folder)
     if spec is None:

@@ -72,13 +72,13 @@ def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, d
 
 
 def write_report(results: list[dict], out_dir: str | Path, reference: str, methods: list[str],
-                 alpha: float = 0.05, slam: dict | None = None, stats_methods: list[str] | None = None,
+                 alpha: float = 0.05, localisation: str = "not given", stats_methods: list[str] | None = None,
                  stages: dict | None = None) -> dict[str, Path]:
-    """Write every table and figure; returns {name: path}. ``slam``: the SLAM options (named in the report).
+    """Write every table and figure; returns {name: path}. ``localisation``: one line naming the SLAM backend and
+    its settings (the benchmark's :func:`~bracketry_emulator.benchmark.slam.describe`).
     ``stats_methods``: the methods the statistical tests cover (default: all of ``methods``). ``stages``: where the
     benchmark's time went (:func:`~bracketry_emulator.benchmark.orchestrate.stage_document`): the report ends with
     its stage table (also ``stages.csv``)."""
-    from bracketry_emulator.benchmark.slam import describe
     rep = Path(out_dir) / "report"
     rep.mkdir(parents=True, exist_ok=True)
     files: dict[str, Path] = {}
@@ -128,7 +128,7 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
              f"alpha = {alpha} with Bonferroni over {max(len(tested) - 1, 1)} methods "
              f"(▲ better, ▼ worse, ≡ not different from {reference}). RTE/RRE: evo RPE, windows "
              f"{_window_text(results)} m, per segment, paper equations; distance tracked = share of the reference "
-             f"path covered by tracked segments. Localisation: {describe(slam)}.")
+             f"path covered by tracked segments. Localisation: {localisation}.")
     untested = [m for m in methods if m not in tested]
     if untested:
         intro += (f" Reported but not in the statistics: {', '.join(untested)} (--stats-methods all adds them to the "

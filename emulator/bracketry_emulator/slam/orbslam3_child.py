@@ -78,9 +78,9 @@ def _track(request: dict) -> dict:
     from bracketry_emulator.features.orb import OrbExtractor
     from bracketry_emulator.slam.orbslam3 import map_states
     from bracketry_emulator.slam.settings import OrbSlamCamera, settings_yaml
+    from bracketry_emulator.trajectory_io import FRAME_FIELDS, write_tum
     from bracketry_emulator.vo.calibration import StereoRectifier
-    from bracketry_emulator.vo.runner import FRAME_FIELDS, estimate_row_offset
-    from bracketry_emulator.vo.tum import write_tum
+    from bracketry_emulator.vo.runner import estimate_row_offset
 
     opts = request["options"]
     out = Path(request["out_dir"])

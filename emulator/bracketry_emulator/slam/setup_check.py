@@ -212,7 +212,7 @@ def _try(c: Candidate, vocabulary: str, out_dir: Path, timeout_s: float) -> tupl
         start_child,
         wait_child,
     )
-    from bracketry_emulator.vo.runner import read_frames_csv
+    from bracketry_emulator.trajectory_io import read_frames_csv
 
     opts = OrbSlam3Options(vocabulary, pace_s=0.0, loop_closing=False, timeout_s=timeout_s)
     out_dir.mkdir(parents=True, exist_ok=True)
@@ -284,7 +284,7 @@ def _scale_problem(out_dir: Path, reference: Path | None) -> str | None:
     """ORB-SLAM3's distance over its tracked frames against the reference's over the same times (when there is
     a reference and it moved at least :data:`MIN_REFERENCE_M`): a ratio beyond :data:`MAX_SCALE_RATIO` either way
     is a wrong baseline or focal length (the stereo scale)."""
-    from bracketry_emulator.vo.tum import read_tum
+    from bracketry_emulator.trajectory_io import read_tum
 
     if reference is None or not Path(reference).is_file():
         return None

@@ -30,10 +30,9 @@ import numpy as np
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.features.orb import OrbSettings
-from bracketry_emulator.metrics.evaluate import read_segments
+from bracketry_emulator.trajectory_io import FRAME_FIELDS, read_segments, write_tum
 from bracketry_emulator.vo.calibration import StereoRectifier
-from bracketry_emulator.vo.runner import FRAME_FIELDS, estimate_row_offset, list_side_images, read_gray8
-from bracketry_emulator.vo.tum import write_tum
+from bracketry_emulator.vo.runner import estimate_row_offset, list_side_images, read_gray8
 
 
 def _mat(name: str, m: np.ndarray) -> str:

@@ -10,7 +10,6 @@ numbers its maps).
 
 from __future__ import annotations
 
-import csv
 import itertools
 import json
 from collections.abc import Iterator
@@ -23,12 +22,9 @@ import numpy as np
 from bracketry.errors import BracketryError
 from bracketry_emulator.features.demosaic import to_gray8
 from bracketry_emulator.features.orb import OrbExtractor, OrbSettings
+from bracketry_emulator.trajectory_io import write_frames_csv, write_tum
 from bracketry_emulator.vo.calibration import StereoRectifier
 from bracketry_emulator.vo.tracker import FrameResult, StereoVO, VOSettings
-from bracketry_emulator.vo.tum import write_tum
-
-FRAME_FIELDS = ("t_ns", "state", "segment", "n_keypoints", "coverage", "n_stereo", "n_ref_matches", "n_map_matches",
-                "reason")
 
 
 def list_side_images(run_dir: str | Path, side: str) -> list[tuple[int, Path]]:
@@ -171,30 +167,3 @@ def track_frames(frames: Iterator[tuple[int, np.ndarray, np.ndarray]], calibrati
         write_tum(out / f"CameraTrajectory{seg}.txt", [f.t_ns * 1e-9 for f in seg_frames],
                   [f.pose_wc for f in seg_frames if f.pose_wc is not None])
     return VORun(results, out)
-
-
-def write_frames_csv(path: Path, frames: list[FrameResult]) -> None:
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(FRAME_FIELDS)
-        for f in frames:
-            w.writerow([f.t_ns, f.state, f.segment, f.n_keypoints, f"{f.coverage:.6f}", f.n_stereo, f.n_ref_matches,
-                        f.n_map_matches, f.reason])
-
-
-def _count(text: str) -> int | float:
-    """A count column: int, or NaN when unknown (imported ORB-SLAM runs)."""
-    v = float(text)
-    return int(v) if np.isfinite(v) else float("nan")
-
-
-def read_frames_csv(path: str | Path) -> list[dict]:
-    """Rows of a ``frames.csv`` with numeric fields converted (unknown counts are NaN)."""
-    rows = []
-    with Path(path).open(newline="") as fh:
-        for r in csv.DictReader(fh):
-            rows.append({"t_ns": int(r["t_ns"]), "state": r["state"], "segment": int(r["segment"]),
-                         "n_keypoints": _count(r["n_keypoints"]), "coverage": float(r["coverage"]),
-                         "n_stereo": _count(r["n_stereo"]), "n_ref_matches": _count(r["n_ref_matches"]),
-                         "n_map_matches": _count(r["n_map_matches"]), "reason": r.get("reason") or ""})
-    return rows

@@ -8,9 +8,10 @@
 
 Frames without pixels (incomplete) or without a TRIGGER event (unknown exposure) are not exported; they are counted.
 PNG encoding runs in a thread pool (the encoders release the GIL) with a progress bar. ``png_compression`` chooses the
-lossless encoding (the choices of ``bracketry emulate --png-compression``): ``opencv`` (``cv2.imwrite``'s defaults,
-the default here), ``stored`` (no compression: ~17x faster to write at 640x400, 0.34 vs 5.7 ms an image, and ~1.4x
-larger, 2 bytes a pixel), ``fast`` or ``small``; every choice reads back as exactly the recorded codes.
+lossless encoding (:mod:`bracketry.png`, the choices of ``bracketry emulate --png-compression``): ``opencv``
+(``cv2.imwrite``'s defaults, the default here), ``stored`` (no compression, zlib: ~3.5x faster to write at 640x400,
+3.5 vs 12.6 ms an image, and ~1.4x larger, 2 bytes a pixel; the same bytes as the emulator's compiled encoder, which
+the rig does not use), ``fast`` or ``small``; every choice reads back as exactly the recorded codes.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from typing import Any
 import numpy as np
 
 from bracketry.errors import BracketryError
+from bracketry.png import PNG_COMPRESSIONS, write_png
 from bracketry.recording import topics as T
 from bracketry.recording.decode import decode, decode_image_msg
 from bracketry.recording.reader import RecordingReader
@@ -49,9 +51,7 @@ class ExportSummary:
 
 
 def _write_png(path: Path, image: np.ndarray, compression: str) -> None:
-    """The emulator's lossless PNG writer (one encoder for both packages); its OSError as a one-line error."""
-    from bracketry_emulator.emulation.writer import write_png
-
+    """The lossless PNG writer both packages share; its OSError as a one-line error."""
     try:
         write_png(path, image, compression)
     except OSError as exc:
@@ -65,14 +65,12 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
 
     In a stereo recording a frame whose partner of the other camera (same trigger) is missing is counted in
     ``unpaired`` and written only with ``keep_unpaired``, so a BorealHDR tree never holds half a pair silently.
-    ``png_compression``: one of the emulator's ``PNG_COMPRESSIONS`` (module docstring).
+    ``png_compression``: one of :data:`bracketry.png.PNG_COMPRESSIONS`.
     """
     try:
         import cv2  # noqa: F401
     except ImportError as exc:
         raise BracketryError("export needs OpenCV (pip install -e '.[host]')") from exc
-    from bracketry_emulator.emulation.writer import PNG_COMPRESSIONS
-
     if png_compression not in PNG_COMPRESSIONS:
         raise BracketryError(f"unknown PNG compression {png_compression!r} (use {', '.join(PNG_COMPRESSIONS)})")
     out = Path(out_dir)

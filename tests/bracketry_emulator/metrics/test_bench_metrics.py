@@ -15,8 +15,7 @@ from bracketry_emulator.metrics import (
     success_counts,
     trajectory_rte_rre,
 )
-from bracketry_emulator.metrics.evaluate import read_segments
-from bracketry_emulator.vo.tum import read_tum, write_tum
+from bracketry_emulator.trajectory_io import read_segments, read_tum, write_tum
 
 
 def _line(n: int = 601, step_m: float = 0.1) -> tuple[np.ndarray, np.ndarray]:

@@ -21,7 +21,7 @@ from bracketry_emulator.benchmark.toyworld import ToyWorld
 from bracketry_emulator.slam.orbslam3 import OrbSlam3Options, SlamRunError, map_states, run_orbslam3
 from bracketry_emulator.slam.settings import OrbSlamCamera, pyramid_levels, settings_yaml
 from bracketry_emulator.slam.vocabulary import build_vocabulary, parse_vocabulary_text, vocabulary_text
-from bracketry_emulator.vo.runner import read_frames_csv
+from bracketry_emulator.trajectory_io import read_frames_csv
 
 pytestmark = pytest.mark.orbslam3
 

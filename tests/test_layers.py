@@ -1,0 +1,252 @@
+"""No module imports upward across the layers (ARCHITECTURE.md, "Layers").
+
+    base  <  rig, emulator  <  integration
+
+- **base**: what both packages share, on the core dependencies alone (OpenCV only where a PNG is written): errors,
+  progress, paths, output checks, the CLI's option types, the PNG codec (``bracketry.png``) and the recording format
+  with its reader and checker (``bracketry.recording`` but the rig's recorder and session).
+- **rig** (the rest of ``bracketry``) and **emulator** (``bracketry_emulator``) are peers: neither imports the other,
+  so a rig runs without the emulator's dependencies and the emulator never reaches into the rig.
+- **integration**: what joins them: the simulated rig (``bracketry.sim``), the demo, the test harnesses and the CLI
+  (``bracketry.cli``; its ``COMMANDS`` name the emulator's commands as strings and load them when used).
+
+Inside the emulator its sub-packages stand on floors (:data:`EMULATOR_FLOORS`): a module imports its own sub-package
+and lower floors, never a neighbour on its floor nor a higher floor (trajectory files below both metrics and SLAM,
+metrics and VO apart, the report below the benchmark).
+
+Every import statement counts, module-level or inside a function (a lazy import runs upward just the same), parsed
+with :mod:`ast` from the source of both packages.
+"""
+
+from __future__ import annotations
+
+import ast
+from dataclasses import dataclass
+from pathlib import Path
+
+from bracketry.paths import repo_root
+
+BASE, RIG, EMULATOR, INTEGRATION = "base", "rig", "emulator", "integration"
+#: the layers each layer may import (itself included)
+MAY_IMPORT: dict[str, set[str]] = {
+    BASE: {BASE},
+    RIG: {BASE, RIG},
+    EMULATOR: {BASE, EMULATOR},
+    INTEGRATION: {BASE, RIG, EMULATOR, INTEGRATION},
+}
+#: module (or package: all below it) -> layer; the longest listed name that a module starts with decides
+LAYER_TABLE: dict[str, str] = {
+    "bracketry": RIG,
+    "bracketry.errors": BASE,
+    "bracketry.progress": BASE,
+    "bracketry.paths": BASE,
+    "bracketry.outputs": BASE,
+    "bracketry.ipv4": BASE,
+    "bracketry.png": BASE,
+    "bracketry.cli.options": BASE,
+    "bracketry.recording.topics": BASE,
+    "bracketry.recording.msgdefs": BASE,
+    "bracketry.recording.decode": BASE,
+    "bracketry.recording.mcap_writer": BASE,
+    "bracketry.recording.reader": BASE,
+    "bracketry.recording.verify": BASE,
+    "bracketry.sim": INTEGRATION,
+    "bracketry.demo": INTEGRATION,
+    "bracketry.testing": INTEGRATION,
+    "bracketry.cli": INTEGRATION,
+    "bracketry.__main__": INTEGRATION,
+    "bracketry_emulator": EMULATOR,
+}
+#: the emulator's sub-packages and top-level modules by floor (0 = ground); every module of the emulator is on one
+EMULATOR_FLOORS: dict[str, int] = {
+    "bracketry_emulator.defaults": 0, "bracketry_emulator.extensions": 0, "bracketry_emulator.stages": 0,
+    "bracketry_emulator.runtime_policy": 0, "bracketry_emulator.trajectory_io": 0, "bracketry_emulator.crf": 0,
+    "bracketry_emulator.features": 0, "bracketry_emulator.stats": 0,
+    "bracketry_emulator.dataset": 1, "bracketry_emulator.synth": 1,
+    "bracketry_emulator.emulation": 2, "bracketry_emulator.vo": 2, "bracketry_emulator.metrics": 2,
+    "bracketry_emulator.ae": 3, "bracketry_emulator.accuracy": 3, "bracketry_emulator.slam": 3,
+    "bracketry_emulator.report": 3,
+    "bracketry_emulator.benchmark": 4,
+    "bracketry_emulator.cli": 5,
+}
+#: the source folder of each package
+PACKAGES = {"bracketry": Path("host/bracketry"), "bracketry_emulator": Path("emulator/bracketry_emulator")}
+
+
+@dataclass(frozen=True)
+class Import:
+    module: str  # the importing module
+    target: str  # the module imported (``from a import b``: ``a.b`` when that is a module, else ``a``)
+    line: int
+    lazy: bool  # inside a function or class, not at module level
+
+
+def _longest(name: str, table: dict[str, object]) -> str | None:
+    parts = name.split(".")
+    for n in range(len(parts), 0, -1):
+        key = ".".join(parts[:n])
+        if key in table:
+            return key
+    return None
+
+
+def layer_of(module: str, table: dict[str, str] = LAYER_TABLE) -> str | None:
+    key = _longest(module, table)  # type: ignore[arg-type]
+    return None if key is None else table[key]
+
+
+def floor_of(module: str, floors: dict[str, int] = EMULATOR_FLOORS) -> int:
+    key = _longest(module, floors)  # type: ignore[arg-type]
+    return 0 if key is None else floors[key]
+
+
+def module_sources(root: Path, packages: dict[str, Path] = PACKAGES) -> dict[str, tuple[Path, bool]]:
+    """Module name -> (source file, is a package's ``__init__``) for every .py file of ``packages``."""
+    out = {}
+    for pkg, folder in packages.items():
+        for f in sorted((root / folder).rglob("*.py")):
+            if "__pycache__" in f.parts:
+                continue
+            parts = (pkg, *f.relative_to(root / folder).with_suffix("").parts)
+            is_init = parts[-1] == "__init__"
+            out[".".join(parts[:-1] if is_init else parts)] = (f, is_init)
+    return out
+
+
+def imports_of(module: str, source: str, is_init: bool, known: set[str]) -> list[Import]:
+    """Every import statement of ``module`` (module level and inside functions) naming a module of ``known``'s
+    packages, relative imports resolved."""
+    tops = {k.split(".")[0] for k in known}
+    tree = ast.parse(source)
+    lazy_lines: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef | ast.Lambda):
+            for inner in ast.walk(node):
+                if isinstance(inner, ast.Import | ast.ImportFrom):
+                    lazy_lines.add(id(inner))
+    found = []
+    for node in ast.walk(tree):
+        targets: list[str] = []
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".") if is_init else module.split(".")[:-1]
+                base = base[: len(base) - (node.level - 1)]
+                pkg = ".".join(base + ([node.module] if node.module else []))
+            else:
+                pkg = node.module or ""
+            targets = [f"{pkg}.{a.name}" if f"{pkg}.{a.name}" in known else pkg for a in node.names]
+        for t in dict.fromkeys(targets):
+            if t.split(".")[0] in tops:
+                found.append(Import(module, t, node.lineno, id(node) in lazy_lines))  # type: ignore[attr-defined]
+    return found
+
+
+def upward_imports(modules: dict[str, tuple[str, bool]], table: dict[str, str] = LAYER_TABLE,
+                   floors: dict[str, int] = EMULATOR_FLOORS) -> list[str]:
+    """One line per import that runs upward across the layers (or up the emulator's floors), and per module that
+    has no layer. ``modules``: name -> (source text, is a package's ``__init__``)."""
+    known = set(modules)
+    problems = []
+    for module, (source, is_init) in sorted(modules.items()):
+        mine = layer_of(module, table)
+        if mine is None:
+            problems.append(f"{module}: in no layer (add it to the layer table)")
+            continue
+        if mine == EMULATOR and "." in module and _longest(module, floors) is None:  # type: ignore[arg-type]
+            problems.append(f"{module}: on no floor of the emulator (add it to the floors)")
+        for imp in imports_of(module, source, is_init, known):
+            theirs = layer_of(imp.target, table)
+            how = "lazy import" if imp.lazy else "import"
+            where = f"{module}:{imp.line}: {how} of {imp.target}"
+            if theirs is None:
+                problems.append(f"{where}: in no layer")
+            elif theirs not in MAY_IMPORT[mine]:
+                problems.append(f"{where}: the {mine} layer may not import the {theirs} layer")
+            elif mine == theirs == EMULATOR:
+                unit, other = _longest(module, floors), _longest(imp.target, floors)  # type: ignore[arg-type]
+                up, down = floor_of(module, floors), floor_of(imp.target, floors)
+                if unit != other and down > up:
+                    problems.append(f"{where}: floor {up} may not import floor {down} of the emulator")
+                elif unit != other and down == up:
+                    problems.append(f"{where}: {unit} may not import its neighbour {other} on floor {up}")
+    return problems
+
+
+def _tree_modules() -> dict[str, tuple[str, bool]]:
+    return {m: (f.read_text(), init) for m, (f, init) in module_sources(repo_root()).items()}
+
+
+def test_no_module_imports_upward() -> None:
+    modules = _tree_modules()
+    assert len(modules) > 150
+    assert upward_imports(modules) == []
+
+
+def test_layer_table_names_only_existing_modules() -> None:
+    """A renamed or removed module must leave the tables too (else an entry silently stops applying)."""
+    known = set(_tree_modules())
+    stale = [name for name in [*LAYER_TABLE, *EMULATOR_FLOORS]
+             if name not in known and not any(k.startswith(name + ".") for k in known)]
+    assert stale == []
+
+
+def test_upward_imports_are_found() -> None:
+    """On a synthetic module set: each kind of upward import is reported (module level, lazy, relative, and
+    ``from package import module``), imports down or across within a layer are not."""
+    modules = {
+        "bracketry": ("", True),
+        "bracketry.errors": ("", False),
+        "bracketry.recording.reader": ("from bracketry.errors import BracketryError\n", False),
+        "bracketry.export.borealhdr": (  # rig -> emulator, lazily
+            "from bracketry.recording.reader import RecordingReader\n"
+            "def f():\n    from bracketry_emulator.emulation.writer import write_png\n", False),
+        "bracketry.sim.rig": ("from bracketry_emulator.synth import World\n", False),  # integration: allowed
+        "bracketry.cameras.fake": ("from bracketry.sim import rig\n", False),  # rig -> integration
+        "bracketry_emulator": ("", True),
+        "bracketry_emulator.trajectory_io": ("", False),
+        "bracketry_emulator.emulation": ("", True),
+        "bracketry_emulator.emulation.writer": ("from bracketry.errors import BracketryError\n", False),
+        "bracketry_emulator.synth": ("", True),
+        "bracketry_emulator.vo": ("", True),
+        "bracketry_emulator.vo.orbslam": (  # floor 2 -> its neighbour metrics on floor 2: refused; floor 0: allowed
+            "from bracketry_emulator import trajectory_io\nfrom ..metrics.evaluate import x\n", False),
+        "bracketry_emulator.metrics": ("", True),
+        "bracketry_emulator.metrics.evaluate": ("", False),
+        "bracketry_emulator.report": ("", True),
+        "bracketry_emulator.report.write": (  # floor 3 -> floor 4, lazily and relative
+            "class W:\n    def g(self):\n        from ..benchmark.slam import describe\n", False),
+        "bracketry_emulator.benchmark": ("", True),
+        "bracketry_emulator.benchmark.slam": ("", False),
+        "bracketry_emulator.dataset": ("", True),
+        "bracketry_emulator.dataset.mcap_reader": (  # emulator -> rig
+            "from bracketry.recording import reader\nimport bracketry.daemon.rig\n", False),
+        "bracketry.daemon.rig": ("", False),
+    }
+    problems = upward_imports(modules)
+    assert [p.split(": ")[0] for p in problems] == [
+        "bracketry.cameras.fake:1",
+        "bracketry.export.borealhdr:3",
+        "bracketry_emulator.dataset.mcap_reader:2",
+        "bracketry_emulator.report.write:3",
+        "bracketry_emulator.vo.orbslam:2",
+    ], problems
+    assert "lazy import of bracketry_emulator.emulation.writer: the rig layer may not import the emulator" \
+        in problems[1]
+    assert "lazy import of bracketry_emulator.benchmark.slam: floor 3 may not import floor 4" in problems[3]
+    assert "import of bracketry_emulator.metrics.evaluate: bracketry_emulator.vo may not import its neighbour" \
+        in problems[4]
+    # a module of no layer is reported
+    assert upward_imports({"elsewhere": ("", False)}, table={"bracketry": RIG}) == [
+        "elsewhere: in no layer (add it to the layer table)"]
+
+
+def test_the_tree_with_an_upward_import_fails() -> None:
+    """The real tree's sources with one bad lazy import added to a copy of one module fail, naming it."""
+    modules = _tree_modules()
+    source, init = modules["bracketry.recording.reader"]
+    modules["bracketry.recording.reader"] = (source + "\n\ndef _bad():\n    from bracketry.daemon import rig\n", init)
+    problems = upward_imports(modules)
+    assert len(problems) == 1 and problems[0].startswith("bracketry.recording.reader:"), problems
+    assert "lazy import of bracketry.daemon.rig: the base layer may not import the rig layer" in problems[0]
