@@ -4,7 +4,9 @@ A broken set-up (a vocabulary that loads but does not work, left and right camer
 not rectify the pair) makes every run lose track on its first frames, and the report would then say that every AE
 method "failed at 0.3 s". So before the methods run, ORB-SLAM3 tracks images straight from the dataset, without any
 AE method: the middle bracket (the median exposure of the bracket set, fixed), left and right, over the first
-:data:`SETUP_SECONDS` seconds of a trajectory, unpaced, loop closing off, in a child process like every run.
+:data:`SETUP_SECONDS` seconds of a trajectory, unpaced, in a child process like every run (loop closing on, as in
+the runs: ORB-SLAM3 1.0 with ``loopClosing: 0`` crashes with SIGSEGV right after creating its first map on some
+trajectories, e.g. the VO tests' toy corridor).
 
 Criterion: the set-up passes when ORB-SLAM3 holds tracking (state OK) for :data:`MIN_TRACKED_FRAMES` consecutive
 frames (all of them when the window is shorter) anywhere in that window. Stereo initialisation alone is not enough:
@@ -214,7 +216,7 @@ def _try(c: Candidate, vocabulary: str, out_dir: Path, timeout_s: float) -> tupl
     )
     from bracketry_emulator.trajectory_io import read_frames_csv
 
-    opts = OrbSlam3Options(vocabulary, pace_s=0.0, loop_closing=False, timeout_s=timeout_s)
+    opts = OrbSlam3Options(vocabulary, pace_s=0.0, timeout_s=timeout_s)
     out_dir.mkdir(parents=True, exist_ok=True)
     info, error = None, ""
     try:
