@@ -17,17 +17,31 @@ def _plt():
     return plt
 
 
-def box_plot(values: dict[str, list[float]], ylabel: str, title: str, path: Path) -> Path:
-    """One box per method (methods with no value are shown empty)."""
+def box_plot(values: dict[str, list[float]], ylabel: str, title: str, path: Path, horizontal: bool = False) -> Path:
+    """One box per method (methods with no value are shown empty). ``horizontal``: one box per row, the method names
+    on the left (long plug-in names stay readable; the figure grows with the number of methods)."""
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(max(4.0, 0.9 * len(values) + 1.5), 3.2))
     names = list(values)
+    if horizontal:
+        fig, ax = plt.subplots(figsize=(6.0, 0.32 * len(values) + 1.1))
+    else:
+        fig, ax = plt.subplots(figsize=(max(4.0, 0.9 * len(values) + 1.5), 3.2))
     data = [np.asarray(values[n], float)[np.isfinite(np.asarray(values[n], float))] for n in names]
-    ax.boxplot([d if len(d) else [np.nan] for d in data], showfliers=True)
-    ax.set_xticks(range(1, len(names) + 1), names, rotation=30)
-    ax.set_ylabel(ylabel)
-    ax.set_title(title)
-    ax.grid(axis="y", alpha=0.3)
+    boxes = [d if len(d) else [np.nan] for d in data]
+    try:  # matplotlib >= 3.10
+        ax.boxplot(boxes, showfliers=True, orientation="horizontal" if horizontal else "vertical")
+    except TypeError:  # older: vert=
+        ax.boxplot(boxes, showfliers=True, vert=not horizontal)
+    if horizontal:
+        ax.set_yticks(range(1, len(names) + 1), names, fontsize=8)
+        ax.invert_yaxis()  # the first method on top, as in the tables
+        ax.set_xlabel(ylabel)
+        ax.grid(axis="x", alpha=0.3)
+    else:
+        ax.set_xticks(range(1, len(names) + 1), names, rotation=30, ha="right")
+        ax.set_ylabel(ylabel)
+        ax.grid(axis="y", alpha=0.3)
+    ax.set_title(title, fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)

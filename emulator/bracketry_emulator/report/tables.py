@@ -141,3 +141,54 @@ def paired_tables(results: list[dict], methods: list[str], reference: str, alpha
         fri.append([label, str(f.n_blocks), str(len(f.methods)), _fmt(f.statistic, 2), _fmt(f.p_value, 4),
                     _fmt(f.kendall_w, 2), ranks])
     return wil, fri
+
+
+#: metric key -> (axis label with unit, scale to that unit) of the box plots and the medians table
+METRIC_UNITS: dict[str, tuple[str, float]] = {
+    "coverage_mean": ("coverage (%)", 100.0),
+    "matches_mean": ("matches to the map", 1.0),
+    "rte_pct": ("RTE (%)", 1.0),
+    "rre_deg_per_m": ("RRE (deg/m)", 1.0),
+    "time_before_failure_s": ("time before failure (s)", 1.0),
+    "tracked_distance_fraction": ("distance tracked (%)", 100.0),
+}
+
+
+def run_values(results: list[dict], method: str, key: str) -> list[float]:
+    """Every value of ``key`` for ``method`` over trajectories and repeats (a trajectory's ``<key>_runs`` when it was
+    repeated, else its one value), in the unit of :data:`METRIC_UNITS`; NaN kept."""
+    scale = METRIC_UNITS.get(key, ("", 1.0))[1]
+    out: list[float] = []
+    for r in results:
+        if r["method"] == method:
+            runs = r.get(f"{key}_runs") or [r.get(key, float("nan"))]
+            out += [scale * float(v) for v in runs]
+    return out
+
+
+def _median(values: list[float], scale: float = 1.0) -> float:
+    a = np.asarray(values, float)
+    a = a[np.isfinite(a)]
+    return scale * float(np.median(a)) if len(a) else float("nan")
+
+
+def medians_table(results: list[dict], methods: list[str]) -> list[list[str]]:
+    """Per method: SLAM runs (trajectories x repeats), successful trajectories, and the medians over trajectories of
+    each trajectory's value (its median over repeats), with the spread over repeats (max - min of a trajectory's
+    repeats, median over trajectories) for RTE and RRE."""
+    rows = [["method", "runs", "successful", "RTE median (%)", "RTE spread (%)", "RRE median (deg/m)",
+             "RRE spread (deg/m)", "distance tracked median (%)", "coverage median (%)", "matches median",
+             "failure time median (s)"]]
+    for m in methods:
+        rs = [r for r in results if r["method"] == m]
+
+        def med(key: str, scale: float = 1.0, rs: list[dict] = rs) -> float:
+            return _median([float(r.get(key, float("nan"))) for r in rs], scale)
+
+        n_ok = sum(bool(r["success"]) for r in rs)
+        rows.append([m, str(sum(int(r.get("repeats", 1)) for r in rs)), f"{n_ok}/{len(rs)}",
+                     _fmt(med("rte_pct"), 2), _fmt(med("rte_pct_spread"), 2), _fmt(med("rre_deg_per_m"), 3),
+                     _fmt(med("rre_deg_per_m_spread"), 3), _fmt(med("tracked_distance_fraction", 100.0), 1),
+                     _fmt(med("coverage_mean", 100.0), 1), _fmt(med("matches_mean"), 0),
+                     _fmt(med("time_before_failure_s"), 1)])
+    return rows

@@ -1,9 +1,11 @@
 """Write the benchmark report: CSV tables, Markdown and a self-contained HTML page with the figures.
 
 Files in ``<out>/report/``: ``results.csv`` (per trajectory and method), ``windows.csv`` (RTE/RRE per window),
-``summary.csv``, ``success.csv`` (per subset), ``stats.csv`` (p-values and verdicts), ``verdicts.csv``,
-``report.md``, ``report.html`` and the PNG figures (coverage and matches box plots, time before failure,
-exposure traces, qualitative grid).
+``summary.csv``, ``medians.csv`` (per method: medians and spread over repeats), ``success.csv`` (per subset),
+``stats.csv`` (p-values and verdicts), ``verdicts.csv``, ``report.md``, ``report.html``, the PNG figures (box plots
+per metric and method over trajectories and repeats ``box_<metric>.png``, per-frame coverage and matches box plots,
+time before failure, exposure traces, qualitative grid) and ``latex/`` (the verdict, success and medians tables as
+LaTeX, :mod:`~bracketry_emulator.report.latex`).
 """
 
 from __future__ import annotations
@@ -16,11 +18,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bracketry_emulator.report import plots
+from bracketry_emulator.report import html_page, plots
+from bracketry_emulator.report.latex import write_latex
 from bracketry_emulator.report.tables import (
+    METRIC_UNITS,
     failed_runs_table,
+    medians_table,
     paired_tables,
     results_table,
+    run_values,
     stats_tables,
     success_table,
     summary_table,
@@ -38,12 +44,6 @@ def _markdown(rows: list[list[str]]) -> str:
     out = ["| " + " | ".join(rows[0]) + " |", "|" + "---|" * len(rows[0])]
     out += ["| " + " | ".join(r) + " |" for r in rows[1:]]
     return "\n".join(out)
-
-
-def _html_table(rows: list[list[str]]) -> str:
-    head = "".join(f"<th>{html.escape(c)}</th>" for c in rows[0])
-    body = "".join("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>" for r in rows[1:])
-    return f"<table><thead><tr>{head}</tr></thead><tbody>{body}</tbody></table>"
 
 
 def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, dict[str, np.ndarray]]:
@@ -91,6 +91,8 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     files["results.csv"] = _write_csv(rep / "results.csv", res_rows)
     files["windows.csv"] = _write_csv(rep / "windows.csv", windows_table(results))
     files["summary.csv"] = _write_csv(rep / "summary.csv", sum_rows)
+    med_rows = medians_table(results, methods)
+    files["medians.csv"] = _write_csv(rep / "medians.csv", med_rows)
     files["success.csv"] = _write_csv(rep / "success.csv", suc_rows)
     files["verdicts.csv"] = _write_csv(rep / "verdicts.csv", verdicts)
     files["stats.csv"] = _write_csv(rep / "stats.csv", pvalues)
@@ -98,8 +100,18 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     files["friedman.csv"] = _write_csv(rep / "friedman.csv", friedman_rows)
     failed_rows = failed_runs_table(results)
     files["failed_runs.csv"] = _write_csv(rep / "failed_runs.csv", failed_rows)
+    files.update(write_latex(rep, verdicts, suc_rows, med_rows, reference, alpha))
 
-    figs: list[tuple[str, str]] = []
+    box_figs: list[tuple[str, str]] = []
+    for key, (label, _scale) in METRIC_UNITS.items():
+        values = {m: run_values(results, m, key) for m in methods}
+        name = f"box_{key}.png"
+        what = label.split(" (")[0]
+        files[name] = plots.box_plot(values, label, f"{what[0].upper()}{what[1:]}",
+                                     rep / name, horizontal=True)
+        box_figs.append((name, f"{label} per method over trajectories and repeats"))
+
+    figs: list[tuple[str, str]] = []  # per-frame figures
     cov = {m: [100 * c for r in results if r["method"] == m for c in r.get("coverage", [])] for m in methods}
     files["coverage.png"] = plots.box_plot(cov, "filled cells (%)", "Keypoint coverage, 20x20 grid",
                                            rep / "coverage.png")
@@ -111,17 +123,18 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     files["failure.png"] = plots.box_plot(tbf, "time before failure (s)", "Time before first failure",
                                           rep / "failure.png")
     figs.append(("failure.png", "Time before the first VO failure, per trajectory"))
+    look_figs: list[tuple[str, str]] = []  # exposure traces and the qualitative strip
     for traj in sorted({r["trajectory"] for r in results})[:4]:
         traces = {r["method"]: plots.read_exposure_trace(Path(r["run_dir"]))
                   for r in results if r["trajectory"] == traj}
         name = f"exposure_{traj}.png"
         files[name] = plots.exposure_traces(traces, f"Exposure traces: {traj}", rep / name)
-        figs.append((name, f"Exposure chosen by each method on {traj}"))
+        look_figs.append((name, f"Exposure chosen by each method on {traj}"))
     traj, images = _qualitative_images(results, methods)
     if images:
         files["qualitative.png"] = plots.qualitative_grid(images, f"{traj}: middle frame, left camera",
                                                           rep / "qualitative.png")
-        figs.append(("qualitative.png", f"The same frame of {traj} under each method"))
+        look_figs.append(("qualitative.png", f"The same frame of {traj} under each method"))
 
     n_traj = len({r["trajectory"] for r in results})
     intro = (f"{n_traj} trajectories x {len(methods)} methods. Reference: **{reference}**. Mann-Whitney U, "
@@ -138,35 +151,43 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     no_ref = sorted({r["reference"] for r in results if str(r.get("reference", "")).startswith("no reference")})
     if no_ref:
         intro += " RTE/RRE: " + "; ".join(no_ref) + "."
-    sections = [("Summary", sum_rows), ("Statistical difference with " + reference, verdicts),
-                *([("Failed SLAM runs (left out of the statistics)", failed_rows)] if len(failed_rows) > 1 else []),
-                ("Successful trajectories per subset", suc_rows), ("Per trajectory", res_rows),
-                ("Tests", pvalues), ("Paired: Wilcoxon signed-rank against " + reference, wilcoxon_rows),
-                ("Paired: Friedman across methods", friedman_rows)]
-    md = ["# Auto-exposure benchmark", "", intro, ""]
-    for title, rows in sections:
+    verdict_title = "Statistical difference with " + reference
+    failed_title = "Failed SLAM runs (left out of the statistics)"
+    # at a glance (in this order), then the long tables (folded in the HTML page)
+    glance = [(verdict_title, verdicts), *([(failed_title, failed_rows)] if len(failed_rows) > 1 else []),
+              ("Successful trajectories per subset", suc_rows), ("Summary", sum_rows),
+              ("Medians and spread over repeats", med_rows)]
+    folded = [("Per trajectory", res_rows), ("Tests", pvalues),
+              ("Paired: Wilcoxon signed-rank against " + reference, wilcoxon_rows),
+              ("Paired: Friedman across methods", friedman_rows)]
+    sections = [*glance, *folded]
+    md = ["# Auto-exposure benchmark", "", intro, "", f"## {verdict_title}", "", _markdown(verdicts), "",
+          "## Metrics per method", ""] + [f"![{cap}]({name})\n" for name, cap in box_figs]
+    for title, rows in sections[1:]:
         md += [f"## {title}", "", _markdown(rows), ""]
-    md += ["## Figures", ""] + [f"![{cap}]({name})\n" for name, cap in figs]
+    md += ["## Figures", ""] + [f"![{cap}]({name})\n" for name, cap in [*look_figs, *figs]]
     stage_rows, stage_text = _stage_section(stages)
     if stage_rows:
         files["stages.csv"] = _write_csv(rep / "stages.csv", stage_rows)
         md += ["## Where the time went", "", stage_text, "", _markdown(stage_rows), ""]
     files["report.md"] = rep / "report.md"
     files["report.md"].write_text("\n".join(md))
-    style = ("body{font-family:sans-serif;max-width:1100px;margin:auto}table{border-collapse:collapse;margin:8px 0}"
-             "td,th{border:1px solid #bbb;padding:3px 7px;text-align:right}th{background:#eee}"
-             "img{max-width:100%}")
-    body = [f"<h1>Auto-exposure benchmark</h1><p>{html.escape(intro).replace('**', '')}</p>"]
-    for title, rows in sections:
-        body.append(f"<h2>{html.escape(title)}</h2>{_html_table(rows)}")
-    body.append("<h2>Figures</h2>")
-    body += [f"<figure><img src='{n}' alt='{html.escape(c)}'><figcaption>{html.escape(c)}</figcaption></figure>"
-             for n, c in figs]
+    hp = html_page
+    body = [hp.section(verdict_title, hp.verdict_legend(reference)
+                       + hp.table(hp.by_method(verdicts), verdict_cells=True)),
+            hp.section("Metrics per method", hp.figures(box_figs))]
+    body += [hp.section(title, hp.table(hp.by_method(rows) if rows is suc_rows else rows))
+             for title, rows in glance[1:]]
+    if look_figs:
+        body.append(hp.section("Exposure and images", hp.figures(look_figs)))
+    body.append("<h2>Details</h2>")
+    body += [hp.section(title, hp.table(rows), folded=True) for title, rows in folded]
+    body.append(hp.section("Per-frame figures", hp.figures(figs), folded=True))
     if stage_rows:
-        body.append(f"<h2>Where the time went</h2><p>{html.escape(stage_text)}</p>{_html_table(stage_rows)}")
+        body.append(hp.section("Where the time went", f"<p>{html.escape(stage_text)}</p>{hp.table(stage_rows)}",
+                               folded=True))
     files["report.html"] = rep / "report.html"
-    files["report.html"].write_text(f"<!doctype html><html><head><meta charset='utf-8'><title>AE benchmark</title>"
-                                    f"<style>{style}</style></head><body>{''.join(body)}</body></html>")
+    files["report.html"].write_text(hp.document("Auto-exposure benchmark", intro, body))
     files["results.json"] = rep / "results.json"
     files["results.json"].write_text(json.dumps(results, indent=1, default=float))
     return files
