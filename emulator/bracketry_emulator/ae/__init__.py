@@ -31,10 +31,22 @@ from .loop import (
     iter_loop,
     run_loop,
 )
-from .registry import BUILTIN_METHODS, ENTRY_POINT_GROUP, PAPER_METHODS, expand_methods, get_method, load_plugin
+from .registry import (
+    BUILTIN_METHODS,
+    ENTRY_POINT_GROUP,
+    PAPER_METHODS,
+    MethodSpec,
+    expand_methods,
+    get_method,
+    load_plugin,
+    parse_method_options,
+    resolve_methods,
+)
 from .runner import LoopConfig, RunSummary, run_methods
 
 __all__ = ["BUILTIN_METHODS", "DEFAULT_INIT_EXPOSURE_US", "DEFAULT_MAX_EXPOSURE_US", "DEFAULT_MIN_EXPOSURE_US",
            "ENTRY_POINT_GROUP", "PAPER_METHODS", "AEMethod", "ClassicalAE", "ConstantExposure", "FixAE", "Frame",
-           "LoopConfig", "MethodRun", "RunSummary", "Step", "bayer_gray", "classical_step_ms", "expand_methods",
-           "get_method", "iter_loop", "load_plugin", "run_loop", "run_methods"]
+           "LoopConfig", "MethodRun", "MethodSpec", "RunSummary", "Step", "bayer_gray", "classical_step_ms",
+           "expand_methods",
+           "get_method", "iter_loop", "load_plugin", "parse_method_options", "resolve_methods", "run_loop",
+           "run_methods"]

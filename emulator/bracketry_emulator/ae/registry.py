@@ -4,15 +4,23 @@ Built-in ids: ``fix``, ``ae30``, ``ae50``, ``ae70``, ``shim``, ``wang``, ``kim``
 ``constant-<ms>`` (e.g. ``constant-8``). A plugin is ``pkg.module:ClassName`` (any importable class or factory
 returning an object with the :class:`AEMethod` protocol) or the name of an entry point in the group
 ``bracketry.ae_methods``. See PLUGINS.md.
+
+One name per method: :func:`resolve_methods` turns the ids given (and their options) into :class:`MethodSpec`s whose
+``name`` (a built-in's id; a plugin's ``name`` attribute) names the output folders, CSV rows, statistics and plots,
+refusing unsafe or colliding names before any work. While :func:`methods_in_use` holds them, :func:`get_method` and
+:func:`method_traits` accept those names (also in forked worker processes).
 """
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import importlib
+import math
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from bracketry.errors import BracketryError
@@ -95,10 +103,12 @@ def _entry_points() -> dict[str, EntryPoint]:
 def _instantiate(factory: Any, spec: str, options: dict[str, Any]) -> AEMethod:
     if not callable(factory):
         raise BracketryError(f"AE plugin {spec} is not a class or factory")
+    kwargs = dict(options.get("plugin_kwargs") or {})
     try:
-        obj = factory(**options.get("plugin_kwargs", {}))
+        obj = factory(**kwargs)
     except TypeError as exc:
-        raise BracketryError(f"AE plugin {spec} cannot be created without arguments: {exc}") from exc
+        given = f"with options {_options_text(kwargs)}" if kwargs else "without arguments"
+        raise BracketryError(f"AE plugin {spec} cannot be created {given}: {_one_line(exc)}") from exc
     for attr in ("reset", "next_exposure_us"):
         if not callable(getattr(obj, attr, None)):
             raise BracketryError(f"AE plugin {spec} has no method {attr}() (see the AEMethod protocol, PLUGINS.md)")
@@ -137,6 +147,12 @@ def get_method(spec: str, **options: Any) -> AEMethod:
     Raises BracketryError (one line) for an unknown id or a plugin that cannot be loaded.
     """
     name = spec.strip()
+    in_use = _IN_USE.get(name)
+    if in_use is not None and not in_use.plain:
+        method = get_method(in_use.source, **{**options, "plugin_kwargs": in_use.kwargs})
+        with contextlib.suppress(AttributeError):
+            method.name = in_use.name
+        return method
     factory = _builtin(name.lower(), options)
     if factory is not None:
         return factory()
@@ -206,7 +222,8 @@ def method_traits(spec: str, **options: Any) -> MethodTraits:
     A method class with ``created_in_worker = True`` (creating it starts threads, e.g. torch's) is not created
     here: its ``check_options(**options)`` is called instead and its class attributes are read. Raises
     BracketryError (one line) as :func:`get_method`."""
-    factory = _builtin(spec.strip().lower(), options)
+    in_use = _IN_USE.get(spec.strip())
+    factory = _builtin(spec.strip().lower(), options) if in_use is None or in_use.plain else None
     cls = factory.func if isinstance(factory, functools.partial) else factory
     source: Any
     if isinstance(cls, type) and getattr(cls, "created_in_worker", False):
@@ -216,3 +233,229 @@ def method_traits(spec: str, **options: Any) -> MethodTraits:
         source = factory() if factory is not None else get_method(spec, **options)
     return MethodTraits(int(getattr(source, "step_cost", DEFAULT_STEP_COST)), getattr(source, "step_group", None),
                         getattr(source, "start_up", None))
+
+
+# -- one name per method -------------------------------------------------------------------------------------------
+
+#: a method's name names folders and files: letters, digits, ``.``, ``_``, ``+``, ``-``, starting with a letter or
+#: digit, at most 64 characters
+_SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,63}$")
+#: names a method cannot take: keywords of --methods / --stats-methods, the files beside the method folders
+_RESERVED = {"all", "paper", "summary.json", "exposures.csv", "exposure_times.png", "closedloop_options.json"}
+_REPEAT_SUFFIX = re.compile(r"\.r\d+$")  # the benchmark's repeat folders: <method>.r<n>
+_OPTION_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+OptionValue = str | int | float | bool | None
+
+
+@dataclass(frozen=True)
+class MethodSpec:
+    """One method of a run: its ``name`` (output folders, CSV rows, statistics, plots), the ``source`` it is loaded
+    from (a built-in id, ``pkg.module:Class`` or an entry point's name) and the keyword ``options`` its constructor
+    gets (sorted ``(key, value)`` pairs; YAML scalars). A built-in's name is its id and it takes no options."""
+
+    name: str
+    source: str
+    options: tuple[tuple[str, OptionValue], ...] = ()
+
+    @property
+    def kwargs(self) -> dict[str, OptionValue]:
+        return dict(self.options)
+
+    @property
+    def plain(self) -> bool:
+        """Whether the name alone loads the method (a built-in, or an entry point named as its method, no
+        options)."""
+        return self.source == self.name and not self.options
+
+    def to_json(self) -> dict[str, Any]:
+        """``{"source": ..., "options": {...}}`` (what, besides the name, decides the method's results)."""
+        return {"source": self.source, "options": self.kwargs}
+
+    @classmethod
+    def from_json(cls, name: str, doc: Mapping[str, Any]) -> MethodSpec:
+        return cls(name, str(doc["source"]), tuple(sorted(dict(doc.get("options") or {}).items())))
+
+    def describe(self) -> str:
+        """One line: ``name: source, key=value, ...`` (``name`` alone for a plain method)."""
+        if self.plain:
+            return self.name
+        where = "" if self.source == self.name else self.source
+        return f"{self.name}: {', '.join(x for x in (where, _options_text(self.kwargs)) if x)}"
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _options_text(kwargs: Mapping[str, Any]) -> str:
+    return ", ".join(f"{k}={v!r}" for k, v in sorted(kwargs.items()))
+
+
+def check_method_name(name: str, source: str) -> None:
+    """Refuse (one line) a method name that is not a safe folder name."""
+    if not _SAFE_NAME.match(name) or name in (".", ".."):
+        raise BracketryError(f"AE method {source} is named {name!r}: a method's name names its output folder, so "
+                             "use letters, digits, '.', '_', '+' or '-' (starting with a letter or digit, at most 64 "
+                             "characters)")
+    if name.lower() in _RESERVED or _REPEAT_SUFFIX.search(name):
+        raise BracketryError(f"AE method {source} is named {name!r}, which names something else in the outputs "
+                             "(all, paper, summary.json, exposures.csv, exposure_times.png, closedloop_options.json, "
+                             "<method>.r<n>): rename it")
+
+
+def is_builtin(name: str) -> bool:
+    """Whether ``name`` is a built-in id (``constant-<ms>`` included)."""
+    return name.lower() in BUILTIN_METHODS or _CONSTANT.match(name.lower()) is not None
+
+
+def _load_factory(source: str) -> tuple[Any, str]:
+    """The class/factory of a plugin id and the name it falls back on (the attribute after the colon, or the entry
+    point's name)."""
+    if ":" in source:
+        module_name, _, attr = source.partition(":")
+        if not module_name or not attr:
+            raise BracketryError(f"bad plugin spec {source!r} (use pkg.module:ClassName)")
+        try:
+            module = importlib.import_module(module_name)
+        except ImportError as exc:
+            raise BracketryError(f"cannot import AE plugin module {module_name}: {_one_line(exc)}") from exc
+        factory: Any = module
+        for part in attr.split("."):
+            factory = getattr(factory, part, None)
+            if factory is None:
+                raise BracketryError(f"AE plugin module {module_name} has no {attr}")
+        return factory, attr.split(".")[-1]
+    eps = _entry_points()
+    if source not in eps:
+        known = ", ".join([*BUILTIN_METHODS, "constant-<ms>", *sorted(eps)])
+        raise BracketryError(f"unknown AE method {source!r} (known: {known}; or a plugin pkg.module:Class)")
+    try:
+        return eps[source].load(), source
+    except Exception as exc:
+        raise BracketryError(f"cannot load AE entry point {source} ({eps[source].value}): {_one_line(exc)}") from exc
+
+
+def resolve_methods(specs: Sequence[str | MethodSpec], options: Mapping[str, Mapping[str, Any]] | None = None,
+                    **loader_options: Any) -> list[MethodSpec]:
+    """The methods of ``specs`` (ids as :func:`get_method` takes them, or resolved specs kept as they are) with
+    their names, checked before any work.
+
+    A built-in's name is its id; a plugin's is its ``name`` attribute (the class's, else the created object's),
+    else the attribute after the colon or the entry point's name. ``options``: {method: {keyword: value}} for the
+    plugins' constructors, keyed by the method's name or by its id as given (``loader_options``: ``seed``,
+    ``parity``, ``drl_weights`` as :func:`get_method`). Each plugin is created once here (so a constructor that
+    rejects an option fails now). Raises BracketryError (one line) for an unknown id, an option for an unknown or
+    built-in method, a name that is not a safe folder name, and two methods of one name."""
+    options = {str(k): dict(v) for k, v in (options or {}).items()}
+    used: set[str] = set()
+    out: list[MethodSpec] = []
+    for item in specs:
+        if isinstance(item, MethodSpec):
+            spec = item
+        else:
+            source = item.strip()
+            if is_builtin(source):
+                if source in options:
+                    raise BracketryError(f"options given for the built-in method {source}: options are for plugins "
+                                         "(their constructors' keyword arguments)")
+                spec = MethodSpec(source, source)
+            else:
+                spec = _resolve_plugin(source, options, used, loader_options)
+        check_method_name(spec.name, spec.source)
+        out.append(spec)
+    unknown = sorted(set(options) - used)
+    if unknown:
+        raise BracketryError(f"options given for methods that are not run: {', '.join(unknown)} (methods: "
+                             f"{', '.join(s.name for s in out)})")
+    seen: dict[str, MethodSpec] = {}
+    for spec in out:
+        other = seen.get(spec.name.casefold())
+        if other is not None and other != spec:
+            raise BracketryError(f"two AE methods are named {spec.name!r} ({other.source} and {spec.source}): a name "
+                                 "names a method's outputs, so give one of them another name")
+        seen[spec.name.casefold()] = spec
+    return list(dict.fromkeys(out))
+
+
+def _resolve_plugin(source: str, options: Mapping[str, Mapping[str, Any]], used: set[str],
+                    loader_options: Mapping[str, Any]) -> MethodSpec:
+    factory, fallback = _load_factory(source)
+    class_name = getattr(factory, "name", None) if isinstance(factory, type) else None
+    candidate = class_name if isinstance(class_name, str) and class_name else fallback
+    key = source if source in options else candidate
+    kwargs = dict(options.get(key, {}))
+    obj = _instantiate(factory, source, {**loader_options, "plugin_kwargs": kwargs})
+    name = obj.name if isinstance(getattr(obj, "name", None), str) and obj.name else candidate
+    if key in options:
+        used.add(key)
+    elif name in options:  # named only once created: create it again with its options
+        kwargs = dict(options[name])
+        obj = _instantiate(factory, source, {**loader_options, "plugin_kwargs": kwargs})
+        used.add(name)
+    if name.lower() != source.lower() and is_builtin(name):
+        raise BracketryError(f"AE plugin {source} is named {name!r}, the name of a built-in method: rename it")
+    return MethodSpec(name, source, tuple(sorted(kwargs.items())))
+
+
+#: the methods of the run in progress, by name (:func:`methods_in_use`)
+_IN_USE: dict[str, MethodSpec] = {}
+
+
+@contextlib.contextmanager
+def methods_in_use(specs: Sequence[MethodSpec]) -> Iterator[None]:
+    """While inside, :func:`get_method` and :func:`method_traits` take these methods' names (worker processes
+    forked inside inherit them)."""
+    before = dict(_IN_USE)
+    _IN_USE.update({s.name: s for s in specs})
+    try:
+        yield
+    finally:
+        _IN_USE.clear()
+        _IN_USE.update(before)
+
+
+# -- options from the command line ---------------------------------------------------------------------------------
+
+def _check_value(where: str, value: Any) -> OptionValue:
+    if value is None or isinstance(value, (str, bool, int)):
+        return value
+    if isinstance(value, float) and math.isfinite(value):
+        return value
+    raise BracketryError(f"{where}: an option's value must be a finite number, a string, true/false or null, "
+                         f"got {value!r}")
+
+
+def parse_method_options(pairs: Sequence[str] = (), file: str | Path | None = None) -> dict[str, dict[str, Any]]:
+    """Plugin options: ``file`` (YAML ``{method: {key: value}}``) then ``pairs`` (``NAME.key=value``, the value a
+    YAML scalar; these win over the file's). Raises BracketryError (one line) on a malformed item."""
+    import yaml
+
+    out: dict[str, dict[str, Any]] = {}
+    if file is not None:
+        try:
+            doc = yaml.safe_load(Path(file).read_text())
+        except (OSError, yaml.YAMLError) as exc:
+            raise BracketryError(f"--method-options {file}: not readable YAML: {_one_line(exc)}") from exc
+        if doc is None:
+            doc = {}
+        if not isinstance(doc, dict):
+            raise BracketryError(f"--method-options {file}: expected a mapping {{method: {{key: value}}}}")
+        for name, opts in doc.items():
+            if not isinstance(opts, dict):
+                raise BracketryError(f"--method-options {file}: the options of {name} must be a mapping key: value")
+            for key, value in opts.items():
+                if not isinstance(key, str) or not _OPTION_KEY.match(key):
+                    raise BracketryError(f"--method-options {file}: {name}: option {key!r} is not a keyword name")
+                out.setdefault(str(name), {})[key] = _check_value(f"--method-options {file}: {name}.{key}", value)
+    for item in pairs:
+        lhs, eq, text = item.partition("=")
+        name, dot, key = lhs.strip().rpartition(".")
+        if not eq or not dot or not name or not _OPTION_KEY.match(key):
+            raise BracketryError(f"bad --method-option {item!r} (use NAME.key=value, e.g. median40.target=0.3)")
+        try:
+            value = yaml.safe_load(text) if text.strip() else ""
+        except yaml.YAMLError:
+            value = text
+        out.setdefault(name, {})[key] = _check_value(f"--method-option {item}", value)
+    return out

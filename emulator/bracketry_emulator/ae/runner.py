@@ -24,6 +24,7 @@ layout: :mod:`.writers`.
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -35,7 +36,7 @@ from ..defaults import AE_CAMERAS, CAMERAS, DEFAULT_CRF, PARITIES, PNG_COMPRESSI
 from ..emulation import EmulatorConfig
 from ..stages import StageTimes, ae_stage
 from .loop import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US, MethodRun
-from .registry import method_traits
+from .registry import MethodSpec, method_traits, methods_in_use, resolve_methods
 from .scheduler import LoopSettings, run_scheduled
 from .writers import write_run_files
 
@@ -142,13 +143,16 @@ class RunSummary:
     stages: dict[str, dict[str, float]] = field(default_factory=dict)
 
 
-def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Path, *, workers: int = 0,
-                config: LoopConfig | None = None, progress: bool = True, feeds: dict[str, list[Any]] | None = None,
-                **overrides: Any) -> RunSummary:
-    """Run ``methods`` (ids, see :func:`get_method`) in closed loop on a dataset; see the module docstring.
+def run_methods(dataset_path: str | Path, methods: Sequence[str | MethodSpec], out_dir: str | Path, *,
+                workers: int = 0, config: LoopConfig | None = None, progress: bool = True,
+                feeds: dict[str, list[Any]] | None = None,
+                method_options: Mapping[str, Mapping[str, Any]] | None = None, **overrides: Any) -> RunSummary:
+    """Run ``methods`` (ids, see :func:`get_method`, or resolved :class:`~.registry.MethodSpec`) in closed loop on a
+    dataset; see the module docstring. Each method's outputs (folder, columns, ``runs`` keys) carry its name
+    (:func:`~.registry.resolve_methods`; ``method_options``: {method: {keyword: value}} for plugin constructors).
 
     ``workers``: processes (0 = automatic, see :func:`~.scheduler.run_scheduled`; 1 = in-process).
-    ``feeds``: {method: [objects with ``write_step``/``close`` like a RunWriter]} that also get every step's images
+    ``feeds``: {method name: [objects with ``write_step``/``close`` like a RunWriter]} that also get every step's images
     (e.g. a SLAM process fed in memory; see :class:`~.scheduler.Worker`).
     ``overrides``: LoopConfig fields. Raises BracketryError (one line) on bad input or a failing method; outputs
     already written stay on disk.
@@ -160,12 +164,20 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
             raise TypeError(f"unknown closed-loop option {k}")
     cfg = replace(cfg, **overrides)
     cfg.validate()
-    specs = list(dict.fromkeys(methods))
-    if not specs:
+    if not methods:
         raise BracketryError("no AE method given")
+    loader = {"seed": cfg.seed, "drl_weights": cfg.drl_weights, "parity": cfg.emulator.parity}
+    specs = resolve_methods(list(dict.fromkeys(methods)), method_options, **loader)  # names checked, no work yet
+    with methods_in_use(specs):
+        return _run_methods(dataset_path, specs, out_dir, workers, cfg, progress, feeds, loader, t_start)
+
+
+def _run_methods(dataset_path: str | Path, method_specs: list[MethodSpec], out_dir: str | Path, workers: int,
+                 cfg: LoopConfig, progress: bool, feeds: dict[str, list[Any]] | None, loader: dict[str, Any],
+                 t_start: float) -> RunSummary:
+    specs = [m.name for m in method_specs]
     # fail fast (unknown ids, missing weights) and learn what each method declares for scheduling
-    traits = {spec: method_traits(spec, seed=cfg.seed, drl_weights=cfg.drl_weights, parity=cfg.emulator.parity)
-              for spec in specs}
+    traits = {spec: method_traits(spec, **loader) for spec in specs}
     dataset = open_dataset(dataset_path)
     write_sides = dataset.sides if cfg.camera == "both" else (cfg.camera,)
     for s in (*write_sides, cfg.ae_camera):
@@ -200,6 +212,9 @@ def run_methods(dataset_path: str | Path, methods: list[str], out_dir: str | Pat
                     "init_exposure_ms": cfg.init_exposure_us / 1000.0,
                     "bounds_ms": [cfg.min_exposure_us / 1000.0, cfg.max_exposure_us / 1000.0], "seed": cfg.seed,
                     "emulator": emu, "wall_s": round(summary.wall_s, 3), "dataset_problems": summary.problems}
+    plugins = {m.name: m.to_json() for m in method_specs if not m.plain}
+    if plugins:  # where each plugin came from and its options (built-ins: their name says it all)
+        settings_doc["plugins"] = plugins
     summary.plot_path = write_run_files(out, runs, settings_doc, cfg.emulator.parity)
     summary.wall_s = time.perf_counter() - t_start
     return summary

@@ -22,7 +22,8 @@ from .loop import MethodRun
 
 
 def method_folder(spec: str) -> str:
-    """Output folder name of a method id (plugin specs 'pkg.mod:Cls' -> 'pkg.mod-Cls')."""
+    """Output folder name of a method: its name (:func:`~.registry.resolve_methods` checks it is a safe folder
+    name, so it is kept as it is; an old run's plugin id 'pkg.mod:Cls' -> 'pkg.mod-Cls')."""
     return spec.replace(":", "-").replace("/", "_")
 
 

@@ -6,7 +6,7 @@ import concurrent.futures
 import json
 import multiprocessing
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -47,6 +47,9 @@ class BenchmarkConfig:
     and plugins are reported but not tested), ``all`` (every benchmarked method) or a list.
     ``setup_check``: with ORB-SLAM3 and runs still to do, first check that it can track at all with this vocabulary
     and calibration (:mod:`~bracketry_emulator.slam.setup_check`; a failure is one line before any method runs).
+    ``method_options``: {method: {keyword: value}}: AE plugins' constructor arguments (keyed by the method's name or
+    its id as given; part of their runs' cache keys, printed in the report). A method is named by its ``name``
+    (:func:`~bracketry_emulator.ae.registry.resolve_methods`) in folders, rows, statistics and plots.
     Sequences may be given as lists and paths as strings: they are stored as tuples and Paths.
     """
 
@@ -69,6 +72,7 @@ class BenchmarkConfig:
     stats_methods: str | Sequence[str] = DEFAULT_STATS_METHODS
     write_images: bool = False
     setup_check: bool = True
+    method_options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
@@ -84,6 +88,7 @@ class BenchmarkConfig:
             put("slam_dir", Path(self.slam_dir))
         if self.drl_weights is not None:
             put("drl_weights", str(self.drl_weights))
+        put("method_options", {str(k): dict(v) for k, v in self.method_options.items()})
 
 
 @dataclass
@@ -132,7 +137,7 @@ def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[BenchmarkTask]
     from bracketry_emulator.benchmark.emulated_runs import emulate_runs
 
     for spec in specs:
-        todo = list(dict.fromkeys(t.method for t in _todo(tasks, spec.name)))
+        todo = list(dict.fromkeys(t.method_spec for t in _todo(tasks, spec.name)))
         if todo:
             emulate_runs(spec.path, todo, out / "runs" / spec.name, loop, workers=max(0, workers),
                          progress=progress, stages=stages)
@@ -208,16 +213,20 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
         raise BracketryError(f"--drl-weights file not found: {weights}")
     method_ids = parse_methods(c.methods if isinstance(c.methods, str) else list(c.methods),
                                has_drl_weights=weights is not None)
-    from bracketry_emulator.ae.registry import get_method
+    from bracketry_emulator.ae.registry import BUILTIN_METHODS, MethodSpec, is_builtin, resolve_methods
 
-    builtin = set(all_methods())
-    for m in method_ids:  # an unknown id or a broken plugin: one line naming it, before any work
-        if m not in builtin and not any(spec.existing_run(m) for spec in specs):
-            get_method(m)
+    # an unknown id, a broken plugin, a bad option, an unsafe or shared name: one line, before any work; a
+    # dataset's own run of a method is named by its folder
+    existing = {m for m in method_ids if m.lower() not in BUILTIN_METHODS and any(s.existing_run(m) for s in specs)}
+    resolved = resolve_methods([MethodSpec(m, m) if m in existing else m for m in method_ids], c.method_options,
+                               seed=c.loop.seed, parity=c.loop.emulator.parity, drl_weights=weights)
+    method_ids = [m.name for m in resolved]
+    plugins = [m for m in resolved if m.name not in existing and not is_builtin(m.source)]
     if c.reference not in method_ids:
         raise BracketryError(f"reference method {c.reference!r} is not among the benchmarked methods {method_ids}")
     stats_methods = c.stats_methods if isinstance(c.stats_methods, str) else list(c.stats_methods)
-    select_stats_methods(stats_methods, method_ids, c.reference)  # bad names: one line before anything runs
+    plugin_names = [m.name for m in plugins]
+    select_stats_methods(stats_methods, method_ids, c.reference, plugin_names)  # bad names: one line, before work
     out = c.out_dir
     out.mkdir(parents=True, exist_ok=True)
     slam_path = c.slam_dir.resolve() if c.slam_dir else None
@@ -233,7 +242,7 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     slam = resolve_options(c.slam, echo=slam_echo)
     references = {s.name: _reference(s, out) for s in specs}
     tasks = [make_task(s, m, out, tuple(c.windows_m), c.max_frames, c.export_orbslam, slam_path, weights, loop, slam, r,
-                       references[s.name]) for s in specs for m in method_ids for r in range(slam.repeats)]
+                       references[s.name]) for s in specs for m in resolved for r in range(slam.repeats)]
     if c.setup_check and slam_path is None and slam.backend == "orbslam3":
         _check_setup(specs, tasks, method_ids, references, slam, out, slam_echo)
     from bracketry_emulator.stages import StageTimes
@@ -265,7 +274,9 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
         with stages.time("report"):
             files = write_report(results, out, reference=c.reference, methods=method_ids, alpha=c.alpha,
                                  localisation=describe(slam),
-                                 stats_methods=select_stats_methods(stats_methods, method_ids, c.reference),
+                                 stats_methods=select_stats_methods(stats_methods, method_ids, c.reference,
+                                                                    plugin_names),
+                                 plugins=[m.describe() for m in plugins],
                                  stages=timing)
         timing = {**timing, "stages": stages.as_dict(), "wall_s": round(time.perf_counter() - t_start, 3)}
         files["stages.json"] = out / "report" / "stages.json"
@@ -318,8 +329,11 @@ def _reference(spec: TrajectorySpec, out: Path) -> Path | None:
     return write_camera_reference(spec.path, out / "reference" / f"{spec.name}.txt")
 
 
-def select_stats_methods(which: str | list[str], methods: list[str], reference: str) -> list[str]:
-    """The benchmarked methods the statistics cover (see :func:`run_benchmark`), the reference always included."""
+def select_stats_methods(which: str | list[str], methods: list[str], reference: str,
+                         plugins: Sequence[str] | None = None) -> list[str]:
+    """The benchmarked methods the statistics cover (see :func:`run_benchmark`), the reference always included.
+    ``plugins``: the names of the plugins among ``methods`` (``paper`` leaves them out; None: the entry points'
+    names)."""
     from importlib.metadata import entry_points
 
     from bracketry_emulator.ae.registry import BUILTIN_METHODS, ENTRY_POINT_GROUP, PAPER_METHODS
@@ -327,7 +341,8 @@ def select_stats_methods(which: str | list[str], methods: list[str], reference: 
     if which == "all":
         chosen = list(methods)
     elif which == "paper":  # leave out the non-paper built-ins (zhang) and plugins; runs named otherwise stay
-        extra = {*BUILTIN_METHODS, *(ep.name for ep in entry_points(group=ENTRY_POINT_GROUP))} - set(PAPER_METHODS)
+        named = plugins if plugins is not None else [ep.name for ep in entry_points(group=ENTRY_POINT_GROUP)]
+        extra = {*BUILTIN_METHODS, *named} - set(PAPER_METHODS)
         chosen = [m for m in methods if m not in extra or m == reference]
     else:
         items = which.split(",") if isinstance(which, str) else list(which)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import contextlib
 import shutil
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -27,6 +27,7 @@ from bracketry_emulator.metrics.manifest import TrajectorySpec
 from bracketry_emulator.stages import StageTimes
 
 if TYPE_CHECKING:
+    from bracketry_emulator.ae.registry import MethodSpec
     from bracketry_emulator.ae.runner import LoopConfig
     from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult
 
@@ -81,7 +82,7 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Pat
     children: dict[str, SlamChild] = {}
     errors: dict[str, str] = {}
     feeds: dict[str, list[FrameFeed]] = {}
-    methods = list(dict.fromkeys(t.method for t in tasks))
+    methods = list(dict.fromkeys(t.method_spec for t in tasks))
     ok = False
     try:
         for t in tasks:
@@ -122,13 +123,14 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Pat
     return results
 
 
-def emulate_feeding(dataset_path: Path, methods: list[str], runs_dir: Path, feeds: dict[str, list],
+def emulate_feeding(dataset_path: Path, methods: Sequence[str | MethodSpec], runs_dir: Path,
+                    feeds: dict[str, list],
                     cfg: LoopConfig, *, workers: int, progress: bool, stages: StageTimes) -> dict[str, Path]:
     """One closed-loop pass of ``methods`` over the dataset with settings ``cfg`` whose steps go to ``feeds``
-    ({method: [FrameFeed]}); the runs' files (ae.csv, steps, summaries; images only with ``cfg.write_images``)
+    ({method name: [FrameFeed]}); the runs' files (ae.csv, steps, summaries; images only with ``cfg.write_images``)
     replace any earlier ones in ``runs_dir/<method>``. Returns {method: its folder}."""
     from bracketry_emulator.ae import run_methods
-    from bracketry_emulator.benchmark.emulated_runs import check_options
+    from bracketry_emulator.benchmark.emulated_runs import check_options, mark_made_by, method_name
 
     check_options(runs_dir, cfg)
     tmp_root = runs_dir / ".partial"
@@ -138,11 +140,13 @@ def emulate_feeding(dataset_path: Path, methods: list[str], runs_dir: Path, feed
                           feeds=feeds)
     stages.merge(summary.stages)
     finals = {}
-    for method in methods:
+    for m in methods:
+        method = method_name(m)
         final = runs_dir / method
         if final.exists():
             shutil.rmtree(final)
         (tmp_root / method).rename(final)
+        mark_made_by(final, m)
         finals[method] = final
     for extra in tmp_root.iterdir():  # summary.json, exposures.csv, exposure_times.png of the pass
         if extra.is_file():

@@ -33,6 +33,7 @@ from bracketry_emulator.metrics.manifest import TrajectorySpec
 from bracketry_emulator.metrics.rpe import DEFAULT_WINDOWS_M
 
 if TYPE_CHECKING:
+    from bracketry_emulator.ae.registry import MethodSpec
     from bracketry_emulator.ae.runner import LoopConfig
 
 CACHE_VERSION = 3
@@ -52,7 +53,9 @@ class BenchmarkTask:
     trajectory's calibration folder. ``existing_run``: the dataset's own emulated run of ``method`` (then no closed
     loop runs). ``drl_weights``: the DRL actor (``drl`` only). ``loop``: the closed-loop settings. ``slam_dir``:
     external SLAM trajectories evaluated instead of running SLAM. ``export_orbslam``: also export the run for
-    ORB-SLAM's stereo examples.
+    ORB-SLAM's stereo examples. ``method`` is the method's name (folders, rows); a plugin's ``method_source``
+    (import path or entry point; None: the name itself) and constructor ``method_options`` (sorted pairs) are part
+    of the key.
     """
 
     trajectory: str
@@ -71,6 +74,21 @@ class BenchmarkTask:
     loop: LoopConfig = field(default_factory=_default_loop)
     slam: SlamOptions = field(default_factory=SlamOptions.builtin)
     repeat: int = 0
+    method_source: str | None = None
+    method_options: tuple[tuple[str, Any], ...] = ()
+
+    @property
+    def method_spec(self) -> MethodSpec:
+        """The method to load: its name, source and options."""
+        from bracketry_emulator.ae.registry import MethodSpec
+
+        return MethodSpec(self.method, self.method_source or self.method, tuple(self.method_options))
+
+    def _plugin_json(self) -> dict[str, Any]:
+        """``{"plugin": {"source", "options"}}`` for a method its name alone does not load, else nothing (so a
+        built-in's JSON form and key are as before)."""
+        spec = self.method_spec
+        return {} if spec.plain else {"plugin": spec.to_json()}
 
     def to_json(self) -> dict[str, Any]:
         """The task as a JSON object (the loop and SLAM options in their own JSON forms) with its ``key``."""
@@ -79,7 +97,7 @@ class BenchmarkTask:
             "out": self.out, "groundtruth": self.groundtruth, "calibration": self.calibration,
             "existing_run": self.existing_run, "windows_m": list(self.windows_m), "max_frames": self.max_frames,
             "export_orbslam": self.export_orbslam, "slam_dir": self.slam_dir, "drl_weights": self.drl_weights,
-            "loop": self.loop.to_json(), "slam": self.slam.to_json(), "repeat": self.repeat}
+            "loop": self.loop.to_json(), "slam": self.slam.to_json(), "repeat": self.repeat, **self._plugin_json()}
         doc["key"] = self.key
         return doc
 
@@ -88,7 +106,11 @@ class BenchmarkTask:
         """The task of :meth:`to_json`'s form (its ``key`` is recomputed)."""
         from bracketry_emulator.ae.runner import LoopConfig
 
-        fields_ = {k: v for k, v in doc.items() if k != "key"}
+        fields_ = {k: v for k, v in doc.items() if k not in ("key", "plugin")}
+        plugin = doc.get("plugin")
+        if plugin:
+            fields_["method_source"] = str(plugin["source"])
+            fields_["method_options"] = tuple(sorted(dict(plugin.get("options") or {}).items()))
         return cls(**{**fields_, "windows_m": tuple(doc["windows_m"]), "loop": LoopConfig.from_json(doc["loop"]),
                       "slam": SlamOptions.from_json(doc["slam"])})
 
@@ -106,7 +128,7 @@ class BenchmarkTask:
                 "calibration": self.calibration, "existing_run": self.existing_run,
                 "windows_m": list(self.windows_m), "max_frames": self.max_frames, "slam_dir": self.slam_dir,
                 "drl_weights": self.drl_weights, "loop": self.loop.to_json(), "repeat": self.repeat,
-                "slam": self.slam.key_json()}
+                "slam": self.slam.key_json(), **self._plugin_json()}
 
     @property
     def run_name(self) -> str:
@@ -174,11 +196,13 @@ class RunResult:
                    metrics={k: v for k, v in doc.items() if k not in names})
 
 
-def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M,
-              max_frames: int | None = None, export_orbslam: bool = False, slam_dir: Path | None = None,
+def make_task(spec: TrajectorySpec, method: str | MethodSpec, out_dir: Path,
+              windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, max_frames: int | None = None,
+              export_orbslam: bool = False, slam_dir: Path | None = None,
               drl_weights: str | None = None, loop: LoopConfig | None = None, slam: SlamOptions | None = None,
               repeat: int = 0, groundtruth: Path | None = None) -> BenchmarkTask:
-    """The task of ``method`` on trajectory ``spec``.
+    """The task of ``method`` (a name, or a resolved :class:`~bracketry_emulator.ae.registry.MethodSpec`: a
+    plugin with its source and options) on trajectory ``spec``.
 
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO).
     ``repeat``: which repeat of the (trajectory, method) run this is (0-based; part of the key and the paths).
@@ -191,6 +215,12 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
     ``out/orbslam/<trajectory>/<method>/``. ``slam_dir``: evaluate external SLAM trajectories
     ``slam_dir/<trajectory>/<method>/CameraTrajectory*.txt`` instead of running the built-in VO.
     """
+    source: str | None = None
+    options: tuple[tuple[str, Any], ...] = ()
+    if not isinstance(method, str):
+        resolved = method
+        method, options = resolved.name, resolved.options
+        source = None if resolved.source == resolved.name else resolved.source
     gt = groundtruth or spec.groundtruth_path()
     calibration, existing = spec.calibration_dir(), spec.existing_run(method)
     return BenchmarkTask(
@@ -200,7 +230,7 @@ def make_task(spec: TrajectorySpec, method: str, out_dir: Path, windows_m: tuple
         max_frames=max_frames, export_orbslam=bool(export_orbslam), slam_dir=str(slam_dir) if slam_dir else None,
         drl_weights=str(Path(drl_weights).resolve()) if drl_weights and method == "drl" else None,
         loop=replace(loop, drl_weights=None) if loop is not None else _default_loop(),
-        slam=slam or SlamOptions.builtin(), repeat=int(repeat))
+        slam=slam or SlamOptions.builtin(), repeat=int(repeat), method_source=source, method_options=options)
 
 
 def load_cached(task: BenchmarkTask) -> RunResult | None:
@@ -241,7 +271,7 @@ def run_task(task: BenchmarkTask) -> RunResult:
     if task.existing_run:
         run_dir = Path(task.existing_run)
     else:
-        run_dir = emulate_run(Path(task.dataset), task.method, out / "runs" / task.trajectory,
+        run_dir = emulate_run(Path(task.dataset), task.method_spec, out / "runs" / task.trajectory,
                               replace(task.loop, drl_weights=task.drl_weights))
     if task.export_orbslam:
         from bracketry_emulator.vo.orbslam import export_orbslam

@@ -15,6 +15,7 @@ from bracketry.cli.options import (
     input_dir,
     input_file,
     input_path,
+    method_options_options,
     output_dir,
     quiet_option,
 )
@@ -57,7 +58,8 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.argument("datasets", nargs=-1, required=True, type=input_path())
 @click.option("--methods", "-m", default="all", show_default=True,
               help="'all' or 'paper' (the paper's eight; drl with --drl-weights) or a comma-separated list of AE "
-                   "method ids.")
+                   "method ids (built-ins, plugins pkg.module:Class or entry points; each named by its 'name').")
+@method_options_options()
 @click.option("--stats-methods", default=DEFAULT_STATS_METHODS, show_default=True,
               help="Methods in the statistics and their Bonferroni count: 'paper' (zhang and plugins are reported, "
                    "not tested), 'all', or a comma-separated list.")
@@ -112,7 +114,8 @@ def _windows(text: str) -> tuple[float, ...]:
                    "middle bracket (no AE) with this vocabulary and calibration; a failure is one error line, exit 2. "
                    "Off: for a dataset whose every trajectory starts unusably (e.g. in darkness).")
 @quiet_option("No progress bar for the closed loops.")
-def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_dir: Path, reference: str,
+def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, ...], method_options: Path | None,
+            stats_methods: str, out_dir: Path, reference: str,
             scheduler: str | None, workers: int, windows_text: str, alpha: float, max_frames: int | None,
             write_images: bool, export_orbslam: bool, slam_dir: Path | None, drl_weights: Path | None,
             selection: str, crf: str,
@@ -134,13 +137,14 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
     from bracketry_emulator.runtime_policy import apply_profile
 
     apply_profile("benchmark")  # before numpy loads
-    from bracketry_emulator.ae import LoopConfig
+    from bracketry_emulator.ae import LoopConfig, parse_method_options
     from bracketry_emulator.benchmark import BenchmarkConfig, RunResult, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
 
     if scheduler is not None and not scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise BracketryError(f"bad --scheduler {scheduler!r} (expected tcp://HOST:PORT)")
     windows_m = _windows(windows_text)
+    plugin_options = parse_method_options(method_option, method_options)
     if workers == 0:
         workers = os.cpu_count() or 1
 
@@ -166,7 +170,7 @@ def command(datasets: tuple[Path, ...], methods: str, stats_methods: str, out_di
                              windows_m=windows_m, max_frames=max_frames, alpha=alpha, export_orbslam=export_orbslam,
                              slam_dir=slam_dir, drl_weights=str(drl_weights) if drl_weights else None,
                              progress=not quiet, loop=loop, slam=slam, stats_methods=stats_methods,
-                             write_images=write_images, setup_check=setup_check)
+                             write_images=write_images, setup_check=setup_check, method_options=plugin_options)
     result = run_benchmark(config, on_done=done, slam_echo=click.echo)
     click.echo(f"report: {result.report_files.get('report.html')}")
     return EXIT_OK

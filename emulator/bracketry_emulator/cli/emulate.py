@@ -14,6 +14,7 @@ from bracketry.cli.options import (
     count,
     input_file,
     input_path,
+    method_options_options,
     option,
     output_dir,
     overwrite_option,
@@ -63,6 +64,7 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
         help="Comma list of AE methods: fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, constant-<ms> "
              "(e.g. constant-8), a plugin pkg.module:Class or an entry point; 'all' = the paper's eight "
              "(drl only with --drl-weights; zhang by name).")
+@method_options_options()
 @click.option("--out", "-o", "out_dir", required=True, type=output_dir(),
               help="Output folder (new or empty): one sub-folder per method, summary.json, exposures.csv, "
                    "exposure_times.png.")
@@ -117,7 +119,8 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
                    "time and size of each: emulator/DATASET.md.")
 @overwrite_option("Replace an earlier run in the same --out (its method folders and summaries are removed first).")
 @quiet_option()
-def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
+def command(dataset: Path, methods: str, method_option: tuple[str, ...], method_options: Path | None,
+            out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
             ae_camera: str, depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
             deghost_sigma: float | None, init_exposure_ms: float, min_exposure_ms: float,
             max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
@@ -131,9 +134,10 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     from bracketry_emulator.runtime_policy import apply_profile
 
     apply_profile("emulate")  # before numpy loads (just below); the forked workers inherit it
-    from bracketry_emulator.ae import LoopConfig, expand_methods, run_methods
+    from bracketry_emulator.ae import LoopConfig, expand_methods, parse_method_options, resolve_methods, run_methods
 
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
+    plugin_options = parse_method_options(method_option, method_options)
     emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db, noise, fusion_brackets, motion,
                            deghost_sigma)
     cfg = LoopConfig(emulator=emu, camera=camera, ae_camera=ae_camera,  # type: ignore[arg-type]
@@ -144,9 +148,11 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
     cfg.validate()  # before --overwrite removes anything
     if drl_weights is not None and "drl" in specs:
         _check_pth(drl_weights)
+    resolved = resolve_methods(specs, plugin_options, seed=seed, parity=parity,
+                               drl_weights=str(drl_weights) if drl_weights else None)  # names: before any work
     if overwrite:
         remove_earlier_run(out_dir)
-    summary = run_methods(dataset, specs, out_dir, workers=workers, config=cfg, progress=not quiet)
+    summary = run_methods(dataset, resolved, out_dir, workers=workers, config=cfg, progress=not quiet)
     click.echo(f"{len(summary.runs)} method(s) x {summary.n_sequences} sequence(s), cameras "
                f"{','.join(summary.sides)}, in {summary.wall_s:.1f} s -> {summary.out_dir}")
     for name, run in summary.runs.items():
@@ -154,6 +160,9 @@ def command(dataset: Path, methods: str, out_dir: Path, selection: str, crf: str
         exp = s["exposure_ms"]
         click.echo(f"  {name:<12} exposure ms first {exp['first']:.3f} last {exp['last']:.3f} "
                    f"mean {exp['mean']:.3f}  AE {s['ae_ms_per_step']['median']:.1f} ms/step")
+    for m in resolved:
+        if not m.plain:
+            click.echo(f"  plugin {m.describe()}")
     if summary.plot_path:
         click.echo(f"  plot: {summary.plot_path}")
     warn_dataset_problems(summary.problems)

@@ -73,8 +73,10 @@ def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, d
 
 def write_report(results: list[dict], out_dir: str | Path, reference: str, methods: list[str],
                  alpha: float = 0.05, localisation: str = "not given", stats_methods: list[str] | None = None,
-                 stages: dict | None = None) -> dict[str, Path]:
-    """Write every table and figure; returns {name: path}. ``localisation``: one line naming the SLAM backend and
+                 stages: dict | None = None, plugins: list[str] | None = None) -> dict[str, Path]:
+    """Write every table and figure; returns {name: path}. ``plugins``: per AE plugin "name: source, options"
+    (:meth:`~bracketry_emulator.ae.registry.MethodSpec.describe`), printed in the introduction.
+    ``localisation``: one line naming the SLAM backend and
     its settings (the benchmark's :func:`~bracketry_emulator.benchmark.slam.describe`).
     ``stats_methods``: the methods the statistical tests cover (default: all of ``methods``). ``stages``: where the
     benchmark's time went (:func:`~bracketry_emulator.benchmark.orchestrate.stage_document`): the report ends with
@@ -146,6 +148,8 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     if untested:
         intro += (f" Reported but not in the statistics: {', '.join(untested)} (--stats-methods all adds them to the "
                   f"tests and the Bonferroni count).")
+    if plugins:
+        intro += " Plugins (name: source, options): " + "; ".join(plugins) + "."
     intro += (" Paired tests (every method runs on the same trajectories): Wilcoxon signed-rank against the reference "
               "with the rank-biserial effect r, and Friedman across methods with Kendall's W.")
     no_ref = sorted({r["reference"] for r in results if str(r.get("reference", "")).startswith("no reference")})

@@ -6,7 +6,16 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Number, input_file, option, output_dir, overwrite_option
+from bracketry.cli.options import (
+    EXIT_OK,
+    EXIT_PROBLEMS,
+    Number,
+    input_file,
+    method_options_options,
+    option,
+    output_dir,
+    overwrite_option,
+)
 
 
 @click.command("demo")
@@ -24,18 +33,28 @@ from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Number, input_file, op
 @click.option("--slam-pace", default="0", show_default=True,
               help="ORB-SLAM3 feed: seconds between frames (0 = as fast as it tracks: every method's run at once "
                    "on the machine's cores) or 'realtime' (the recording's timestamps).")
+@option("--methods", "-m", "methods", aliases=("--method",), default="all", show_default=True,
+        help="AE methods: 'all' (the paper's; drl with --drl-weights) or a comma list of ids, plugins "
+             "pkg.module:Class or entry points (ae50 is the reference: keep it).")
+@method_options_options()
+@click.option("--stats-methods", default="paper", show_default=True,
+              help="Methods in the statistics: 'paper' (plugins are reported, not tested), 'all', or a comma list.")
 def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, drl_weights: Path | None,
-            slam: str | None, slam_pace: str) -> int:
+            slam: str | None, slam_pace: str, methods: str, method_option: tuple[str, ...],
+            method_options: Path | None, stats_methods: str) -> int:
     """Run the whole pipeline on the embedded default: simulated rig -> recording -> AE benchmark -> report."""
     from bracketry_emulator.runtime_policy import apply_profile
 
     apply_profile("demo")  # every process of the demo (closed loops beside seven SLAM runs); before numpy loads
-    from bracketry.demo.pipeline import plan, run
+    from bracketry.demo.pipeline import check_methods, plan, run
+    from bracketry_emulator.ae.registry import parse_method_options
     from bracketry_emulator.benchmark.slam import parse_pace
 
     pace = parse_pace(slam_pace)  # a bad value: one line before anything runs
-    summary = run(plan(out_dir, seconds, quick, str(drl_weights) if drl_weights else None, slam, pace),
-                  echo=lambda s: click.echo(s, err=True))
+    the_plan = plan(out_dir, seconds, quick, str(drl_weights) if drl_weights else None, slam, pace, methods,
+                    stats_methods, parse_method_options(method_option, method_options))
+    check_methods(the_plan)  # unknown methods, bad plugin options, unsafe names: one line before recording
+    summary = run(the_plan, echo=lambda s: click.echo(s, err=True))
     click.echo("")
     verdict = "verified clean" if summary["recording_verified"] else "HAS PROBLEMS"
     click.echo(f"bracketry demo: {summary['frames']['left']} + {summary['frames']['right']} frames recorded, "

@@ -230,3 +230,18 @@ def overwrite_option(help: str = "Replace existing output files (and write into 
 def quiet_option(help: str = "No progress bar.") -> Callable[[F], F]:
     """``--quiet/-q`` (old spelling ``--no-progress`` hidden)."""
     return option("--quiet", "-q", "quiet", aliases=("--no-progress",), is_flag=True, help=help)
+
+
+def method_options_options() -> Callable[[F], F]:
+    """``--method-option NAME.key=value`` (repeatable; the value a YAML scalar) and ``--method-options FILE`` (YAML
+    ``{name: {key: value}}``): keyword arguments of AE plugins' constructors, for every command that takes methods
+    (parsed by ``bracketry_emulator.ae.parse_method_options``, checked before any work)."""
+    def decorate(f: F) -> F:
+        f = click.option("--method-options", "method_options", type=input_file(), default=None,
+                         help="YAML file of AE plugins' options: {name: {key: value}} (a method's name or its id as "
+                              "given in --methods); --method-option wins over it.")(f)
+        return click.option("--method-option", "method_option", multiple=True, metavar="NAME.KEY=VALUE",
+                            help="An AE plugin's constructor argument (repeatable), the value read as YAML "
+                                 "(0.3, true, text), e.g. median40.target=0.3. Part of the cache key; printed "
+                                 "in the report.")(f)
+    return decorate

@@ -23,7 +23,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
@@ -40,7 +40,12 @@ class DemoPlan:
     resolution: tuple[int, int]
     fps: float = 22.0
     workers: int = 2
+    #: AE methods: "all" or a comma-separated list of ids (built-ins, plugins ``pkg.module:Class``, entry points)
     methods: str = "all"
+    #: the methods in the statistics: "paper", "all" or a comma-separated list of names
+    stats_methods: str = "paper"
+    #: AE plugins' constructor arguments: {method: {keyword: value}}
+    method_options: dict[str, dict[str, Any]] = field(default_factory=dict)
     #: the DRL actor's .pth; None leaves DRL out (its public weights are not shipped)
     drl_weights: str | None = None
     #: localisation: "orbslam3" (ORB-SLAM3 stereo) or "builtin" (the built-in VO)
@@ -71,18 +76,36 @@ QUICK_RESOLUTION = (320, 200)
 
 
 def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | None = None,
-         slam: str | None = None, slam_pace: str | float | None = None) -> DemoPlan:
+         slam: str | None = None, slam_pace: str | float | None = None, methods: str = "all",
+         stats_methods: str = "paper", method_options: dict[str, dict[str, Any]] | None = None) -> DemoPlan:
     """The default plan (a SLAM run long enough to mean something), or the quick one for CI (< 2 minutes).
 
     SLAM: ORB-SLAM3 by default; the quick plan uses the built-in VO unless ``slam`` says otherwise (its 320x200
     images leave ORB-SLAM3 a 7-level pyramid, and the first ORB-SLAM3 run on a machine builds the vocabulary,
     ~1-2 minutes, which alone would break the quick plan's budget).
+    ``methods``, ``stats_methods``, ``method_options``: as ``bracketry benchmark``'s options.
     """
+    chosen: dict[str, Any] = {"methods": methods, "stats_methods": stats_methods,
+                              "method_options": dict(method_options or {})}
     if quick:
         return DemoPlan(out_dir, seconds or QUICK_SECONDS, QUICK_RESOLUTION, drl_weights=drl_weights,
-                        slam=slam or "builtin", slam_pace=DEMO_PACE if slam_pace is None else slam_pace)
+                        slam=slam or "builtin", slam_pace=DEMO_PACE if slam_pace is None else slam_pace, **chosen)
     return DemoPlan(out_dir, seconds or DEFAULT_SECONDS, DEFAULT_RESOLUTION, drl_weights=drl_weights,
-                    slam=slam or "orbslam3", slam_pace=DEMO_PACE if slam_pace is None else slam_pace)
+                    slam=slam or "orbslam3", slam_pace=DEMO_PACE if slam_pace is None else slam_pace, **chosen)
+
+
+def check_methods(p: DemoPlan) -> list[str]:
+    """The names of the plan's methods, checked as the benchmark checks them (unknown ids, plugins that do not
+    load or reject an option, unsafe or shared names, --stats-methods): one line before anything is recorded."""
+    from bracketry_emulator.ae.registry import resolve_methods
+    from bracketry_emulator.benchmark.orchestrate import parse_methods, select_stats_methods
+
+    names = [m.name for m in resolve_methods(parse_methods(p.methods, has_drl_weights=p.drl_weights is not None),
+                                              p.method_options, drl_weights=p.drl_weights)]
+    if "ae50" not in names:
+        raise BracketryError("the demo's statistics compare with ae50: keep it in --methods")
+    select_stats_methods(p.stats_methods, names, "ae50", plugins=[])
+    return names
 
 
 def record(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
@@ -147,10 +170,10 @@ def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]
 def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     """Step 3: all AE methods in closed loop (one shared-decode pass, with a progress bar), VO, metrics, statistics
     and the report."""
-    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, parse_methods, run_benchmark
+    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
 
-    methods = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
+    methods = check_methods(p)
     slam = slam_options(p.slam, pace=p.slam_pace, echo=echo)  # the default vocabulary is built here the first time
     out = p.out_dir / "benchmark"
     if out.exists():  # a new recording: earlier runs and cached results belong to the old one
@@ -169,7 +192,9 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
 
     try:
         return run_benchmark(BenchmarkConfig([dataset], methods, out, reference="ae50", workers=p.workers,
-                                             drl_weights=p.drl_weights, progress=True, slam=slam), on_done=done)
+                                             drl_weights=p.drl_weights, progress=True, slam=slam,
+                                             stats_methods=p.stats_methods, method_options=p.method_options),
+                             on_done=done)
     finally:
         if bar is not None:
             bar.close()

@@ -88,7 +88,9 @@ def test_the_documented_example_plugin_runs_in_closed_loop(tmp_path: Path, monke
     assert main(["emulate", str(rec), "--method", "ae50,my_ae.bright:TargetMedian", "--out", str(out), "-j", "1",
                  "-q"]) == 0
     summary = json.loads((out / "summary.json").read_text())
-    assert set(summary["methods"]) == {"ae50", "my_ae.bright:TargetMedian"}  # folder: my_ae.bright-TargetMedian
-    assert len(list((out / "my_ae.bright-TargetMedian" / "images_left").glob("*.png"))) == 3
+    assert set(summary["methods"]) == {"ae50", "median40"}  # the class's name names its outputs
+    assert summary["plugins"] == {"median40": {"source": "my_ae.bright:TargetMedian", "options": {}}}
+    assert len(list((out / "median40" / "images_left").glob("*.png"))) == 3
+    assert (out / "exposures.csv").read_text().splitlines()[0] == "step,timestamp_ns,ae50_ms,median40_ms"
     sys.modules.pop("my_ae.bright", None)
     sys.modules.pop("my_ae", None)

@@ -82,8 +82,8 @@ def test_right_camera_drives_and_bounds_clamp(tmp_path: Path, monkeypatch: pytes
     assert not (tmp_path / "r" / "ae50" / "images_left").exists()
     # the right camera is brighter, so AE50 driven by it chooses a shorter exposure
     assert right.runs["ae50"].exposures_ms[1] < left.runs["ae50"].exposures_ms[1]
-    assert right.runs["ae_runner_plugin:Doubler"].exposures_ms == [4.0, 8.0, 10.0]
-    assert (tmp_path / "r" / "ae_runner_plugin-Doubler" / "steps.csv").is_file()
+    assert right.runs["doubler"].exposures_ms == [4.0, 8.0, 10.0]
+    assert (tmp_path / "r" / "doubler" / "steps.csv").is_file()
 
 
 def test_bad_settings(tmp_path: Path) -> None:
