@@ -30,6 +30,7 @@ class Tally:
     runs: int = 0
     failures: int = 0
     first_message: str = ""
+    first_text: str = ""  # the whole report of the first failure (message and traceback)
 
 
 @dataclass
@@ -41,14 +42,18 @@ class Hunt:
 
 
 def outcomes(junit_xml: Path) -> dict[str, str]:
-    """Test id -> ``""`` (passed or skipped) or the first line of its failure/error message."""
+    """Test id -> ``""`` (passed or skipped) or its failure/error report (message line first, then the traceback)."""
     result = {}
     for case in ET.parse(junit_xml).getroot().iter("testcase"):
         test_id = f"{case.get('classname', '')}::{case.get('name', '')}"
         bad = case.find("failure")
         if bad is None:
             bad = case.find("error")
-        result[test_id] = "" if bad is None else ((bad.get("message") or "failed").splitlines() or ["failed"])[0]
+        if bad is None:
+            result[test_id] = ""
+        else:
+            first = ((bad.get("message") or "failed").splitlines() or ["failed"])[0]
+            result[test_id] = f"{first}\n{bad.text or ''}"
     return result
 
 
@@ -74,7 +79,8 @@ def record(hunt: Hunt, condition: str, result: dict[str, str]) -> None:
         tally.runs += 1
         if message:
             tally.failures += 1
-            tally.first_message = tally.first_message or message
+            tally.first_message = tally.first_message or message.splitlines()[0]
+            tally.first_text = tally.first_text or message
 
 
 def table(hunt: Hunt) -> str:
@@ -103,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--hogs-hogged", type=int, default=2)
     ap.add_argument("--hogs", type=int, default=0, help="busy loops during the idle runs (0)")
     ap.add_argument("-k", dest="keyword", default=None, help="pytest -k expression")
+    ap.add_argument("--reports", type=Path, default=None,
+                    help="folder for the whole report of each test's first failure (one file per test)")
     args = ap.parse_args(argv)
     extra = ["-k", args.keyword] if args.keyword else []
     hunt = Hunt()
@@ -112,6 +120,13 @@ def main(argv: list[str] | None = None) -> int:
         failed = sum(1 for tl in hunt.tallies[condition].values() if tl.failures)
         print(f"run {i}/{len(plan)} ({condition}): tests with failures so far {failed}", flush=True)
     print(table(hunt))
+    if args.reports:
+        args.reports.mkdir(parents=True, exist_ok=True)
+        for cond, tallies in hunt.tallies.items():
+            for test_id, tl in tallies.items():
+                if tl.first_text:
+                    name = test_id.replace("::", "__").replace("/", "_").replace(".", "_")[:150]
+                    (args.reports / f"{cond}-{name}.txt").write_text(tl.first_text)
     return 1 if any(tl.failures for c in hunt.tallies.values() for tl in c.values()) else 0
 
 

@@ -20,7 +20,7 @@ STYLE = (
     ".scroll{max-width:100%;overflow-x:auto;margin:8px 0}"
     "table{border-collapse:collapse}"
     "td,th{border:1px solid #bbb;padding:3px 7px;text-align:right;white-space:nowrap}"
-    "th{background:#eee}td:first-child,th:first-child{text-align:left}"
+    "th{background:#eee;white-space:normal;vertical-align:bottom}td:first-child,th:first-child{text-align:left}"
     "td.better{background:#d7f2d7;color:#1b6e1b;text-align:center;font-weight:bold}"
     "td.worse{background:#f6d5d2;color:#9c1c12;text-align:center;font-weight:bold}"
     "td.equal,td.na{color:#555;text-align:center}"
