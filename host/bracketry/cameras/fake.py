@@ -232,7 +232,7 @@ class FakeCameraServer:
             return list(self.served_frames)
 
     def set_lost_packet_ratio(self, ratio: float) -> None:
-        """Change the GVSP packet-loss ratio while running (0..1)."""
+        """Change the GVSP packet-loss ratio (0..1): it applies to streams started after it (see ``fake_relay``)."""
         self.lost_packet_ratio = ratio
         if self.relay is not None:
             self.relay.lost_ratio = float(ratio)

@@ -17,10 +17,13 @@ What the relay adds to the fake's behaviour:
   yet is held (its ack is the fake's, so the client waits) and forwarded when the fill takes the previous one. So two
   triggers never merge into one frame, whatever the fake's poll rate or the machine's load. A trigger the fake never
   fills (e.g. written by a client without control) is dropped after ``trigger_expiry_s``.
-- **Seeded packet loss.** The client's stream destination writes (SCDA 0x0D18, SCP 0x0D00 port bits) are rewritten so
-  the fake streams to the relay (read-backs show the client's values); the relay forwards each GVSP packet to the
-  client unless ``packet_lost(seed, serial, block_id, packet_id, ratio)`` says it is lost: a hash, so the same seed
-  loses the same packets of the same frames in every run, independent of the other cameras and of timing.
+- **Seeded packet loss.** When a loss ratio is set (> 0 when the client writes the stream destination), the client's
+  stream destination writes (SCDA 0x0D18, SCP 0x0D00 port bits) are rewritten so the fake streams to the relay
+  (read-backs show the client's values); the relay forwards each GVSP packet to the client unless
+  ``packet_lost(seed, serial, block_id, packet_id, ratio)`` says it is lost: a hash, so the same seed loses the same
+  packets of the same frames in every run, independent of the other cameras and of timing. Without loss the fake
+  streams straight to the client, as a camera does: no Python thread (and so no scheduling delay on a loaded host)
+  lies on the frames' path. Set the ratio before the stream starts.
 
 Triggers written while the fake is not acquiring in software-trigger mode are forwarded unrecorded (the fake fills
 them, if ever, at its next acquisition; such a frame keeps the fake's own stamp and exposure).
@@ -252,7 +255,11 @@ class FakeCameraRelay:
         elif command == CMD_WRITEREG:
             regs = _registers(packet)
             if any(a in (REG_SCP, REG_SCDA) for a, _ in regs):
-                packet = self._rewrite_stream_destination(packet, regs)
+                if self.lost_ratio > 0.0:
+                    packet = self._rewrite_stream_destination(packet, regs)
+                else:  # no loss asked for: the fake streams straight to the client, no Python on the frames' path
+                    self._client_scda = self._client_scp = None
+                    self._stream_dest = None
             if (REG_TRIGGER_SOFTWARE, 1) in regs and self._trigger(client, req_id, up, packet, t_ns):
                 return
         up.send(packet)
