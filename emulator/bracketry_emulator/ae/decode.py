@@ -42,6 +42,52 @@ RELEASED_ALL = 1 << 62
 _FREE, _QUEUED, _RUNNING, _DONE, _FAILED = 0, 1, 2, 3, 4
 
 
+class _SharedCondition:
+    """A condition variable shared by forked processes (use under ``with``) whose :meth:`notify_all` never blocks:
+    each waiting thread sleeps on a semaphore of its own, one of ``n`` made before the fork (multiprocessing's
+    Condition makes the notifier wait until every woken thread has run, a stall of the decoding thread on a busy
+    machine). A woken thread re-checks its predicate; a wake-up may be spurious."""
+
+    def __init__(self, ctx: Any, n: int) -> None:
+        self._lock = ctx.Lock()
+        self._sems = [ctx.Semaphore(0) for _ in range(n)]
+        self._waiting = mmap.mmap(-1, n)  # per semaphore: 0 free, 1 a thread waits on it, 2 released
+
+    def __enter__(self) -> bool:
+        return bool(self._lock.acquire())
+
+    def __exit__(self, *exc: object) -> None:
+        self._lock.release()
+
+    def acquire(self, timeout: float | None = None) -> bool:
+        return bool(self._lock.acquire(timeout=timeout))
+
+    def release(self) -> None:
+        self._lock.release()
+
+    def wait(self) -> None:
+        """Release the lock until :meth:`notify_all` (the lock held by the caller, held again on return)."""
+        k = self._waiting.find(b"\0")
+        if k < 0:
+            raise RuntimeError(f"more than {len(self._sems)} threads wait for the frame buffer")
+        self._waiting[k] = 1
+        self._lock.release()
+        try:
+            self._sems[k].acquire()
+        finally:
+            self._lock.acquire()
+            self._waiting[k] = 0
+
+    def notify_all(self) -> None:
+        """Wake every waiting thread (the lock held by the caller)."""
+        waiting = self._waiting
+        k = waiting.find(b"\1")
+        while k >= 0:
+            waiting[k] = 2
+            self._sems[k].release()
+            k = waiting.find(b"\1", k + 1)
+
+
 class FrameBuffer:
     """A ring of ``slots`` sequences x ``len(sides)`` cameras x ``n_exp`` brackets of uint16 ``shape`` frames in one
     anonymous memory map (inherited by forked workers: decoded once, read by every worker) for the ``positions``
@@ -66,7 +112,8 @@ class FrameBuffer:
         #: changed under ``_changed``, which is notified when a frame is done or failed and when a reader releases
         self.state = mmap.mmap(-1, max(1, self.positions * len(sides) * n_exp))
         ctx = mp.get_context("fork") if "fork" in mp.get_all_start_methods() else mp.get_context()
-        self._changed = ctx.Condition(ctx.Lock())
+        #: waiting threads at most: the main and decode threads of every reader, with room to spare
+        self._changed = _SharedCondition(ctx, 8 + 4 * max(1, readers))
         # shared int64s: per reader the first position it may still read, then the abort flag
         self._sync = mmap.mmap(-1, 8 * (max(1, readers) + 1))
         self._released = memoryview(self._sync).cast("q")

@@ -346,3 +346,42 @@ def test_forked_workers_after_this_process_ran_opencv_threads(tmp_path: Path) ->
     out = subprocess.run([sys.executable, "-c", FORK_AFTER_OPENCV, str(rec), str(tmp_path / "out")],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0 and out.stdout.strip() == "done", out.stderr[-2000:]
+
+
+def _wait_once(cond: Any, flag: Any, conn: Any) -> None:
+    with cond:
+        while not flag.value:
+            cond.wait()
+    conn.send("woken")
+
+
+def test_the_shared_condition_wakes_waiters_in_other_processes_and_threads() -> None:
+    """notify_all wakes every thread waiting in any forked process (each on its own semaphore); a thread too many
+    is refused instead of waiting unseen."""
+    from bracketry_emulator.ae.decode import _SharedCondition
+
+    ctx = mp.get_context("fork")
+    cond, flag = _SharedCondition(ctx, 3), ctx.Value("i", 0)
+    pipes = [ctx.Pipe() for _ in range(2)]
+    procs = [ctx.Process(target=_wait_once, args=(cond, flag, child)) for _, child in pipes]
+    for p in procs:
+        p.start()
+    thread_pipe = ctx.Pipe()
+    waiter = threading.Thread(target=_wait_once, args=(cond, flag, thread_pipe[1]))
+    waiter.start()
+    while True:  # all three waiting: every semaphore taken
+        with cond:
+            if cond._waiting.find(b"\0") < 0:
+                with pytest.raises(RuntimeError, match="more than 3 threads"):
+                    cond.wait()
+                break
+        time.sleep(0.01)
+    with cond:
+        flag.value = 1
+        cond.notify_all()
+    for parent, _ in [*pipes, thread_pipe]:
+        assert parent.poll(30) and parent.recv() == "woken"
+    waiter.join(30)
+    for p in procs:
+        p.join(30)
+        assert p.exitcode == 0
