@@ -16,12 +16,12 @@ Why each setting:
   (CPython gh-142183, fixed in 3.14.4 and backported to 3.13) saved no time in ``bracketry emulate`` (paired runs
   of 7 methods on a synthetic trajectory, CPU-time ratio 1.01).
 - heap ``bounded`` (benchmark tasks, local or Dask): Dask's nanny sets ``MALLOC_TRIM_THRESHOLD_=65536`` for its
-  workers, which also freezes glibc's mmap threshold at 128 KiB: every image-sized temporary was an mmap, page
+  workers, which also freezes glibc's mmap threshold at 128 KiB: every image-sized temporary is then an mmap, page
   faults and munmap (2x the CPU time of a VO task). Long-lived workers, so free heap above 256 MiB still goes back.
 - BLAS 1 thread (``emulate``, ``benchmark``, ``demo``): their work is already spread over processes and the AE
-  methods' matrices are tiny (Kim's GP fits): OpenBLAS's pool only spun and took CPU from the other processes (the
-  default demo's closed loops 20.7 -> 11.4 CPU-s, the same exposures and images). Set in the environment, so the
-  processes they start inherit it.
+  methods' matrices are tiny (Kim's GP fits): OpenBLAS's pool only spins and takes CPU from the other processes (the
+  default demo's closed loops: 11.4 CPU-s with one thread, 20.7 with the pool; the same exposures and images). Set
+  in the environment, so the processes they start inherit it.
 - OpenCV 1 thread (benchmark tasks, SLAM child processes, timing scripts): one core per task, the tasks run side by
   side. The closed loop's forked workers get theirs from the scheduler, set just before forking (a forked child
   must not change OpenCV's thread count: that waits forever on the pool its parent had running).

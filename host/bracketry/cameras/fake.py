@@ -13,7 +13,7 @@ Each served frame's exposure is recorded in ``served_exposures_us`` (in serving 
 Deterministic where the Aravis fake is not: a ``bracketry.cameras.fake_relay.FakeCameraRelay`` owns the camera's
 public GVCP port. At start the fake's own GVCP socket (bound to ``address``:3956) is replaced, under its file
 descriptor, by one on an ephemeral port of the same address, and the relay binds ``address``:3956 in front of it; so
-any address works as before (127.0.0.1 in the host namespace too). Through the relay:
+any address works (127.0.0.1 in the host namespace too). Through the relay:
 
 - each frame is stamped with its trigger's time (kernel receive time of the TriggerSoftware write, host real time)
   and rendered with the exposure the camera had at the trigger, not at the fill (the fake fills at its next poll);
@@ -23,7 +23,7 @@ any address works as before (127.0.0.1 in the host namespace too). Through the r
 
 The fake itself still polls its trigger flag at ``trigger_poll_hz`` (its thread spins during the last < 1 ms of each
 poll period while acquiring: ~1 ms / period of a core, see ``DEFAULT_TRIGGER_POLL_HZ``); only the fill latency
-depends on it now, not stamps, exposures or merging.
+depends on it, not stamps, exposures or merging.
 
 Quirk of the Aravis 0.8.26 fake, handled by its users: the first TriggerSoftware after AcquisitionStart is often
 lost (``bracketry.cameras.triggering.SoftwareTrigger.arm`` fires a marked priming trigger first); its timestamps are
@@ -55,7 +55,7 @@ _KEEP_ALIVE: list[Any] = []
 #: the rig's 45 ms pulse period at 22 fps (so triggers are normally never held). While acquiring, the fake's thread
 #: spins the last < 1 ms of every period (its g_poll timeout is in whole ms): ~1 ms/period of a core. Measured, one
 #: fake acquiring without triggers, machine load ~12 on 2 cores (so CPU% is what it got, runnable% = on CPU + waiting
-#: for one): 1000 Hz (before) 20-21 % CPU / 58-65 % runnable; 100 Hz 4-5 % / 17-21 %; 50 Hz 2 % / 6 %; not
+#: for one): 1000 Hz 20-21 % CPU / 58-65 % runnable; 100 Hz 4-5 % / 17-21 %; 50 Hz 2 % / 6 %; not
 #: acquiring: 0 % at any rate. The relay's thread blocks in select (0 % idle).
 DEFAULT_TRIGGER_POLL_HZ = 100.0
 #: default seed of the relay's packet loss

@@ -4,7 +4,7 @@ packet loss seeded.
 ``FakeCameraServer`` puts one in front of each ``Aravis.GvFakeCamera``. The relay owns the camera's public GVCP port
 (``address``:3956); the fake's own GVCP socket is moved to an ephemeral port of the same address (see
 ``FakeCameraServer``). Every client (one GVCP socket: a process's ``ArvGvDevice``) gets its own upstream socket, so
-the fake still tells controllers apart (control privilege, heartbeat take-over work as before).
+the fake still tells controllers apart (control privilege, heartbeat take-over work as on the bare fake).
 
 What the relay adds to the fake's behaviour:
 

@@ -28,8 +28,8 @@ from bracketry.recording.reader import RecordingReader, UnreadableRecordingError
 #: (Aravis #312): neighbouring brackets differ by far more than 0.5 %.
 EXPOSURE_READ_TOLERANCE_REL = 0.005
 EXPOSURE_READ_TOLERANCE_US = 1.0
-#: recordings made before ``exposure_us_read`` existed: their chunk value (``exposure_us_reported``) is checked as it
-#: always was, relative and absolute (µs), whichever is larger
+#: recordings without ``exposure_us_read``: their chunk value (``exposure_us_reported``) is checked with this wider
+#: tolerance, relative and absolute (µs), whichever is larger
 EXPOSURE_TOLERANCE_REL = 0.02
 EXPOSURE_TOLERANCE_US = 20.0
 #: at most this many trigger_seqs listed per problem kind
@@ -50,8 +50,9 @@ def exposure_read_mismatch(read_us: float, commanded_us: float) -> bool:
 
 def _exposure_mismatch(meta: Any, commanded_us: float) -> bool | None:
     """Whether ``meta``'s exposure disagrees with its pulse width; None when the frame has no exposure read back.
-    Frames with ``exposure_source`` (read-back fields) are checked by :func:`exposure_read_mismatch`; older ones,
-    without it, by their chunk value and the old tolerance, as before."""
+    Frames with ``exposure_source`` (read-back fields) are checked by :func:`exposure_read_mismatch`; frames of
+    recordings without it by their chunk value (``exposure_us_reported``) and the chunk's wider tolerance
+    (``EXPOSURE_TOLERANCE_*``)."""
     source = getattr(meta, "exposure_source", None)
     if source is not None:
         read = float(meta.exposure_us_read)
