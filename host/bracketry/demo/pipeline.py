@@ -170,10 +170,11 @@ def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]
 def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     """Step 3: all AE methods in closed loop (one shared-decode pass, with a progress bar), VO, metrics, statistics
     and the report."""
-    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, run_benchmark
+    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, parse_methods, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
 
-    methods = check_methods(p)
+    ids = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
+    methods = check_methods(p)  # their names
     slam = slam_options(p.slam, pace=p.slam_pace, echo=echo)  # the default vocabulary is built here the first time
     out = p.out_dir / "benchmark"
     if out.exists():  # a new recording: earlier runs and cached results belong to the old one
@@ -191,7 +192,7 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
         bar.update(1)
 
     try:
-        return run_benchmark(BenchmarkConfig([dataset], methods, out, reference="ae50", workers=p.workers,
+        return run_benchmark(BenchmarkConfig([dataset], ids, out, reference="ae50", workers=p.workers,
                                              drl_weights=p.drl_weights, progress=True, slam=slam,
                                              stats_methods=p.stats_methods, method_options=p.method_options),
                              on_done=done)
