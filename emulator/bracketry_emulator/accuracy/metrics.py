@@ -41,9 +41,3 @@ def noise_floor_dn(frames: list[np.ndarray]) -> float:
         raise ValueError("the noise floor needs at least 2 frames")
     sq = [rmse_dn(a, b) ** 2 for a, b in itertools.pairwise(frames)]
     return float(np.sqrt(np.mean(sq)))
-
-
-def temporal_noise_dn(frames: list[np.ndarray]) -> float:
-    """Temporal noise (DN) of repeated frames of a static scene: sqrt of the mean per-pixel unbiased variance."""
-    stack = np.stack([f.astype(np.float32) for f in frames])
-    return float(np.sqrt(np.mean(stack.var(axis=0, ddof=1))))

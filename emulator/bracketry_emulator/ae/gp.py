@@ -197,10 +197,6 @@ class GaussianProcess1D:
         d2 = (xa[:, None] - xb[None, :]) ** 2
         return c * np.exp(-0.5 * d2 / length**2)
 
-    def _neg_lml(self, log_theta: np.ndarray, x: np.ndarray, y: np.ndarray) -> tuple[float, np.ndarray]:
-        """Negative log marginal likelihood and its gradient in (log c, log l) of data (x, y) (float64 (n,))."""
-        return _Objective(x, y, self.noise_var)(log_theta)
-
     def fit(self, x: np.ndarray, y: np.ndarray) -> GaussianProcess1D:
         """Fit hyper-parameters (max log marginal likelihood, seeded restarts) and the posterior."""
         x = np.asarray(x, dtype=np.float64).ravel()

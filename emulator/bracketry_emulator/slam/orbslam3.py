@@ -32,8 +32,6 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-import numpy as np
-
 from bracketry.errors import BracketryError
 
 STATE_MAP = {"OK": "OK", "OK_KLT": "OK", "RECENTLY_LOST": "LOST", "LOST": "LOST", "NO_IMAGES_YET": "LOST",
@@ -175,9 +173,3 @@ def run_orbslam3(run_dir: str | Path, calibration_dir: str | Path, out_dir: str 
     ``slam.json`` (plus the child's ``wall_s`` and ``cpu_s``)."""
     request = orbslam3_request(run_dir, calibration_dir, options, max_frames)
     return wait_child(start_child(request, out_dir, options.timeout_s))
-
-
-def pose_from_result(pose_wc: np.ndarray) -> np.ndarray:
-    """4x4 float64 camera-to-world pose from the binding's (4, 4) array."""
-    T = np.asarray(pose_wc, dtype=np.float64).reshape(4, 4)
-    return T

@@ -235,17 +235,6 @@ class CameraModel:
                         "e/gain_e_per_dn), 0, 4095); code = lut[level] (srgb: floor(4095*OETF(level/4095)))")
         return d
 
-    @classmethod
-    def from_dict(cls, d: dict) -> CameraModel:
-        """Inverse of :meth:`to_dict` (derived keys ignored)."""
-        keys = {"full_well_e", "read_noise_e", "black_level_dn", "qe_rgb", "vignetting", "response", "pcalib",
-                "poisson"}
-        kwargs = {k: v for k, v in d.items() if k in keys}
-        for k in ("qe_rgb", "vignetting"):
-            if k in kwargs:
-                kwargs[k] = tuple(kwargs[k])
-        return cls(**kwargs)
-
     def write_json(self, path: Path, extra: dict | None = None) -> None:
         """Write the parameters (and ``extra`` keys) as JSON."""
         d = self.to_dict()

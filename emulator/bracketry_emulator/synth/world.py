@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import dataclasses
 from collections import OrderedDict
-from pathlib import Path
 
 import numpy as np
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.synth.calibration import SIDES, StereoCalibration, default_calibration, load_calibration
+from bracketry_emulator.synth.calibration import SIDES, StereoCalibration, default_calibration
 from bracketry_emulator.synth.camera_model import CameraModel
 from bracketry_emulator.synth.render import RenderResult, SideRenderer
 from bracketry_emulator.synth.scene import PRESETS, Scene, build_scene
@@ -97,13 +96,6 @@ class World:
         self._R_gw = R0.T  # world -> ground-truth frame rotation
         self._p0 = p0
 
-    @classmethod
-    def from_calibration_dir(cls, calibration_dir: Path, preset: str = "forest-winter", seed: int = 0,
-                             resolution: tuple[int, int] = DEFAULT_RESOLUTION, **kwargs: object) -> World:
-        """A world whose rig uses the intrinsics of ``calibration_dir/left.yaml`` and ``right.yaml``."""
-        calib = load_calibration(calibration_dir, resolution[0], resolution[1])
-        return cls(preset, seed, resolution, calibration=calib, **kwargs)  # type: ignore[arg-type]
-
     # ------------------------------------------------------------------ geometry
     def _check_side(self, side: str) -> None:
         if side not in SIDES:
@@ -123,12 +115,6 @@ class World:
         T[:3, :3] = mat_mul(self._R_gw, R)
         T[:3, 3] = mat_mul(self._R_gw, p - self._p0)
         return T
-
-    def gt_from_world(self, points_w: np.ndarray) -> np.ndarray:
-        """Scene-frame points (N, 3) -> ground-truth-frame points (N, 3) (explicit sums: the same on every CPU)."""
-        v = np.asarray(points_w, dtype=np.float64) - self._p0
-        R = self._R_gw
-        return np.stack([(v[:, 0] * R[k, 0] + v[:, 1] * R[k, 1]) + v[:, 2] * R[k, 2] for k in range(3)], axis=1)
 
     # ------------------------------------------------------------------ rendering
     def _renderer(self, side: str) -> SideRenderer:

@@ -239,10 +239,3 @@ class RecordingReader:
                 msg = self._message(rbody, topics, off)
                 if msg is not None:
                     yield msg
-
-
-def read_all(path: str | Path, topics: set[str] | None = None) -> tuple[list[RawMessage], ReadReport, Any]:
-    """Convenience: every message (of ``topics``), the read report and the reader (schemas, channels)."""
-    reader = RecordingReader(path)
-    msgs = list(reader.messages(topics))
-    return msgs, reader.report, reader

@@ -458,11 +458,6 @@ def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[i
         raise
 
 
-def frame_ids(images: Sequence[np.ndarray]) -> list[int | None]:
-    """The index each recorded image carries (None: unknown)."""
-    return [read_frame_id(im) for im in images]
-
-
 def groundtruth_lines(world: Any, t_s: Callable[[int], float], frames: Sequence[tuple[int, int | None]]
                       ) -> tuple[list[str], int]:
     """TUM lines of recorded frames ``(stamp_ns, carried index k or None)``: each known frame gets the pose of the

@@ -192,10 +192,6 @@ class Session:
         return int(reply["state"]["counters"].get("trigger_events", 0)) if reply else 0
 
 
-def _screen_has(rig: SimulatedRig, text: str) -> bool:
-    return any(text in line for line in rig.screen())
-
-
 def _sensors_and_record(s: Session) -> None:
     rig = s.rig
     s.wait_screen("READY", 30.0)

@@ -540,11 +540,6 @@ def encode_message(msg_type, seq, fields=None):
     return encode_frame(msg_type, seq, pack_payload(msg_type, fields))
 
 
-def decode_message(frame):
-    """Fields dict of a :class:`Frame` (see :func:`unpack_payload`); ValueError on unknown type / wrong length."""
-    return unpack_payload(frame.msg_type, frame.payload)
-
-
 def nack_code_for(msg_type, payload):
     """The NACK code a device answers for a structurally bad command (unknown type, wrong length, a value its type
     does not allow), or 0 if it is well formed."""

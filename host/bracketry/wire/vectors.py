@@ -47,14 +47,6 @@ def fields_to_json(fields: dict[str, Any]) -> dict[str, Any]:
     return {k: (v.hex() if isinstance(v, bytes | bytearray) else v) for k, v in fields.items()}
 
 
-def fields_from_json(fields: dict[str, Any]) -> dict[str, Any]:
-    """Inverse of :func:`fields_to_json` (``uid`` hex -> bytes)."""
-    out = dict(fields)
-    if "uid" in out and isinstance(out["uid"], str):
-        out["uid"] = bytes.fromhex(out["uid"])
-    return out
-
-
 # One or more example messages per type: (name, msg_type, seq, fields)
 _VALID: list[tuple[str, int, int, dict[str, Any]]] = [
     ("hello_request", bproto.MSG_HELLO, 0, {}),
