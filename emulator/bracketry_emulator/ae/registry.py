@@ -122,20 +122,10 @@ def _instantiate(factory: Any, spec: str, options: dict[str, Any]) -> AEMethod:
 
 def load_plugin(spec: str, options: dict[str, Any] | None = None) -> AEMethod:
     """A method from ``pkg.module:Attr`` (import path) -> instance of that class/factory (no arguments)."""
-    options = options or {}
-    module_name, _, attr = spec.partition(":")
-    if not module_name or not attr:
+    if ":" not in spec:
         raise BracketryError(f"bad plugin spec {spec!r} (use pkg.module:ClassName)")
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise BracketryError(f"cannot import AE plugin module {module_name}: {exc}") from exc
-    factory: Any = module
-    for part in attr.split("."):
-        factory = getattr(factory, part, None)
-        if factory is None:
-            raise BracketryError(f"AE plugin module {module_name} has no {attr}")
-    return _instantiate(factory, spec, options)
+    factory, _name = _load_factory(spec)
+    return _instantiate(factory, spec, options or {})
 
 
 def get_method(spec: str, **options: Any) -> AEMethod:
