@@ -95,16 +95,15 @@ class FrameSource:
         return tasks
 
     def finish(self) -> None:
-        """Cancel the decodes not started, wait for the others (none writes into the buffer after this), and
-        release every position (finished or failed: nobody waits for this reader)."""
+        """Release every position (finished or failed: nobody waits for this reader, and a decode of this reader
+        waiting for a slot it held goes on), cancel the decodes not started and wait for the others (none writes
+        into the buffer after this)."""
         handles: list[Future[Any]] = [*self._picks.values(), *self._pending]
-        try:
-            for f in handles:
-                f.cancel()
-            for f in handles:
-                if not f.cancelled():
-                    f.exception()
-        finally:
-            self.frames.release(self.reader, RELEASED_ALL)
-            self._picks.clear()
-            self._pending.clear()
+        for f in handles:
+            f.cancel()
+        self.frames.release(self.reader, RELEASED_ALL)
+        for f in handles:
+            if not f.cancelled():
+                f.exception()
+        self._picks.clear()
+        self._pending.clear()

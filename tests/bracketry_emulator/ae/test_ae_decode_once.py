@@ -385,3 +385,53 @@ def test_the_shared_condition_wakes_waiters_in_other_processes_and_threads() -> 
     for p in procs:
         p.join(30)
         assert p.exitcode == 0
+
+
+FAIL_AFTER_PREFETCH = """
+import sys
+from bracketry_emulator.ae import LoopConfig, run_methods
+from bracketry_emulator.ae import scheduler as sch
+
+sch.RING_SLOTS = 1  # the next sequence's decode waits for this worker to leave the current one
+try:
+    run_methods(sys.argv[1], ["ae50", "failing_ae:FailsAtStep2"], sys.argv[2], workers=int(sys.argv[3]),
+                config=LoopConfig(), progress=False)
+except Exception as exc:
+    print(str(exc))
+"""
+
+FAILING_METHOD = """
+import time
+
+
+class FailsAtStep2:
+    name = "fails"
+
+    def reset(self, init_exposure_us):
+        self.n = 0
+
+    def next_exposure_us(self, image, exposure_us, meta):
+        self.n += 1
+        if self.n == 2:
+            time.sleep(0.5)  # ae50's next sequence is decoding (waiting for the slot) by now
+            raise ValueError("boom")
+        return exposure_us * 1.5
+"""
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_method_failing_after_another_asked_for_the_next_sequence_ends_the_run(tmp_path: Path,
+                                                                                 workers: int) -> None:
+    """One slot: ae50's next sequence decodes on the decode thread, waiting for the worker to leave the current
+    one; the next method fails there: the run ends with its error (the decode was waited for before the worker
+    released its slot, forever)."""
+    import os
+    import subprocess
+    import sys
+
+    rec = _bracket_tree(tmp_path / "rec", 3)
+    (tmp_path / "failing_ae.py").write_text(FAILING_METHOD)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(tmp_path), os.environ.get("PYTHONPATH", "")])}
+    out = subprocess.run([sys.executable, "-c", FAIL_AFTER_PREFETCH, str(rec), str(tmp_path / "out"), str(workers)],
+                         capture_output=True, text=True, timeout=120, env=env)
+    assert out.returncode == 0 and "boom" in out.stdout, out.stderr[-2000:]
