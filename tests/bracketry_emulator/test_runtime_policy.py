@@ -58,9 +58,14 @@ json.dump({"blas": blas_threads(), "opencv": cv2.getNumThreads(), "gc": list(gc.
 """
 
 
+_SETTINGS_ENV = ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "GOTO_NUM_THREADS", "MKL_NUM_THREADS",
+                 "OPENCV_FOR_THREADS_NUM", "GLIBC_TUNABLES")
+
+
 def _probe(profile: str, **env: str) -> dict:
-    base = {k: v for k, v in os.environ.items()
-            if k not in ("OPENBLAS_NUM_THREADS", "GLIBC_TUNABLES") and not k.startswith("MALLOC_")}
+    # a fresh process with none of the thread and heap settings this test process may have picked up (e.g. Dask's
+    # nanny puts OMP_NUM_THREADS=1 into os.environ when an earlier test of the session started a cluster)
+    base = {k: v for k, v in os.environ.items() if k not in _SETTINGS_ENV and not k.startswith("MALLOC_")}
     res = subprocess.run([sys.executable, "-c", PROBE, profile], env={**base, **env}, capture_output=True, text=True,
                          timeout=120)
     assert res.returncode == 0, res.stderr
