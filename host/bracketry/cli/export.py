@@ -9,6 +9,7 @@ import click
 from bracketry.cli.options import EXIT_OK, WORKERS, input_path, overwrite_option, quiet_option
 from bracketry.errors import BracketryError
 from bracketry.outputs import check_output
+from bracketry.png import PNG_COMPRESSIONS
 
 
 @click.command("export")
@@ -21,10 +22,10 @@ from bracketry.outputs import check_output
               help="PNG encoding threads (0 = one per CPU).")
 @click.option("--keep-unpaired", is_flag=True,
               help="borealhdr: also write frames whose partner of the other camera was lost (counted either way).")
-@click.option("--png-compression", type=click.Choice(["opencv", "stored", "fast", "small"]), default="opencv",
+@click.option("--png-compression", type=click.Choice(PNG_COMPRESSIONS), default="opencv",
               show_default=True,
-              help="borealhdr: lossless PNG encoding: opencv (cv2.imwrite defaults), stored (no compression: ~17x "
-                   "faster to write, ~1.4x larger), fast (Huffman only) or small (zlib level 1).")
+              help="borealhdr: lossless PNG encoding: opencv (cv2.imwrite defaults), stored (no compression: ~8x "
+                   "faster to write at 640x400, the largest), fast (Huffman only) or small (zlib level 1).")
 @overwrite_option()
 @quiet_option()
 def command(recording: Path, fmt: str, out: Path, workers: int, keep_unpaired: bool, png_compression: str,
