@@ -190,23 +190,29 @@ def test_frames_that_are_only_late_are_no_problem(mode: str, behind_left: int, b
         assert (c.frames, c.drops, c.unpaired, c.late, c.timestamp_mismatches) == (N_PULSES, 0, 0, 0, 0), side
 
 
+class Emitted:
+    """The sets a Pairer emits, and the pulse being fed (``now``) when each came out."""
+
+    def __init__(self) -> None:
+        self.sets: list[PairedSet] = []
+        self.at: dict[int, int] = {}
+        self.now = 0
+
+    def __call__(self, pset: PairedSet) -> None:
+        self.sets.append(pset)
+        self.at[pset.trigger_seq] = self.now
+
+
 @pytest.mark.parametrize("mode", ["count", "host_time"])
 def test_a_silent_camera_is_given_up_on_at_the_backstop(mode: str) -> None:
     """The right camera stops after pulse 30 (dead): each later set waits for it BACKSTOP pulses (it may only be
     behind: it delivered nothing after that pulse), then goes with the right frame counted as a drop; the left
     camera's frames are all kept, and what is held stays bounded by the backstop."""
-    sets: list[PairedSet] = []
-    emitted_at: dict[int, int] = {}
-    now = 0
-
-    def on_set(pset: PairedSet) -> None:
-        sets.append(pset)
-        emitted_at[pset.trigger_seq] = now
-
-    p = Pairer(SIDES, on_set, window=WINDOW, initial_alignment=mode)
+    out = Emitted()
+    p = Pairer(SIDES, out, window=WINDOW, initial_alignment=mode)
     base = 5_000_000_000 if mode == "host_time" else 77_000_000
-    for now in range(80):
-        k = now
+    for k in range(80):
+        out.now = k
         p.add_event(event(k))
         for i, side in enumerate(SIDES):
             if side == "right" and k > 30:
@@ -215,11 +221,11 @@ def test_a_silent_camera_is_given_up_on_at_the_backstop(mode: str) -> None:
                                    float(BRACKETS[k % 6]), k))
         assert len(p._pending) <= BACKSTOP + 1  # memory: bounded by the backstop
     assert p.backstop_pulses() == BACKSTOP
-    by_seq = {s.trigger_seq: s for s in sets}
+    by_seq = {s.trigger_seq: s for s in out.sets}
     assert all(by_seq[k].complete for k in range(31))
     given_up = [k for k in range(31, 80) if k in by_seq]
     assert given_up == list(range(31, 80 - BACKSTOP))  # the rest waits (flushed at STOP)
-    assert all(emitted_at[k] == k + BACKSTOP for k in given_up)
+    assert all(out.at[k] == k + BACKSTOP for k in given_up)
     assert all(by_seq[k].frames["right"] is None and by_seq[k].frames["left"].true_pulse == k for k in given_up)
     assert p.counters["right"].drops == len(given_up) and p.counters["left"].drops == 0
     p.flush()
@@ -230,18 +236,11 @@ def test_a_missed_pulse_is_given_up_on_one_window_after_the_camera_moved_on() ->
     """The right camera misses pulse 40 but keeps delivering: the set of 40 goes once every source delivered
     something 2 * WINDOW pulses after it (a shift under confirmation: it may move frames), well before the
     backstop, with the drop on 40."""
-    sets: list[PairedSet] = []
-    emitted_at: dict[int, int] = {}
-    now = 0
-
-    def on_set(pset: PairedSet) -> None:
-        sets.append(pset)
-        emitted_at[pset.trigger_seq] = now
-
-    p = Pairer(SIDES, on_set, window=WINDOW)
+    out = Emitted()
+    p = Pairer(SIDES, out, window=WINDOW)
     index = dict.fromkeys(SIDES, 0)
-    for now in range(80):
-        k = now
+    for k in range(80):
+        out.now = k
         p.add_event(event(k))
         for side in SIDES:
             if side == "right" and k == 40:
@@ -249,9 +248,9 @@ def test_a_missed_pulse_is_given_up_on_one_window_after_the_camera_moved_on() ->
             p.add_frame(SynthFrame(side, index[side] + 1, index[side], "success",
                                    77_000_000 + k * PERIOD_US * 1000, 0, float(BRACKETS[k % 6]), k))
             index[side] += 1
-    by_seq = {s.trigger_seq: s for s in sets}
+    by_seq = {s.trigger_seq: s for s in out.sets}
     assert [k for k, s in by_seq.items() if s.frames["right"] is None] == [40]
-    assert emitted_at[40] < 40 + BACKSTOP
+    assert out.at[40] < 40 + BACKSTOP
     assert p.counters["right"].drops == 1 and p.counters["right"].unpaired == 0
 
 
