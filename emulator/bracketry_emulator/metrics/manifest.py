@@ -11,6 +11,7 @@ A manifest is a YAML (or JSON) file::
         groundtruth: campus/run2_gt.txt               # optional, default: <path>/groundtruth.txt
         calibration: campus/calibration               # optional, default: <path>/calibration or ../calibration
         runs: campus/emulated_run2                    # optional: already emulated runs (<runs>/<method>/...)
+        split: test                                   # optional: train | test (for learning methods), default test
 
 A dataset path that is a folder (not a manifest) is one trajectory of subset ``all``. A folder that already holds
 emulated runs (``<folder>/<method>/images_left/``) is used as they are (no closed loop is run for those methods).
@@ -18,6 +19,7 @@ emulated runs (``<folder>/<method>/images_left/``) is used as they are (no close
 
 from __future__ import annotations
 
+import dataclasses
 from collections import defaultdict
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,6 +27,10 @@ from pathlib import Path
 import yaml
 
 from bracketry.errors import BracketryError
+
+
+#: The splits a manifest entry may name (``split:``): trajectories to train learning methods on, and held-out ones.
+SPLITS = ("train", "test")
 
 
 @dataclass(frozen=True)
@@ -37,6 +43,7 @@ class TrajectorySpec:
     groundtruth: Path | None = None
     calibration: Path | None = None
     runs: Path | None = None
+    split: str = "test"
 
     def groundtruth_path(self) -> Path | None:
         """The TUM reference of this trajectory, or None when it has none."""
@@ -76,7 +83,12 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
                                      f"'path:' string (got {e!r:.60})")
             tp = (p.parent / e["path"]).resolve()
             extra = {k: (p.parent / e[k]).resolve() for k in ("groundtruth", "calibration", "runs") if e.get(k)}
-            out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all")), **extra))
+            split = str(e.get("split", "test"))
+            if split not in SPLITS:
+                raise BracketryError(f"bad dataset manifest {p}: trajectories[{k}].split is {split!r}; "
+                                     f"expected one of {', '.join(SPLITS)}")
+            out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all")), **extra,
+                                      split=split))
     except (OSError, KeyError, TypeError, yaml.YAMLError) as exc:
         raise BracketryError(f"bad dataset manifest {p}: {exc}") from exc
     return out
@@ -98,7 +110,7 @@ def expand_datasets(paths: list[str | Path]) -> list[TrajectorySpec]:
     for s in specs:
         seen[s.name] += 1
         name = s.name if seen[s.name] == 1 else f"{s.name}_{seen[s.name]}"
-        unique.append(TrajectorySpec(name, s.path, s.subset, s.groundtruth, s.calibration, s.runs))
+        unique.append(dataclasses.replace(s, name=name))
     return unique
 
 
