@@ -87,7 +87,8 @@ def test_a_failing_method_is_one_line_naming_it(answer: Any, words: str) -> None
 
 
 def test_methods_declare_their_scheduling_traits() -> None:
-    assert method_traits("kim") == MethodTraits(40, None, "scipy")
+    assert method_traits("kim") == MethodTraits(40)  # its GP is numpy only (fixed hyper-parameters)
+    assert method_traits("kim", parity="upstream").start_up == "scipy"
     assert method_traits("zhang", parity="upstream") == MethodTraits(45, None, "scipy")
     assert method_traits("ae50") == method_traits("ae50") == MethodTraits(1, "classical-50-default")
     assert method_traits("fix", parity="upstream") == MethodTraits(1, "classical-50-upstream")

@@ -1,0 +1,62 @@
+"""Kim's default mode climbs toward its metric's peak on static scenes (dark, mid, bright), 8 steps from 4 ms.
+
+The scenes are the AE tests' textured irradiance (other seeds and dynamic ranges than the other tests) scaled so the
+metric peaks at the longest exposure (dark), inside the range (mid) or at the shortest (bright); the peak is found by
+sweeping the metric over 25 log-spaced exposures.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+from ae_scenes import closed_loop, irradiance, render
+
+from bracketry_emulator.ae import get_method
+from bracketry_emulator.ae.kim import KimAE
+
+GRID_US = np.geomspace(500.0, 35_000.0, 25)
+META = {"side": "left"}
+
+
+def _metric_curve(irr: np.ndarray) -> np.ndarray:
+    kim = KimAE()
+    return np.array([kim.metric(render(irr, t), META) for t in GRID_US])
+
+
+@pytest.mark.parametrize("seed,dynamic_range", [(5, 8.0), (6, 64.0)])
+@pytest.mark.parametrize("scale,where", [(1 / 30, "dark"), (1.0, "mid"), (40.0, "bright")])
+def test_kim_climbs_to_the_metric_peak(seed: int, dynamic_range: float, scale: float, where: str) -> None:
+    irr = irradiance(seed=seed, dynamic_range=dynamic_range) * scale
+    curve = _metric_curve(irr)
+    peak_us = float(GRID_US[int(np.argmax(curve))])
+    if where == "dark":
+        assert peak_us == GRID_US[-1]
+    elif where == "bright":
+        assert peak_us == GRID_US[0]
+    else:
+        assert GRID_US[3] < peak_us < GRID_US[-4]
+    traj = closed_loop(get_method("kim"), irr, 4000.0, 8)
+    settled_us = float(np.median(traj[-3:]))
+    # toward the peak from 4 ms, and close to it in ln(exposure)
+    assert abs(np.log(settled_us / peak_us)) < min(np.log(1.5), abs(np.log(4000.0 / peak_us))) + 1e-9, traj
+    kim = KimAE()
+    settled, start = kim.metric(render(irr, settled_us), META), kim.metric(render(irr, 4000.0), META)
+    assert settled >= 0.5 * curve.max(), traj  # the metric has a narrow spike at the onset of saturation
+    if abs(np.log(4000.0 / peak_us)) > np.log(1.5):
+        assert settled > start, traj
+
+
+def test_kim_leaves_a_saturated_scene_for_the_shortest_exposure() -> None:
+    """400x too bright: saturated at every exposure, metric 0 everywhere; it must end at the shortest exposure."""
+    irr = irradiance(seed=7) * 400.0
+    assert _metric_curve(irr).max() == 0.0
+    traj = closed_loop(get_method("kim"), irr, 4000.0, 8)
+    assert traj[-1] == pytest.approx(500.0) and all(b <= a for a, b in itertools.pairwise(traj)), traj
+
+
+def test_kim_leaves_a_black_scene_for_longer_exposures() -> None:
+    irr = irradiance(seed=7) * 1e-5
+    traj = closed_loop(get_method("kim"), irr, 4000.0, 3)
+    assert traj[1] > traj[0] and traj[-1] == pytest.approx(35_000.0), traj
