@@ -80,6 +80,21 @@ class FrameSource:
         return {side: {e: self.frames.view(pos, si, ei) for ei, e in enumerate(seq.exposures_us)}
                 for si, side in enumerate(self.sides)}
 
+    def peek(self, pos: int, seq_i: int) -> dict[str, dict[int, np.ndarray]]:
+        """Every bracket of every side of sequence ``seq_i`` (at position ``pos``, after the one loaded last) as
+        {side: {exposure_us: uint16 HxW view}}, without releasing the current position: for methods that read the
+        next step (``looks_ahead``; the buffer holds two positions at least)."""
+        assert self.pool is not None, "start the frame source first"
+        seq = self.sequences[seq_i]
+        keys = [(si, ei) for si in range(len(self.sides)) for ei in range(len(seq.exposures_us))]
+        tasks = [(pos, seq_i, si, ei) for si, ei in keys if (pos, si, ei) not in self._asked]
+        self._asked.update((pos, si, ei) for _, _, si, ei in tasks)
+        self._pending += self.frames.prefetch(tasks, self.pool)
+        for si, ei in keys:
+            self.frames.fetch((pos, seq_i, si, ei))
+        return {side: {e: self.frames.view(pos, si, ei) for ei, e in enumerate(seq.exposures_us)}
+                for si, side in enumerate(self.sides)}
+
     def _resolve(self, pos: int, seq_i: int, pick: Pick) -> list[DecodeTask]:
         """The AE camera's candidates decoded, its choice of bracket; that bracket of the other cameras decoded
         unless another thread does it (then :meth:`load` waits for it). Returns their tasks."""

@@ -1,9 +1,9 @@
 """Method ids -> AE method objects, and the plugin loader.
 
-Built-in ids: ``fix``, ``ae30``, ``ae50``, ``ae70``, ``shim``, ``wang``, ``kim``, ``zhang``, ``drl`` and
-``constant-<ms>`` (e.g. ``constant-8``). A plugin is ``pkg.module:ClassName`` (any importable class or factory
-returning an object with the :class:`AEMethod` protocol) or the name of an entry point in the group
-``bracketry.ae_methods``. See PLUGINS.md.
+Built-in ids: ``fix``, ``ae30``, ``ae50``, ``ae70``, ``shim``, ``wang``, ``kim``, ``zhang``, ``drl``,
+``constant-<ms>`` (e.g. ``constant-8``) and the non-causal control ``oracle`` (:mod:`.oracle`). A plugin is
+``pkg.module:ClassName`` (any importable class or factory returning an object with the :class:`AEMethod` protocol)
+or the name of an entry point in the group ``bracketry.ae_methods``. See PLUGINS.md.
 
 One name per method: :func:`resolve_methods` turns the ids given (and their options) into :class:`MethodSpec`s whose
 ``name`` (a built-in's id; a plugin's ``name`` attribute) names the output folders, CSV rows, statistics and plots,
@@ -33,8 +33,10 @@ if TYPE_CHECKING:
 
 #: The eight methods of the paper, in its table order.
 PAPER_METHODS: tuple[str, ...] = ("fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl")
-#: Every built-in id (``all`` on the command line is :data:`PAPER_METHODS`; ``zhang`` by name).
-BUILTIN_METHODS: tuple[str, ...] = (*PAPER_METHODS, "zhang")
+#: Every built-in id (``all`` on the command line is :data:`PAPER_METHODS`; ``zhang`` and ``oracle`` by name).
+BUILTIN_METHODS: tuple[str, ...] = (*PAPER_METHODS, "zhang", "oracle")
+#: Built-ins that are not AE methods a camera could run: they read the next step's images (see :mod:`.oracle`)
+NON_CAUSAL_METHODS: tuple[str, ...] = ("oracle",)
 ENTRY_POINT_GROUP = "bracketry.ae_methods"
 _CONSTANT = re.compile(r"^constant-(\d+(?:\.\d*)?|\.\d+)$")
 
@@ -81,6 +83,10 @@ def _builtin(name: str, options: dict[str, Any]) -> Callable[[], AEMethod] | Non
         from .wang import WangAE
 
         return WangAE
+    if name == "oracle":
+        from .oracle import OracleAE
+
+        return OracleAE
     if name == "drl":
         from .drl import DrlAE
 
@@ -199,11 +205,14 @@ class MethodTraits:
             worker, whose writer links those images instead of encoding them again (None: no group).
         start_up: a one-off start-up that methods naming the same ``start_up`` share within a worker process (e.g.
             ``"scipy"``: importing it, ~0.35 CPU-s here): kept on one worker where the balance allows (None: none).
+        looks_ahead: the method reads the next step's images (``looks_ahead``: a non-causal control such as the
+            oracle, given ``meta["look_ahead"]``); the frame buffer then holds two sequences at least.
     """
 
     step_cost: int = DEFAULT_STEP_COST
     step_group: str | None = None
     start_up: str | None = None
+    looks_ahead: bool = False
 
 
 def method_traits(spec: str, **options: Any) -> MethodTraits:
@@ -222,7 +231,7 @@ def method_traits(spec: str, **options: Any) -> MethodTraits:
     else:
         source = factory() if factory is not None else get_method(spec, **options)
     return MethodTraits(int(getattr(source, "step_cost", DEFAULT_STEP_COST)), getattr(source, "step_group", None),
-                        getattr(source, "start_up", None))
+                        getattr(source, "start_up", None), bool(getattr(source, "looks_ahead", False)))
 
 
 # -- one name per method -------------------------------------------------------------------------------------------

@@ -40,7 +40,7 @@ from ..emulation import EmulatorConfig, RunWriter
 from ..stages import StageTimes
 from .decode import FrameBuffer, frame_shape
 from .decode_plan import decode_strategy
-from .emulation_cache import EmulationCache
+from .emulation_cache import EmulationCache, needed_brackets
 from .frame_source import FrameSource
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
 from .registry import MethodTraits, get_method
@@ -141,8 +141,14 @@ class Worker:
         self._loops: dict[str, Iterator[Step]] = {}
         self._brackets: dict[str, dict[int, np.ndarray]] = {}  # the current sequence's {side: {exposure_us: frame}}
         self._seq_i = -1
+        #: methods that read the next step's images (``looks_ahead``, non-causal controls such as the oracle)
+        self._looking_ahead: set[str] = set()
+        self._ahead_emu = EmulationCache(s.emulator)  # the next sequence's emulations (a look-ahead's own cache)
+        self._ahead: tuple[int, dict[str, dict[int, np.ndarray]]] | None = None  # (sequence, its brackets)
         for spec in specs:
             method = get_method(spec, seed=s.seed, drl_weights=s.drl_weights, parity=s.emulator.parity)
+            if getattr(method, "looks_ahead", False):
+                self._looking_ahead.add(spec)
             self.targets[spec] = initial_exposure_us(method, s.init_exposure_us)
             self.runs[spec] = MethodRun(spec)
             self._loops[spec] = iter_loop(method, itertools.count(), functools.partial(self._emulate, spec), name=spec,
@@ -162,9 +168,13 @@ class Worker:
             for pos, seq_i in enumerate(seq_indices):
                 self.emu.clear()  # one sequence at a time: bounded memory; saturation keys use this slot's array ids
                 self._brackets = {}
+                self._ahead = None
+                self._ahead_emu.clear()
                 self._brackets = self.source.load(pos, seq_i, self.targets.values())
                 self._seq_i = seq_i
                 nxt = seq_indices[pos + 1] if pos + 1 < len(seq_indices) else None
+                if nxt is not None and self._looking_ahead:  # every bracket of the next sequence, kept in its slot
+                    self._ahead = (nxt, self.source.peek(pos + 1, nxt))
                 for spec, loop in self._loops.items():
                     step = next(loop)
                     self.runs[spec].steps.append(step)
@@ -174,8 +184,10 @@ class Worker:
                     progress(1)
         finally:
             self._brackets = {}
+            self._ahead = None
             self.source.finish()
         self.emu.clear()
+        self._ahead_emu.clear()
 
     def _emulate(self, spec: str, seq_i: int, target_us: float) -> Frame:
         """The ``emulate`` of method ``spec``'s loop: the AE camera's image of the current sequence at ``target_us``.
@@ -191,10 +203,32 @@ class Worker:
         for feed in self.feeds.get(spec, ()):
             feed.write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
         ae_img = images[s.ae_camera]
+        meta: dict[str, Any] = {"side": s.ae_camera, "response": self.emu.emulator.response,
+                                "shared_gray": self.emu.shared_gray(seq_i, s.ae_camera, target_us)}
+        if spec in self._looking_ahead:
+            meta["look_ahead"] = self._look_ahead
         return Frame(ae_img.image, seq.timestamps_ns[s.ae_camera][ae_img.source_exposure_us],
-                     ae_img.source_exposure_us, seq.index,
-                     {"side": s.ae_camera, "response": self.emu.emulator.response,
-                      "shared_gray": self.emu.shared_gray(seq_i, s.ae_camera, target_us)})
+                     ae_img.source_exposure_us, seq.index, meta)
+
+    def _look_ahead(self, target_us: float, offset: int) -> np.ndarray | None:
+        """The AE camera's image (uint16 HxW, read-only) at ``target_us`` of the current sequence (``offset`` 0) or
+        the next one (1; None after the last), emulated as the loop would emulate it (the same source bracket of the
+        stereo decision). Given only to methods that declare ``looks_ahead`` (non-causal controls)."""
+        s = self.settings
+        if offset == 0:
+            seq_i, brackets, emu = self._seq_i, self._brackets, self.emu
+        elif offset == 1:
+            if self._ahead is None:
+                return None
+            (seq_i, brackets), emu = self._ahead, self._ahead_emu
+        else:
+            raise ValueError(f"look_ahead offset must be 0 or 1, got {offset}")
+        exps = tuple(next(iter(brackets.values())))
+        needed = needed_brackets(exps, target_us, s.emulator.selection)
+        subsets = {side: {e: frames[e] for e in needed} for side, frames in brackets.items()}
+        decide = (s.ae_camera,) if s.emulator.parity == "upstream" else None
+        source = emu.source(seq_i, subsets, target_us, decide)
+        return emu.emulate(seq_i, s.ae_camera, subsets[s.ae_camera], target_us, source).image
 
     def close(self) -> tuple[dict[str, MethodRun], dict[str, dict[str, float]]]:
         """Finish the writes and the feeds; returns (the runs, this worker's stage times)."""
@@ -243,6 +277,8 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
     groups = partition(traits, n_workers)
     seq_bytes = FrameBuffer.sequence_bytes(len(settings.emulate_sides), n_exp, shape)
     slots = max(1, min(n_seq, RING_SLOTS, memory_budget_bytes // max(seq_bytes, 1)))
+    if any(t.looks_ahead for t in traits.values()):  # the current sequence and the next one are read together
+        slots = max(slots, min(n_seq, 2))
     frames = FrameBuffer(sequences, settings.emulate_sides, shape, n_exp, slots, preloaded, positions=n_seq,
                          readers=len(groups))
 

@@ -1,0 +1,175 @@
+"""The oracle (method id ``oracle``): per step, the exposure of a fine grid under which the most ORB features are
+tracked into the next frame. NON-CAUSAL: it reads the next step's brackets, which no camera can. A control row that
+frames the benchmark's results (how well any exposure choice could do), not an AE method.
+
+Score of a candidate exposure ``e`` for step k+1, at step k (the documented image-quality score)::
+
+    tracked(e) = cross-checked ORB matches between the image of step k (as the method got it) and I_{k+1}(e)
+                 with Hamming distance <= 40, / ORB_FEATURES
+
+where ``I_{k+1}(e)`` is the AE camera's image of step k+1 emulated at ``e`` (the closed loop's own emulation, the
+same source bracket a method asking for ``e`` gets), both turned into 8-bit gray as the localisation sees them
+(:func:`~bracketry_emulator.features.demosaic.to_gray8`) and area-downscaled to at most :data:`WORK_WIDTH` columns.
+When no exposure reaches :data:`MIN_SHARE` (the current frame is too dark or blank to track from, e.g. at the
+start), ``e`` is judged from the current step's image at ``e`` instead (``I_k(e)`` into ``I_{k+1}(e)``).
+The answer for step k+1 is the ``e`` with the largest score; scores within 5 % of the best count as equal and then
+the one nearest the current target (in stops) wins, then the shorter (less motion blur); the current target when
+nothing is tracked under any ``e``.
+
+Why this score: the benchmark's localisation (ORB-SLAM3, and the built-in VO) tracks ORB features frame to frame,
+so the share of features that survive into the next frame under one exposure is the quantity that decides whether
+it keeps tracking; it penalises what a gradient or feature count alone does not: noise and clipping (features that
+do not repeat), and motion blur at long exposures of a moving camera (the next frame is blurred over its own
+interval), and it rewards what the tracker needs at a change of light: a next frame that looks like the current one.
+
+Grid: exposures ``hi_ms * 2**(-k / steps_per_stop)`` for k = 0, 1, ... down to ``lo_ms`` (default 0.25..32 ms in
+half stops: 15 exposures), clipped to the loop's bounds. Searched coarse to fine: every whole stop (8 exposures),
+then from the best one along the grid in both directions while the score does not drop (a unimodal score needs
+2 more). Cost per evaluated exposure: one emulation, one ORB extraction and one matching, about 4 ms at 320 px
+width (about 90 ms a step at 320x200 here).
+
+What the method sees (beside the image): ``meta["look_ahead"](target_us, offset)`` -> uint16 HxW Bayer image of
+the AE camera at ``target_us`` for the current step (offset 0) or the next one (offset 1; None at the last step),
+given by the closed loop (:mod:`.scheduler`) to methods that declare ``looks_ahead = True``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import cv2
+import numpy as np
+
+from ..features.demosaic import to_gray8
+
+#: ORB features extracted per image (4 pyramid levels at <= 320 px: a cheap stand-in for ORB-SLAM3's extractor)
+ORB_FEATURES = 300
+#: largest Hamming distance (of 256 bits) of a match that counts as tracked
+MAX_HAMMING = 40
+#: the score's images are area-downscaled to at most this many columns (for speed; ORB's pyramid starts there)
+WORK_WIDTH = 320
+#: scores within this share of the best are as good: the oracle then keeps nearest its current exposure (a steady
+#: exposure is easier to track than one that jumps between equal scores)
+KEEP_WITHIN = 0.05
+#: below this best share the current frame is too poor to judge from (dark, blank): each exposure is then judged
+#: by the share tracked from the current step's image at that exposure into the next step's
+MIN_SHARE = 0.05
+
+LookAhead = Callable[[float, int], "np.ndarray | None"]
+
+
+def exposure_grid_us(lo_ms: float, hi_ms: float, steps_per_stop: int, bounds_us: tuple[float, float]) -> list[float]:
+    """The oracle's grid (us, ascending): ``hi_ms * 2**(-k/steps_per_stop)`` down to ``lo_ms``, clipped to
+    ``bounds_us`` (duplicates after clipping removed)."""
+    n = math.floor(math.log2(hi_ms / lo_ms) * steps_per_stop + 1e-9) + 1
+    raw = [hi_ms * 1000.0 * 2.0 ** (-k / steps_per_stop) for k in range(n)]
+    lo_b, hi_b = bounds_us
+    return sorted({round(min(max(e, lo_b), hi_b), 3) for e in raw})
+
+
+def work_gray8(image: np.ndarray, width: int = WORK_WIDTH) -> np.ndarray:
+    """uint8 gray of a uint16 HxW Bayer mosaic as the localisation sees it, area-downscaled to ``width`` columns."""
+    gray = to_gray8(image)
+    h, w = gray.shape
+    if w <= width:
+        return gray
+    return cv2.resize(gray, (width, max(1, round(h * width / w))), interpolation=cv2.INTER_AREA)
+
+
+class ORBTracker:
+    """ORB features of 8-bit images and the share of them tracked between two images."""
+
+    def __init__(self, n_features: int = ORB_FEATURES, max_hamming: int = MAX_HAMMING) -> None:
+        self.n_features, self.max_hamming = n_features, max_hamming
+        self.orb = cv2.ORB_create(  # type: ignore[attr-defined]
+            nfeatures=n_features, nlevels=4, fastThreshold=10, edgeThreshold=15, patchSize=15)
+        self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
+
+    def describe(self, gray8: np.ndarray) -> np.ndarray | None:
+        """ORB descriptors (uint8 Nx32) of ``gray8``, None when it has no feature."""
+        _kp, desc = self.orb.detectAndCompute(gray8, None)
+        return desc if desc is not None and len(desc) else None
+
+    def tracked_share(self, a: np.ndarray | None, b: np.ndarray | None) -> float:
+        """Cross-checked matches of descriptors ``a`` into ``b`` within :attr:`max_hamming`, / ``n_features``."""
+        if a is None or b is None:
+            return 0.0
+        matches = self.matcher.match(a, b)
+        return sum(1 for m in matches if m.distance <= self.max_hamming) / float(self.n_features)
+
+
+class OracleAE:
+    """Non-causal control: the grid exposure that maximises the share of ORB features tracked into the next frame
+    (see the module docstring)."""
+
+    name = "oracle"
+    #: the closed loop gives this method ``meta["look_ahead"]`` (the next step's images): not a causal method
+    looks_ahead = True
+    #: shown in reports
+    non_causal = True
+    #: relative cost of one step (~15 emulations and ORB extractions), for balancing worker processes
+    step_cost = 150
+
+    def __init__(self, lo_ms: float = 0.25, hi_ms: float = 32.0, steps_per_stop: int = 2) -> None:
+        if not (0 < lo_ms < hi_ms) or steps_per_stop < 1:
+            raise ValueError(f"oracle grid needs 0 < lo_ms < hi_ms and steps_per_stop >= 1, got {lo_ms}, {hi_ms}, "
+                             f"{steps_per_stop}")
+        self.lo_ms, self.hi_ms, self.steps_per_stop = float(lo_ms), float(hi_ms), int(steps_per_stop)
+        self.tracker = ORBTracker()
+        #: per step: {exposure_us: score} of the last decision (for inspection and tests)
+        self.last_scores: dict[float, float] = {}
+
+    def reset(self, init_exposure_us: float) -> None:
+        self.last_scores = {}
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+        look: LookAhead | None = meta.get("look_ahead")
+        if look is None:
+            raise ValueError("the oracle needs the closed loop's look-ahead (meta['look_ahead']); it runs only in "
+                             "bracketry's closed loop")
+        grid = exposure_grid_us(self.lo_ms, self.hi_ms, self.steps_per_stop,
+                                tuple(meta.get("bounds_us", (1.0, 1e9))))  # type: ignore[arg-type]
+        if look(grid[0], 1) is None:  # the last step: its answer is never used
+            return float(exposure_us)
+        current = self._describe(image)
+        tracked = self._search(grid, exposure_us,
+                               lambda e: self.tracker.tracked_share(current, self._describe(look(e, 1))))
+        if max(tracked.values()) < MIN_SHARE:  # the current frame tracks nothing: judge each exposure on its own
+            tracked = self._search(grid, exposure_us, lambda e: self.tracker.tracked_share(
+                self._describe(look(e, 0)), self._describe(look(e, 1))))
+        self.last_scores = dict(sorted(tracked.items()))
+        if max(tracked.values()) <= 0.0:
+            return float(exposure_us)
+        return self._pick(tracked, exposure_us)
+
+    def _search(self, grid: list[float], current_us: float, score_of: Callable[[float], float]) -> dict[float, float]:
+        """{exposure: score} of the grid exposures evaluated: every whole stop (from the longest), then from the
+        best one along the grid in both directions while the score does not drop."""
+        scores: dict[float, float] = {}
+
+        def score(e: float) -> float:
+            if e not in scores:
+                scores[e] = score_of(e)
+            return scores[e]
+
+        for i in range(len(grid) - 1, -1, -self.steps_per_stop):
+            score(grid[i])
+        best_i = grid.index(self._pick(scores, current_us))
+        for step in (-1, 1):
+            i = best_i + step
+            while 0 <= i < len(grid) and score(grid[i]) >= scores[grid[i - step]]:
+                i += step
+        return scores
+
+    @staticmethod
+    def _pick(scores: dict[float, float], current_us: float) -> float:
+        """The exposure of the best score; among those within :data:`KEEP_WITHIN` of it, the nearest (in stops)
+        to ``current_us``, then the shortest."""
+        best = max(scores.values())
+        near = [e for e, v in scores.items() if v >= best * (1.0 - KEEP_WITHIN)]
+        return min(near, key=lambda e: (abs(math.log2(e / current_us)), e))
+
+    def _describe(self, image: np.ndarray | None) -> np.ndarray | None:
+        return None if image is None else self.tracker.describe(work_gray8(image))
