@@ -50,6 +50,7 @@ LAYER_TABLE: dict[str, str] = {
     "bracketry.recording.mcap_writer": BASE,
     "bracketry.recording.reader": BASE,
     "bracketry.recording.verify": BASE,
+    "bracketry.calibration": BASE,
     "bracketry.sim": INTEGRATION,
     "bracketry.demo": INTEGRATION,
     "bracketry.testing": INTEGRATION,

@@ -19,6 +19,7 @@ from bracketry.cli.options import (
     quiet_option,
 )
 from bracketry.errors import BracketryError
+from bracketry_emulator.cli.synth_calibration import command as calibration_cmd
 
 
 def _parse_ms_list(text: str, what: str) -> tuple[float, ...]:
@@ -167,3 +168,6 @@ def static_cmd(out: Path, overwrite: bool, preset: str, seed: int, response: str
     click.echo(f"wrote static protocol: {index['sweep']['n']} sweep exposures, {len(reps)} x {repeats} repeats, "
                f"{len(brackets)} brackets ({side}) to {out}")
     return EXIT_OK
+
+
+command.add_command(calibration_cmd)  # bracketry synth calibration (its own module)
