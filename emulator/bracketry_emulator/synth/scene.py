@@ -140,6 +140,32 @@ class Scene:
     snow_caps: bool
 
 
+@dataclass(frozen=True)
+class SceneOptions:
+    """What a scenario changes in the content of a preset's world (defaults: the preset as it is).
+
+    Attributes:
+        lighting: sun and sky (default: the preset's).
+        tree_density: factor on the number of trees of the forest preset (the same draws when 1.0).
+        treeline_scale: factor on the height of the far treeline.
+        fresh_snow: float32 (n,) weight in [0, 1] of fresh, texture-poor snow per polar-angle bin of the ground
+            (bin i covers angles -pi + 2 pi i / n .. + 2 pi / n about the loop centre), or None.
+    """
+
+    lighting: Lighting | None = None
+    tree_density: float = 1.0
+    treeline_scale: float = 1.0
+    fresh_snow: np.ndarray | None = None
+
+    def key(self) -> tuple:
+        """A hashable summary (for scene caches)."""
+        lt = self.lighting
+        lkey = None if lt is None else (tuple(lt.sun_dir.tolist()), lt.sun_rgb, lt.sky_rgb, lt.zenith_rgb,
+                                        lt.horizon_rgb, lt.halo_rgb, lt.halo_rad, lt.disk_radiance, lt.disk_rad)
+        snow = None if self.fresh_snow is None else np.asarray(self.fresh_snow, np.float32).tobytes()
+        return (lkey, self.tree_density, self.treeline_scale, snow)
+
+
 def _sun_dir(elev_deg: float, az_deg: float) -> np.ndarray:
     e, a = np.radians(elev_deg), np.radians(az_deg)
     return np.array([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)])
@@ -166,8 +192,8 @@ def _place_away_from_path(rng: np.random.Generator, n: int, half_m: float, path_
     return pts[keep]
 
 
-def _forest_prims(rng: np.random.Generator, path_xy: np.ndarray) -> Primitives:
-    n = 520
+def _forest_prims(rng: np.random.Generator, path_xy: np.ndarray, density: float = 1.0) -> Primitives:
+    n = max(1, round(520 * density))
     radius = rng.uniform(0.07, 0.32, n)
     xy = rng.uniform(-48.0, 48.0, (n, 2))
     d = np.min(np.linalg.norm(xy[:, None, :] - path_xy[None, ::4, :], axis=2), axis=1)
@@ -249,9 +275,32 @@ def _shadow_mask(prims: Primitives, sun_dir: np.ndarray, origin_m: tuple[float, 
     return soft
 
 
+def _fresh_snow_weight(table: np.ndarray, half_m: float, texel_m: float, n: int) -> np.ndarray:
+    """Fresh-snow weight of every texel of the square [-half_m, half_m]^2 from its polar angle: float32 (N, N)."""
+    c = (np.arange(n, dtype=np.float64) + 0.5) * texel_m - half_m
+    phi = np.arctan2(c[:, None], c[None, :])  # rows = y, cols = x
+    nb = table.size
+    idx = np.clip(((phi + np.pi) * (nb / (2 * np.pi))).astype(np.int64), 0, nb - 1)
+    return np.asarray(table, np.float32)[idx]
+
+
 def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.ndarray, half_m: float,
-                   texel_m: float) -> list[np.ndarray]:
-    """Per-channel ground albedo of the square [-half_m, half_m]^2 (three float32 (N, N) arrays, rows = y)."""
+                   texel_m: float, fresh_snow: np.ndarray | None = None) -> list[np.ndarray]:
+    """Per-channel ground albedo of the square [-half_m, half_m]^2 (three float32 (N, N) arrays, rows = y).
+
+    ``fresh_snow`` (see :class:`SceneOptions`) covers the ground by smooth, nearly textureless snow where it is 1."""
+    albedo = _base_albedo(preset, noises, path_dist_m, half_m, texel_m)
+    if fresh_snow is None or not np.any(fresh_snow > 0):
+        return albedo
+    n = path_dist_m.shape[0]
+    w = _fresh_snow_weight(fresh_snow, half_m, texel_m, n)
+    smooth = np.float32(0.9) + np.float32(0.012) * noises["big"].grid(-half_m, -half_m, texel_m, n)
+    return [(a * (1 - w) + w * smooth * np.float32(c)).astype(np.float32)
+            for a, c in zip(albedo, (1.0, 1.02, 1.06))]
+
+
+def _base_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.ndarray, half_m: float,
+                 texel_m: float) -> list[np.ndarray]:
     n = path_dist_m.shape[0]
 
     def field(name: str) -> np.ndarray:
@@ -292,16 +341,20 @@ def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.n
 
 
 def _ground_level(preset: str, lighting: Lighting, prims: Primitives, noises: dict[str, ValueNoise],
-                  path_xy: np.ndarray, half_m: float, size: int, pad: int = 4) -> GroundTexture:
+                  path_xy: np.ndarray, half_m: float, size: int, pad: int = 4,
+                  fresh_snow: np.ndarray | None = None) -> GroundTexture:
     texel = 2 * half_m / size
     origin = (-half_m, -half_m)
     canvas = np.full((size, size), 255, np.uint8)
     pts = np.round((path_xy - np.asarray(origin)) / texel * 16).astype(np.int32)
     cv2.polylines(canvas, [pts], True, 0, thickness=1, lineType=cv2.LINE_8, shift=4)
     path_dist = cv2.distanceTransform(canvas, cv2.DIST_L2, 5).astype(np.float32) * np.float32(texel)
-    albedo = _ground_albedo(preset, noises, path_dist, half_m, texel)
-    shadow = _shadow_mask(prims, lighting.sun_dir, origin, texel, size)
-    direct = np.float32(max(lighting.sun_dir[2], 0.0)) * (1.0 - shadow)
+    albedo = _ground_albedo(preset, noises, path_dist, half_m, texel, fresh_snow)
+    if max(lighting.sun_rgb) > 0:
+        shadow = _shadow_mask(prims, lighting.sun_dir, origin, texel, size)
+        direct = np.float32(max(lighting.sun_dir[2], 0.0)) * (1.0 - shadow)
+    else:  # no direct sun (dusk, overcast): no cast shadows to draw
+        direct = np.zeros((size, size), np.float32)
     stacked = np.zeros((3 * (size + pad), size), np.float32)
     for ch in range(3):
         light = np.float32(lighting.sun_rgb[ch]) * direct + np.float32(lighting.sky_rgb[ch])
@@ -323,25 +376,33 @@ def _downsample(level: GroundTexture, factor: int) -> GroundTexture:
     return GroundTexture(level.origin_m, level.texel_m * factor, n, level.pad, stacked)
 
 
-def build_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: float = 1.0) -> Scene:
-    """Draw the world of ``preset`` from ``seed``. ``detail`` scales the texture resolutions (1.0: 4 cm near)."""
+def build_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: float = 1.0,
+                options: SceneOptions | None = None) -> Scene:
+    """Draw the world of ``preset`` from ``seed``. ``detail`` scales the texture resolutions (1.0: 4 cm near);
+    ``options`` (a scenario's lighting and content) default to the preset's own."""
     if preset not in PRESETS:
         raise BracketryError(f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
+    opts = options if options is not None else SceneOptions()
     rng = np.random.default_rng(np.random.SeedSequence([seed, PRESETS.index(preset)]))
-    lighting = _lighting(preset)
+    lighting = opts.lighting if opts.lighting is not None else _lighting(preset)
     path_xy = trajectory.centreline()
-    prims = _forest_prims(rng, path_xy) if preset == "forest-winter" else _campus_prims(rng, path_xy)
+    prims = (_forest_prims(rng, path_xy, opts.tree_density) if preset == "forest-winter"
+             else _campus_prims(rng, path_xy))
     noises = {"fine": ValueNoise(rng, 0.6, octaves=5), "mid": ValueNoise(rng, 0.25, octaves=3),
               "big": ValueNoise(rng, 9.0, octaves=4), "speck": ValueNoise(rng, 0.16, octaves=2)}
     n0 = round(2048 * detail / 64) * 64
-    fine = _ground_level(preset, lighting, prims, noises, path_xy, 40.96, n0)
-    levels = [fine, _downsample(fine, 4), _ground_level(preset, lighting, prims, noises, path_xy, 128.0, 512)]
+    snow = opts.fresh_snow
+    fine = _ground_level(preset, lighting, prims, noises, path_xy, 40.96, n0, fresh_snow=snow)
+    levels = [fine, _downsample(fine, 4),
+              _ground_level(preset, lighting, prims, noises, path_xy, 128.0, 512, fresh_snow=snow)]
     n_az = 1440
     tl = ValueNoise(rng, 0.05, octaves=4, lattice=64)
     az = np.linspace(0.0, 1.0, n_az, endpoint=False, dtype=np.float32)[None, :]
     hnoise = tl(az * 3.2, np.zeros_like(az))[0]
     base = 17.0 if preset == "forest-winter" else 11.0
     heights = (base + 6.0 * hnoise + 2.0 * rng.standard_normal(n_az) * 0.3).astype(np.float32)
+    if opts.treeline_scale != 1.0:
+        heights = (heights * np.float32(opts.treeline_scale)).astype(np.float32)
     bark = (1.0 + 0.35 * ValueNoise(rng, 1.0, octaves=4, lattice=64)(
         *np.meshgrid(np.arange(256, dtype=np.float32) / 5.0, np.arange(64, dtype=np.float32) / 40.0))).astype(
         np.float32)

@@ -17,6 +17,7 @@ from bracketry.errors import BracketryError
 from bracketry_emulator.synth.calibration import SIDES, StereoCalibration, default_calibration
 from bracketry_emulator.synth.camera_model import CameraModel
 from bracketry_emulator.synth.render import RenderResult, SideRenderer
+from bracketry_emulator.synth.scenario import LightField, Scenario, calibration_to_dict, scenario_scene
 from bracketry_emulator.synth.scene import PRESETS, Scene, build_scene
 from bracketry_emulator.synth.trajectory import LoopTrajectory, mat_mul
 
@@ -61,6 +62,9 @@ class World:
         calibration: the stereo rig; default: the real sample's intrinsics scaled to ``resolution``, baseline 0.18 m.
         camera: the camera model (default :class:`CameraModel`: sRGB-encoded 12-bit codes like the real sample).
         trajectory: the walk (default :class:`LoopTrajectory`, 2 km/h).
+        scenario: a :class:`~bracketry_emulator.synth.scenario.Scenario` (its sun, content and lighting events over
+            time: the radiance at ``t_s`` is lit as at ``t_s``); None: the preset's fixed light. Its preset must be
+            ``preset`` (see :func:`~bracketry_emulator.synth.scenario.world_from_scenario`).
         detail: ground texture resolution factor (1.0: 4 cm texels near the path).
         motion_blur: integrate the moving scene over each exposure (slices of ``blur_slice_us``, at most
             ``blur_max`` renders per frame); off by default (frames are instantaneous at their timestamp).
@@ -69,6 +73,7 @@ class World:
     def __init__(self, preset: str = "forest-winter", seed: int = 0,
                  resolution: tuple[int, int] = DEFAULT_RESOLUTION, calibration: StereoCalibration | None = None,
                  camera: CameraModel | None = None, trajectory: LoopTrajectory | None = None,
+                 scenario: Scenario | None = None,
                  detail: float = 1.0, cache_size: int = 8, motion_blur: bool = False,
                  blur_slice_us: float = 8000.0, blur_max: int = 4) -> None:
         if preset not in PRESETS:
@@ -87,7 +92,16 @@ class World:
             self.calibration = self.calibration.scaled(w, h)
         self.camera = camera if camera is not None else CameraModel()
         self.trajectory = trajectory if trajectory is not None else LoopTrajectory()
-        self.scene: Scene = cached_scene(preset, self.seed, self.trajectory, detail)
+        self.detail = float(detail)
+        self.scenario = scenario
+        self._light: LightField | None = None
+        if scenario is None:
+            self.scene: Scene = cached_scene(preset, self.seed, self.trajectory, detail)
+        else:
+            if scenario.preset != preset:
+                raise BracketryError(f"scenario {scenario.name!r} is of preset {scenario.preset!r}, not {preset!r}")
+            self.scene = scenario_scene(scenario, self.seed, self.trajectory, self.detail)
+            self._light = LightField(scenario, self.scene, self.trajectory, self.seed)
         self._renderers: dict[str, SideRenderer] = {}
         self._gain: dict[str, np.ndarray] = {}
         self._cache: OrderedDict[tuple[str, float], RenderResult] = OrderedDict()
@@ -137,6 +151,8 @@ class World:
         renderer = self._renderer(side)
         R, p = self.world_pose(t_s, side)
         res = renderer.render(R, p)
+        if self._light is not None:  # the scenario's light at this instant
+            res = self._light.apply(res, renderer, R, p, float(t_s))
         self._cache[key] = res
         while len(self._cache) > self._cache_size:
             self._cache.popitem(last=False)
@@ -190,6 +206,11 @@ class World:
         return {
             "preset": self.preset,
             "seed": self.seed,
+            "detail": self.detail,
+            "trajectory_init": {f.name: (list(v) if isinstance(v := getattr(tr, f.name), tuple) else v)
+                                for f in dataclasses.fields(tr) if f.init},
+            "calibration": calibration_to_dict(self.calibration),
+            "scenario": self.scenario.to_dict() if self.scenario is not None else None,
             "resolution": list(self.resolution),
             "baseline_m": self.calibration.baseline_m,
             "trajectory": {"kind": "loop", "length_m": tr.length_m, "speed_kmh": tr.speed_kmh,
