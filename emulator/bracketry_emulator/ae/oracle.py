@@ -5,7 +5,7 @@ frames the benchmark's results (how well any exposure choice could do), not an A
 Score of a candidate exposure ``e`` for step k+1, at step k (the documented image-quality score)::
 
     tracked(e) = cross-checked ORB matches between the image of step k (as the method got it) and I_{k+1}(e)
-                 with Hamming distance <= 40, / ORB_FEATURES
+                 with Hamming distance <= 40 whose keypoint moved at most 8 % of the image size, / ORB_FEATURES
 
 where ``I_{k+1}(e)`` is the AE camera's image of step k+1 emulated at ``e`` (the closed loop's own emulation, the
 same source bracket a method asking for ``e`` gets), both turned into 8-bit gray as the localisation sees them
@@ -44,8 +44,12 @@ import numpy as np
 
 from ..features.demosaic import to_gray8
 
-#: ORB features extracted per image (4 pyramid levels at <= 320 px: a cheap stand-in for ORB-SLAM3's extractor)
-ORB_FEATURES = 300
+#: ORB features extracted per image at most (4 pyramid levels at <= 320 px: a cheap stand-in for ORB-SLAM3's)
+ORB_FEATURES = 500
+#: FAST threshold of the extraction (8-bit levels): weak corners (noise, quantisation) are not features
+FAST_THRESHOLD = 20
+#: a match counts as tracked when its keypoint moved at most this share of the image's larger side between frames
+MAX_MOTION = 0.08
 #: largest Hamming distance (of 256 bits) of a match that counts as tracked
 MAX_HAMMING = 40
 #: the score's images are area-downscaled to at most this many columns (for speed; ORB's pyramid starts there)
@@ -57,6 +61,8 @@ KEEP_WITHIN = 0.05
 #: by the share tracked from the current step's image at that exposure into the next step's
 MIN_SHARE = 0.05
 
+#: a frame's ORB features: keypoint positions (float32 Nx2, px), descriptors (uint8 Nx32), image size (px)
+Features = tuple[np.ndarray, np.ndarray, int]
 LookAhead = Callable[[float, int], "np.ndarray | None"]
 
 
@@ -84,20 +90,32 @@ class ORBTracker:
     def __init__(self, n_features: int = ORB_FEATURES, max_hamming: int = MAX_HAMMING) -> None:
         self.n_features, self.max_hamming = n_features, max_hamming
         self.orb = cv2.ORB_create(  # type: ignore[attr-defined]
-            nfeatures=n_features, nlevels=4, fastThreshold=10, edgeThreshold=15, patchSize=15)
+            nfeatures=n_features, nlevels=4, fastThreshold=FAST_THRESHOLD, edgeThreshold=15, patchSize=15)
         self.matcher = cv2.BFMatcher(cv2.NORM_HAMMING, crossCheck=True)
 
-    def describe(self, gray8: np.ndarray) -> np.ndarray | None:
-        """ORB descriptors (uint8 Nx32) of ``gray8``, None when it has no feature."""
-        _kp, desc = self.orb.detectAndCompute(gray8, None)
-        return desc if desc is not None and len(desc) else None
+    def describe(self, gray8: np.ndarray) -> Features | None:
+        """ORB keypoint positions (float32 Nx2, px) and descriptors (uint8 Nx32) of ``gray8``; None without any."""
+        kps, desc = self.orb.detectAndCompute(gray8, None)
+        if desc is None or not len(desc):
+            return None
+        xy = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+        return xy, desc, max(gray8.shape)
 
-    def tracked_share(self, a: np.ndarray | None, b: np.ndarray | None) -> float:
-        """Cross-checked matches of descriptors ``a`` into ``b`` within :attr:`max_hamming`, / ``n_features``."""
+    def tracked_share(self, a: Features | None, b: Features | None) -> float:
+        """Cross-checked matches of ``a``'s descriptors into ``b``'s within :attr:`max_hamming` whose keypoint moved
+        at most :data:`MAX_MOTION` of the image size, / ``n_features``."""
         if a is None or b is None:
             return 0.0
-        matches = self.matcher.match(a, b)
-        return sum(1 for m in matches if m.distance <= self.max_hamming) / float(self.n_features)
+        (xy_a, da, size), (xy_b, db, _) = a, b
+        matches = self.matcher.match(da, db)
+        if not matches:
+            return 0.0
+        qi = np.fromiter((m.queryIdx for m in matches), np.intp, len(matches))
+        ti = np.fromiter((m.trainIdx for m in matches), np.intp, len(matches))
+        dist = np.fromiter((m.distance for m in matches), np.float32, len(matches))
+        moved = np.linalg.norm(xy_a[qi] - xy_b[ti], axis=1)
+        ok = (dist <= self.max_hamming) & (moved <= MAX_MOTION * size)
+        return int(np.count_nonzero(ok)) / float(self.n_features)
 
 
 class OracleAE:
@@ -171,5 +189,5 @@ class OracleAE:
         near = [e for e, v in scores.items() if v >= best * (1.0 - KEEP_WITHIN)]
         return min(near, key=lambda e: (abs(math.log2(e / current_us)), e))
 
-    def _describe(self, image: np.ndarray | None) -> np.ndarray | None:
+    def _describe(self, image: np.ndarray | None) -> Features | None:
         return None if image is None else self.tracker.describe(work_gray8(image))
