@@ -19,6 +19,9 @@ DEFAULT_MAX_EXPOSURE_US = 64000.0
 
 #: the emulator's source-bracket selections; the default first
 SELECTIONS: tuple[str, ...] = ("highernosat", "upstream", "fusion")
+#: the brackets fusion combines (emulation/fusion.py): the pair around the target and every longer one, the pair
+#: only, or every bracket; the default first
+FUSION_BRACKETS: tuple[str, ...] = ("longer", "bounding", "all")
 #: the methods as their papers describe them, or as the authors' code runs them; the default first
 PARITIES: tuple[str, ...] = ("default", "upstream")
 #: camera response: the sample's sRGB-encoded codes (or a pcalib.txt path)

@@ -34,6 +34,8 @@ def mode_config(mode: str, crf: str, alpha: float, noise: NoiseModel | None = No
         return EmulatorConfig(selection="fusion", fusion_brackets="all", crf=crf, alpha=alpha, noise=model)
     return EmulatorConfig(selection=mode, crf=crf, alpha=alpha, noise=model)  # type: ignore[arg-type]
 Progress = Callable[[int, int], None]
+#: The fusion goal: at least this much lower median error than HigherNoSat inside the bracket range
+FUSION_MEDIAN_REDUCTION = 0.35
 #: Relative tolerance of the "fusion not worse than HigherNoSat at any target" check.
 NOT_WORSE_REL_TOL = 1e-3
 
@@ -134,7 +136,7 @@ def run_static(stack: StaticStack, crf: str = "srgb", response: Response | None 
 
 
 def goals(rows: list[dict], summary: dict, modes: Sequence[str], lo: int, hi: int) -> dict:
-    """The accuracy goals: HigherNoSat median <= 9 DN and max <= 73 DN (corrected); fusion >= 20% lower median in
+    """The accuracy goals: HigherNoSat median <= 9 DN and max <= 73 DN (corrected); fusion >= 35 % lower median in
     the bracket range and not worse at any target, against the noise-free truth (when the stack has it), corrected
     and raw. (The corrected metric floors at 0 once an emulation is less noisy than a real frame, so the noise-free
     truth is the discriminating one.) "Not worse" allows a 0.1 % relative tie (rounding of a few pixels far below
@@ -154,7 +156,7 @@ def goals(rows: list[dict], summary: dict, modes: Sequence[str], lo: int, hi: in
             tol = [NOT_WORSE_REL_TOL * r["modes"]["highernosat"][metric] + 1e-9 for r in rows]
             worst = max(diffs) if diffs else float("nan")
             n_worse = int(sum(d > t for d, t in zip(diffs, tol, strict=True)))
-            out[f"fusion_median_reduction_{metric}"] = {"value": gain, "met": bool(gain >= 0.2)}
+            out[f"fusion_median_reduction_{metric}"] = {"value": gain, "met": bool(gain >= FUSION_MEDIAN_REDUCTION)}
             out[f"fusion_not_worse_any_target_{metric}"] = {"worst_excess_dn": worst, "n_worse": n_worse,
                                                             "met": n_worse == 0}
     return out

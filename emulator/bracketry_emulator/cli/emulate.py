@@ -27,6 +27,7 @@ from bracketry_emulator.defaults import (
     DEFAULT_INIT_EXPOSURE_US,
     DEFAULT_MAX_EXPOSURE_US,
     DEFAULT_MIN_EXPOSURE_US,
+    FUSION_BRACKETS,
     MAX_EXPOSURE_OPTION_MS,
     PARITIES,
     PNG_COMPRESSIONS,
@@ -35,7 +36,7 @@ from bracketry_emulator.defaults import (
 
 
 def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str, depth: int,
-                     gain_db: float, noise: Path | None = None, fusion_brackets: str = "bounding",
+                     gain_db: float, noise: Path | None = None, fusion_brackets: str = FUSION_BRACKETS[0],
                      motion: str = "none", deghost_sigma: float | None = None) -> object:
     from bracketry_emulator.emulation.noise import resolve_noise_model
     from bracketry_emulator.emulation.settings import emulator_config
@@ -49,7 +50,8 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
             if found is None:
                 raise BracketryError("--parity upstream needs the authors' pcalib: pass --crf PATH/pcalib_inside1.txt")
             crf = str(found)
-    if selection != "fusion" and (fusion_brackets != "bounding" or motion != "none" or deghost_sigma is not None):
+    fusion_options = fusion_brackets != FUSION_BRACKETS[0] or motion != "none" or deghost_sigma is not None
+    if selection != "fusion" and fusion_options:
         raise BracketryError("--fusion-brackets, --motion and --deghost-sigma need --selection fusion")
     if deghost_sigma is not None and deghost_sigma <= 0:
         raise BracketryError(f"--deghost-sigma must be > 0, got {deghost_sigma}")
@@ -88,8 +90,8 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 @click.option("--noise", type=click.Path(path_type=Path, exists=True, dir_okay=False), default=None,
               help="Camera noise model for --gain-db and fusion weights: a calibrate-crf --noise-out JSON or a "
                    "camera_model.json [default: DATASET/camera_model.json when present, else built-in].")
-@click.option("--fusion-brackets", type=click.Choice(["bounding", "all"]), default="bounding", show_default=True,
-              help="Fusion: the two brackets around the target, or every bracket.")
+@click.option("--fusion-brackets", type=click.Choice(FUSION_BRACKETS), default=FUSION_BRACKETS[0], show_default=True,
+              help="Fusion: the two brackets around the target and every longer one, the two only, or every bracket.")
 @click.option("--motion", type=click.Choice(["none", "translation", "homography"]), default="none",
               show_default=True, help="Fusion: global motion compensation between the brackets.")
 @click.option("--deghost-sigma", type=Number(0.0, 1e6, min_open=True), default=None,

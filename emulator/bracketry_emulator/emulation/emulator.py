@@ -27,9 +27,9 @@ from bracketry.errors import BracketryError
 from ..crf import Lifting, Response, load_response
 from ..crf.response import Rounding
 from ..dataset.model import BracketSequence
-from ..defaults import SELECTIONS
+from ..defaults import FUSION_BRACKETS, SELECTIONS
 from .align import Motion
-from .fusion import FusionResult, fuse, fusion_brackets
+from .fusion import FusionBrackets, FusionResult, fuse, fusion_brackets
 from .kernel import LutCache, apply_lut
 from .noise import NoiseModel
 from .selection import SatCount, saturation_fraction, select_highernosat, select_upstream
@@ -51,7 +51,8 @@ class EmulatorConfig:
         depth: 12 or 8, the bit depth of written images (emulation itself is always on 12-bit codes).
         alpha: HigherNoSat saturation threshold (fraction of pixels).
         sat_count: HigherNoSat saturation count: "over" (code >= saturated code) or "both" (also code 0).
-        fusion_brackets: "bounding" (the pair around the target) or "all".
+        fusion_brackets: "longer" (the pair around the target and every longer bracket), "bounding" (the pair) or
+            "all".
         motion: fusion motion compensation between brackets: "none", "translation" or "homography".
         deghost_sigma: fusion: drop a non-reference bracket's pixel that disagrees with the reference bracket by more
             than this many noise standard deviations (None = off).
@@ -67,7 +68,7 @@ class EmulatorConfig:
     depth: int = 12
     alpha: float = 0.01
     sat_count: SatCount = "over"
-    fusion_brackets: Literal["bounding", "all"] = "bounding"
+    fusion_brackets: FusionBrackets = "longer"
     motion: Motion = "none"
     deghost_sigma: float | None = None
     noise: NoiseModel = field(default_factory=NoiseModel)
@@ -86,7 +87,7 @@ class EmulatorConfig:
             raise BracketryError(f"alpha must be in [0, 1], got {self.alpha}")
         if self.motion not in ("none", "translation", "homography"):
             raise BracketryError(f"unknown motion compensation {self.motion!r}")
-        if self.fusion_brackets not in ("bounding", "all"):
+        if self.fusion_brackets not in FUSION_BRACKETS:
             raise BracketryError(f"unknown fusion bracket set {self.fusion_brackets!r}")
         if self.parity == "upstream" and self.selection == "fusion":
             raise BracketryError("--parity upstream reproduces single-bracket emulation; it cannot be used with fusion")

@@ -1,6 +1,7 @@
 """Per-pixel irradiance fusion of several brackets (beyond the paper: no discrete bracket switch).
 
-For the brackets B (the pair around the target, or all), each pixel's irradiance (linear DN per us) is the
+For the brackets B (default ``longer``: the pair around the target and every longer bracket; or the pair only,
+``bounding``; or ``all``), each pixel's irradiance (linear DN per us) is the
 inverse-variance weighted mean of the per-bracket estimates e_i = f^-1(I_i) / t_i:
 
     w_i = valid_i * t_i**2 / (read_dn**2 + dn_per_e * E0 * t_i + q(I_i)**2),   E = sum w_i e_i / sum w_i
@@ -10,6 +11,10 @@ inverse-variance weighted mean of the per-bracket estimates e_i = f^-1(I_i) / t_
 - the weights use a common pre-estimate E0 = sum valid_i f^-1(I_i) / sum valid_i t_i, not each bracket's own noisy
   value, so they do not correlate with the noise (no bias); f^-1 of a code is the mean linear level of that code
   (SrgbResponse), so the coarse dark codes 0, 12, 25, ... carry no bias either;
+- the longer brackets matter most: where they are not saturated (the darker parts of the scene) they have the
+  smaller relative noise and coarser-code-free signal; on static stacks (``bracketry synth static``, truth RMSE,
+  targets inside the bracket range, 60 targets, median) fusing the pair and the longer brackets gives 0.70 / 0.63 lower
+  error than HigherNoSat (forest-winter / campus-summer), the pair alone 0.43 / 0.29; neither is worse at any target;
 - q(I)**2 is the quantization variance of the code step in linear units (at least one linear level);
 - optional global motion compensation warps every bracket onto the reference bracket before fusing.
 The variance of E (1 / sum w_i) is returned for gain emulation's noise matching.
@@ -37,8 +42,12 @@ class FusionResult:
     brackets_us: tuple[int, ...]
 
 
-def fusion_brackets(exposures_us: list[int], target_us: float, mode: Literal["bounding", "all"]) -> list[int]:
-    """The brackets fused for ``target_us``: all, or the pair around it (the nearest pair outside the range)."""
+FusionBrackets = Literal["longer", "bounding", "all"]
+
+
+def fusion_brackets(exposures_us: list[int], target_us: float, mode: FusionBrackets) -> list[int]:
+    """The brackets fused for ``target_us``: all; the pair around it (the nearest pair outside the range); or that
+    pair and every longer bracket (``longer``)."""
     exps = sorted(exposures_us)
     if mode == "all" or len(exps) <= 2:
         return exps
@@ -46,8 +55,12 @@ def fusion_brackets(exposures_us: list[int], target_us: float, mode: Literal["bo
     if bl == bh:
         i = exps.index(bl)
         j = i + 1 if i + 1 < len(exps) else i - 1
-        return sorted({bl, exps[j]})
-    return [bl, bh]
+        pair = sorted({bl, exps[j]})
+    else:
+        pair = [bl, bh]
+    if mode == "longer":
+        return [e for e in exps if e >= pair[0]]
+    return pair
 
 
 def _quant_var_table(response: Response) -> np.ndarray:
@@ -56,7 +69,7 @@ def _quant_var_table(response: Response) -> np.ndarray:
 
 
 def fuse(images: dict[int, np.ndarray], target_us: float, response: Response, noise: NoiseModel,
-         reference_us: int, brackets: Literal["bounding", "all"] = "bounding", motion: Motion = "none",
+         reference_us: int, brackets: FusionBrackets = "longer", motion: Motion = "none",
          deghost_sigma: float | None = None) -> FusionResult:
     """Fused irradiance map of one sequence (see the module docstring).
 

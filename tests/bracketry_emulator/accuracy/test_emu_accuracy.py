@@ -50,8 +50,10 @@ def test_emu_static_protocol_on_synthetic_stack(synth_stack: Path) -> None:
     # fusion: lower error against the noise-free truth inside the bracket range, never worse
     h = s["highernosat"]["truth"]["in_bracket_range"]["median"]
     f = s["fusion"]["truth"]["in_bracket_range"]["median"]
-    assert f < 0.8 * h
+    assert f < 0.65 * h  # the goal: 35 % lower
+    assert res["goals"]["fusion_median_reduction_truth"]["met"]
     assert res["goals"]["fusion_not_worse_any_target_raw"]["met"]
+    assert res["goals"]["fusion_not_worse_any_target_truth"]["met"]
     row = res["targets"][-1]
     assert set(row["brackets"]) == {"1000", "2000", "4000", "8000", "16000", "32000"}
     json.dumps(res)
@@ -100,3 +102,18 @@ def test_emu_accuracy_neighbours_command(borealhdr_sequence: Path, tmp_path: Pat
     res = json.loads((out / "accuracy_neighbours.json").read_text())
     assert res["sides"] == ["right"] and set(res["summary"]) == {"none", "translation"}
     assert (out / "accuracy_neighbours.png").is_file()
+
+
+@pytest.mark.parametrize("preset,seed", [("campus-summer", 11), ("forest-winter", 12)])
+def test_emu_fusion_goal_on_static_stacks_of_other_worlds(preset: str, seed: int, tmp_path: Path) -> None:
+    """Fusion (default bracket set: the pair around the target and every longer bracket) is >= 35 % below
+    HigherNoSat against the noise-free truth inside the bracket range (median), and not worse at any target."""
+    from bracketry_emulator.synth.world import World
+    from bracketry_emulator.synth.writer import write_static
+
+    write_static(World(preset=preset, seed=seed, resolution=(160, 100)), tmp_path, n_exposures=30, repeats=2,
+                 repeat_exposures_ms=(1.0, 8.0))
+    res = run_static(open_static_stack(tmp_path), modes=("highernosat", "fusion"))
+    g = res["goals"]
+    assert g["fusion_median_reduction_truth"]["value"] >= 0.35, g
+    assert g["fusion_not_worse_any_target_truth"]["met"] and g["fusion_not_worse_any_target_raw"]["met"], g
