@@ -41,6 +41,8 @@ class Frame:
         sequence_index: int, the dataset's index of the bracket sequence (-1 when unknown).
         meta: further entries of the method's ``meta`` (e.g. ``response``, ``side``, ``shared_gray``; see
             :mod:`.base`).
+        gain_db: float, the analog gain the image stands for (dB; beyond the longest bracket the emulator takes
+            that bracket's exposure and the rest as gain, see :mod:`..emulation.emulator`).
     """
 
     image: np.ndarray
@@ -48,6 +50,7 @@ class Frame:
     source_exposure_us: int
     sequence_index: int = -1
     meta: Mapping[str, Any] = field(default_factory=dict)
+    gain_db: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -62,6 +65,8 @@ class Step:
         next_exposure_us: float, the method's answer after clamping to the bounds (us): the next step's target.
         source_exposure_us: int, the bracket the image was emulated from (us).
         ae_s: float, wall time of the method's ``next_exposure_us`` call (s; the only non-deterministic field).
+        gain_db: float, the analog gain the step's image stands for (dB): the camera's exposure was
+            ``exposure_us / 10**(gain_db / 20)``.
     """
 
     step: int
@@ -71,6 +76,7 @@ class Step:
     next_exposure_us: float
     source_exposure_us: int
     ae_s: float
+    gain_db: float = 0.0
 
 
 def initial_exposure_us(method: AEMethod, default_us: float = DEFAULT_INIT_EXPOSURE_US) -> float:
@@ -111,7 +117,8 @@ def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, fl
         if not np.isfinite(nxt):
             raise BracketryError(f"AE method {label} returned a non-finite exposure at step {k}")
         nxt = float(np.clip(nxt, min_exposure_us, max_exposure_us))
-        yield Step(k, frame.sequence_index, frame.timestamp_ns, target, nxt, frame.source_exposure_us, ae_s)
+        yield Step(k, frame.sequence_index, frame.timestamp_ns, target, nxt, frame.source_exposure_us, ae_s,
+                   frame.gain_db)
         target = nxt
 
 

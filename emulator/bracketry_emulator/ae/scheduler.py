@@ -208,7 +208,7 @@ class Worker:
         if spec in self._looking_ahead:
             meta["look_ahead"] = self._look_ahead
         return Frame(ae_img.image, seq.timestamps_ns[s.ae_camera][ae_img.source_exposure_us],
-                     ae_img.source_exposure_us, seq.index, meta)
+                     ae_img.source_exposure_us, seq.index, meta, ae_img.gain_db)
 
     def _look_ahead(self, target_us: float, offset: int) -> np.ndarray | None:
         """The AE camera's image (uint16 HxW, read-only) at ``target_us`` of the current sequence (``offset`` 0) or

@@ -116,12 +116,13 @@ class LinkingRunWriter(RunWriter):
 
 
 def write_method_files(folder: Path, run: MethodRun, mode: str) -> None:
-    """``ae.csv`` (one row per step; exposures in ms, AE cost in ms) and ``summary.json`` of one method."""
+    """``ae.csv`` (one row per step; exposures in ms, AE cost in ms, the analog gain the image stands for in dB)
+    and ``summary.json`` of one method."""
     with open(folder / "ae.csv", "w") as f:
-        f.write("step,timestamp_ns,exposure_ms,next_exposure_ms,source_exposure_ms,ae_ms\n")
+        f.write("step,timestamp_ns,exposure_ms,next_exposure_ms,source_exposure_ms,ae_ms,gain_db\n")
         for s in run.steps:
             f.write(f"{s.step},{s.timestamp_ns},{s.exposure_us / 1000:.6f},{s.next_exposure_us / 1000:.6f},"
-                    f"{s.source_exposure_us / 1000:.6f},{s.ae_s * 1000:.3f}\n")
+                    f"{s.source_exposure_us / 1000:.6f},{s.ae_s * 1000:.3f},{s.gain_db:.4f}\n")
     (folder / "summary.json").write_text(json.dumps({**run.summary(), "mode": mode}, indent=2) + "\n")
 
 

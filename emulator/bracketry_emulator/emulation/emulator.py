@@ -10,7 +10,16 @@ Python API::
 
 Selection modes: ``highernosat`` (the paper, default), ``upstream`` (the authors' closer_least_sat), ``fusion``
 (per-pixel noise-weighted irradiance from the bounding brackets or all brackets, zero weight at saturation, optional
-global motion compensation; see :mod:`.fusion`). ``parity="upstream"`` reproduces the authors' output bit-exactly
+global motion compensation; see :mod:`.fusion`).
+
+Gain: a target beyond the longest bracket is emulated as the camera would take it with that bracket's exposure and
+an analog gain (``beyond="gain"``, the default): exposure = the longest bracket, gain = target / longest (times any
+``gain_db``), the image's signal scaled by the gain and the noise the sensor's noise model gives at that exposure and
+gain (the scaled longest bracket already has it; fusion's less noisy irradiance gets the missing part added).
+``EmulatedImage.exposure_us`` / ``gain_db`` record what the camera would have been set to (steps.csv).
+``beyond="extrapolate"`` records the target as an exposure (the signal is the same).
+
+``parity="upstream"`` reproduces the authors' output bit-exactly
 (with ``crf`` = their pcalib file: upstream lifting, truncation, no cap at the saturated code).
 """
 
@@ -59,6 +68,8 @@ class EmulatorConfig:
         noise: camera noise model (linear DN); used by fusion weights and gain emulation.
         add_noise: add the noise the emulated image lacks (default: only when gain_db != 0).
         seed: seed of the added noise (deterministic per call).
+        beyond: a target beyond the longest bracket: "gain" (the longest bracket's exposure plus analog gain, with
+            the noise model's noise) or "extrapolate" (recorded as the target exposure).
     """
 
     selection: Selection = "highernosat"
@@ -74,6 +85,7 @@ class EmulatorConfig:
     noise: NoiseModel = field(default_factory=NoiseModel)
     add_noise: bool | None = None
     seed: int = 0
+    beyond: Literal["gain", "extrapolate"] = "gain"
 
     def validate(self) -> None:
         """Raise BracketryError on an invalid combination (one clear line)."""
@@ -89,6 +101,8 @@ class EmulatorConfig:
             raise BracketryError(f"unknown motion compensation {self.motion!r}")
         if self.fusion_brackets not in FUSION_BRACKETS:
             raise BracketryError(f"unknown fusion bracket set {self.fusion_brackets!r}")
+        if self.beyond not in ("gain", "extrapolate"):
+            raise BracketryError(f"unknown rule beyond the longest bracket {self.beyond!r} (use gain or extrapolate)")
         if self.parity == "upstream" and self.selection == "fusion":
             raise BracketryError("--parity upstream reproduces single-bracket emulation; it cannot be used with fusion")
 
@@ -105,6 +119,9 @@ class EmulatedImage:
         factor: target_us / source_exposure_us (times the gain when gain_db != 0).
         selection: the selection mode that produced it.
         brackets_us: every bracket that contributed (one for single-bracket modes).
+        exposure_us: the camera exposure the image stands for (us; ``target_us`` unless gain stands in for the
+            exposure beyond the longest bracket); 0 = ``target_us``.
+        gain_db: the analog gain the image stands for (dB; 0 = none).
     """
 
     image: np.ndarray
@@ -113,6 +130,13 @@ class EmulatedImage:
     factor: float
     selection: str
     brackets_us: tuple[int, ...] = ()
+    exposure_us: float = 0.0
+    gain_db: float = 0.0
+
+    @property
+    def camera_exposure_us(self) -> float:
+        """The camera exposure (us) the image stands for."""
+        return self.exposure_us or self.target_us
 
     def to_depth(self, depth: int) -> np.ndarray:
         """The image at ``depth`` bits: 12 -> uint16 codes as is; 8 -> uint8(code / 16) (truncation, as upstream)."""
@@ -222,17 +246,30 @@ class Emulator:
             source = int(source_us)
         else:
             source = self.select(images, target_us) if len(images) > 1 else next(iter(images))
-        factor = target_us / source
-        total = factor * self.gain
+        exposure_us, gain = self.exposure_and_gain(images, target_us)
+        factor = exposure_us / source
+        total = factor * gain
         src = images[source]
-        if self.adds_noise:
+        if self._adds_noise(gain) and not (factor == 1.0 and self.config.add_noise is None):
             linear = total * self.response.icrf[src]
-            missing = self._missing_variance(self.response.icrf[src], factor)
+            missing = self._missing_variance(self.response.icrf[src], factor, gain)
             linear += self._rng(target_us, source).standard_normal(src.shape) * np.sqrt(missing)
             image = self.response.encode(linear, self.rounding)
-        else:
+        else:  # the source bracket's own noise, scaled, is the camera's at this exposure and gain
             image = apply_lut(self._luts.get(total, self.rounding), src)
-        return EmulatedImage(image, float(target_us), int(source), float(total), self.config.selection, (int(source),))
+        return EmulatedImage(image, float(target_us), int(source), float(total), self.config.selection, (int(source),),
+                             float(exposure_us), _db(gain))
+
+    def exposure_and_gain(self, images: dict[int, np.ndarray], target_us: float) -> tuple[float, float]:
+        """(camera exposure us, linear analog gain) that stand for ``target_us``: beyond the longest bracket with
+        ``beyond="gain"``, the longest bracket's exposure and the rest as gain; times the configured gain."""
+        longest = max(images)
+        if self.config.beyond == "gain" and target_us > longest:
+            return float(longest), self.gain * target_us / longest
+        return float(target_us), self.gain
+
+    def _adds_noise(self, gain: float) -> bool:
+        return self.config.add_noise if self.config.add_noise is not None else gain != 1.0
 
     def emulate_sequence(self, seq: BracketSequence, target_us: float, sides: tuple[str, ...] | None = None
                          ) -> dict[str, EmulatedImage]:
@@ -246,9 +283,10 @@ class Emulator:
         source = self.select_stereo(loaded, target_us)
         return {side: self.emulate(imgs, target_us, source) for side, imgs in loaded.items()}
 
-    def _missing_variance(self, source_linear: np.ndarray, factor: float) -> np.ndarray:
-        """Variance (DN^2) the target frame has but the scaled source lacks (>= 0), per pixel."""
-        g = self.gain
+    def _missing_variance(self, source_linear: np.ndarray, factor: float, gain: float | None = None) -> np.ndarray:
+        """Variance (DN^2) the target frame (exposure ``factor`` x the source's, linear ``gain``; default the
+        configured one) has but the scaled source lacks (>= 0), per pixel."""
+        g = self.gain if gain is None else gain
         nm = self.config.noise
         target_var = nm.variance(factor * source_linear, g)
         have = (g * factor) ** 2 * nm.variance(source_linear)
@@ -270,13 +308,18 @@ class Emulator:
                           deghost_sigma=self.config.deghost_sigma)
             self._fusion_cache.append((key, ref, result))
             del self._fusion_cache[:-4]
-        linear = result.irradiance * (target_us * self.gain)
-        if self.adds_noise:
-            g = self.gain
-            target_var = self.config.noise.variance(result.irradiance * target_us, g)
-            have = (g * target_us) ** 2 * result.variance
+        exposure_us, g = self.exposure_and_gain(images, target_us)
+        linear = result.irradiance * (exposure_us * g)
+        if self._adds_noise(g):
+            target_var = self.config.noise.variance(result.irradiance * exposure_us, g)
+            have = (g * exposure_us) ** 2 * result.variance
             missing = np.maximum(target_var - have, 0.0)
             linear = linear + self._rng(target_us, ref).standard_normal(linear.shape) * np.sqrt(missing)
         image = self.response.encode(linear, self.rounding)
-        return EmulatedImage(image, float(target_us), int(ref), float(target_us / ref * self.gain), "fusion",
-                             result.brackets_us)
+        return EmulatedImage(image, float(target_us), int(ref), float(exposure_us / ref * g), "fusion",
+                             result.brackets_us, float(exposure_us), _db(g))
+
+
+def _db(gain: float) -> float:
+    """A linear gain in dB (0.0 for unity, exactly)."""
+    return 0.0 if gain == 1.0 else float(20.0 * np.log10(gain))

@@ -3,7 +3,9 @@
 ``out_dir/<method>/images_left|images_right/<timestamp_ns>.png`` (12-bit codes in a 16-bit PNG, or 8-bit codes
 code >> 4 at depth 8; the name is the timestamp of the source bracket frame), ``times_images_left|right.txt``
 (``<name> <timestamp_ns> <target_ms>`` per step) and ``steps.csv`` (step, timestamp_ns, target_exposure_ms,
-source_exposure_ms, factor, selection, mode; one row per step; ``mode`` = the AE methods' mode, default or upstream).
+source_exposure_ms, factor, selection, mode, exposure_ms, gain_db; one row per step; ``mode`` = the AE methods' mode,
+default or upstream; ``exposure_ms`` and ``gain_db`` = the camera exposure and analog gain the image stands for: the
+target and 0 dB, or beyond the longest bracket that bracket's exposure and the rest as gain).
 
 One stereo step = one capture: every side's image of a step must come from the same source bracket (the emulator's
 :meth:`~.emulator.Emulator.select_stereo`), and all sides carry the same name and timestamp, those of the first
@@ -34,7 +36,7 @@ from ..dataset.model import BracketSequence
 from .emulator import EmulatedImage
 
 STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_ms", "factor", "selection",
-                "mode")
+                "mode", "exposure_ms", "gain_db")
 
 
 def encode_png(image: np.ndarray, compression: str = "stored") -> bytes:
@@ -139,7 +141,8 @@ class RunWriter:
             self.write_image(self.image_path(side, ts), side_images[side], (seq.index, side, float(target_us)))
             self._times[side].write(f"{ts} {ts} {target_us / 1000.0:.6f}\n")
         self._steps.writerow([step, ts, f"{target_us / 1000.0:.6f}", f"{em.source_exposure_us / 1000.0:.6f}",
-                              f"{em.factor:.6f}", em.selection, self.mode])
+                              f"{em.factor:.6f}", em.selection, self.mode, f"{em.camera_exposure_us / 1000.0:.6f}",
+                              f"{em.gain_db:.4f}"])
         self.n_steps += 1
         for f in (*self._times.values(), self._steps_file):
             f.flush()
