@@ -35,6 +35,8 @@ COMMANDS: dict[str, tuple[str, str, str, str | None]] = {
     "devices": ("bracketry.cli.devices", "command", "List the rig's USB serial devices and write udev rules.", "host"),
     "hw": ("bracketry.cli.hw", "command", "Hardware calculators: power budget and GigE bandwidth.", None),
     "synth": ("bracketry_emulator.cli.synth", "command", "Render synthetic bracketed HDR stereo data.", "emulator"),
+    "calibrate": ("bracketry.cli.calibrate", "command", "Calibrate the rig: stereo geometry (solve, capture), "
+                  "response (crf).", None),
     "calibrate-crf": ("bracketry_emulator.cli.crf", "command", "Calibrate the camera response from a static stack.",
                       "emulator"),
     "emulate": ("bracketry_emulator.cli.emulate", "command", "Emulate images at chosen exposures, run AE methods.",

@@ -194,6 +194,13 @@ ROWS = [
     Row("file", "daemon --config {tmp}/none.toml", words="does not exist"),
     Row("file", "hw diagram --wiring {tmp}/none.yaml", words="does not exist"),
     Row("file", "calibrate-crf {tmp}/none --out {tmp}/p.txt", words="does not exist"),
+    Row("file", "calibrate crf {tmp}/none --out {tmp}/p.txt", words="does not exist"),
+    Row("file", "calibrate solve {tmp}/none --out {tmp}/cal", words="does not exist"),
+    Row("file", "calibrate solve {tmp} --out {tmp}/cal", words="no board.yaml"),
+    Row("file", "calibrate solve {tmp} --out {tmp}/cal --board {tmp}/keep.txt", words="board definition"),
+    Row("number", "calibrate solve {tmp} --out {tmp}/cal --trials 0", words="--trials"),
+    Row("number", "calibrate solve {tmp} --out {tmp}/cal --inlier-px nan", words="--inlier-px"),
+    Row("path", "calibrate solve {tmp} --out {tmp}/full", words="--overwrite"),
     Row("file", "status --socket {tmp}/none.sock", words="no daemon is listening"),
     Row("file", "status --config {tmp}/none.toml", words="does not exist"),
     # ---- recordings: empty, not MCAP

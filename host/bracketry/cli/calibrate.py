@@ -1,0 +1,205 @@
+"""``bracketry calibrate``: geometric stereo calibration (``solve``, ``capture``) and the camera response (``crf``,
+also reachable under its old name ``calibrate-crf``).
+
+The commands load, call :mod:`bracketry.calibration` (pure: arrays in, calibration out) and save.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import click
+
+from bracketry.cli.options import (
+    EXIT_OK,
+    SEED,
+    Number,
+    count,
+    input_dir,
+    input_file,
+    output_dir,
+    overwrite_option,
+    quiet_option,
+)
+from bracketry.errors import BracketryError
+
+#: the ORB-SLAM3 settings file written beside the camera_info YAMLs
+ORBSLAM3_SETTINGS = "orbslam3_stereo.yaml"
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".pgm", ".jpg")
+
+#: subcommands that live in other modules, loaded when used: name -> (module, attribute)
+_LAZY = {"crf": ("bracketry_emulator.cli.crf", "command")}
+
+
+class CalibrateGroup(click.Group):
+    """The group, with ``crf`` loaded from the emulator only when used (a rig without the emulator extra keeps
+    ``solve`` and ``capture``)."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return sorted({*super().list_commands(ctx), *_LAZY})
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        if cmd_name in _LAZY:
+            mod, attr = _LAZY[cmd_name]
+            try:
+                return getattr(importlib.import_module(mod), attr)
+            except ImportError as exc:
+                raise BracketryError(f"'calibrate {cmd_name}' needs the emulator extra "
+                                     f"(pip install -e '.[emulator]'): {exc}") from None
+        return super().get_command(ctx, cmd_name)
+
+
+@click.group("calibrate", cls=CalibrateGroup)
+def command() -> None:
+    """Calibrate the rig: stereo geometry from a board session (solve, capture), camera response (crf)."""
+
+
+def load_board(path: Path) -> Any:
+    """The board of a ``board.yaml`` (one-line error when it is not one)."""
+    import yaml
+
+    from bracketry.calibration.board import BoardSpec
+
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise BracketryError(f"cannot read the board definition {path}: {' '.join(str(exc).split())}") from None
+    return BoardSpec.from_dict(doc)
+
+
+def image_pairs(folder: Path) -> list[tuple[Path, Path]]:
+    """(left, right) image files of a session folder: ``left/`` and ``right/`` holding images of the same names."""
+    sides = [folder / "left", folder / "right"]
+    if not all(d.is_dir() for d in sides):
+        raise BracketryError(f"{folder} has no left/ and right/ image folders (a board session: left/NNNNNN.png, "
+                             "right/NNNNNN.png)")
+    names = [{p.name for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES} for d in sides]
+    if names[0] != names[1]:
+        odd = sorted(names[0] ^ names[1])
+        raise BracketryError(f"left/ and right/ of {folder} do not hold the same image names ({len(odd)} unpaired, "
+                             f"e.g. {odd[0]}): give image pairs")
+    if not names[0]:
+        raise BracketryError(f"no images in {folder}/left (png, tif, pgm, jpg)")
+    return [(sides[0] / n, sides[1] / n) for n in sorted(names[0])]
+
+
+def _read(path: Path) -> Any:
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise BracketryError(f"cannot read image {path}")
+    return img
+
+
+def detect_session(pairs: list[tuple[Path, Path]], board: Any, bayer: bool, quiet: bool
+                   ) -> tuple[list[Any], list[Any], tuple[int, int]]:
+    """Detect the board in every pair; the images must all have one size. Returns the left and right detections
+    (None where not found) and the size (width, height)."""
+    from bracketry.calibration.detect import detect, to_gray8
+    from bracketry.progress import Progress
+
+    left: list[Any] = []
+    right: list[Any] = []
+    size: tuple[int, int] | None = None
+    bar = Progress("detect", unit="pair", enabled=not quiet)
+    try:
+        for k, pair in enumerate(pairs):
+            for path, dets in zip(pair, (left, right), strict=True):
+                img = _read(path)
+                hw = (int(img.shape[1]), int(img.shape[0]))
+                if size is None:
+                    size = hw
+                elif hw != size:
+                    raise BracketryError(f"{path} is {hw[0]}x{hw[1]} but {pairs[0][0]} is {size[0]}x{size[1]}: "
+                                         "a session's images must all have one size")
+                dets.append(detect(to_gray8(img, bayer=bayer), board))
+            bar.set(k + 1, len(pairs))
+    finally:
+        bar.close()
+    assert size is not None
+    return left, right, size
+
+
+@command.command("solve")
+@click.argument("session", type=input_dir())
+@click.option("--out", "out", type=output_dir(), required=True,
+              help="Calibration folder to write (new or empty): left.yaml, right.yaml, calib_kitti.txt, "
+                   f"{ORBSLAM3_SETTINGS}, report.json.")
+@overwrite_option()
+@click.option("--board", "board_file", type=input_file(), default=None,
+              help="board.yaml of the board (default: SESSION/board.yaml).")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of the random view subsets.")
+@click.option("--trials", type=count(1, 10000), default=24, show_default=True,
+              help="Random view subsets tried per camera (the robust selection), 1..10000.")
+@click.option("--inlier-px", type=Number(0.05, 100.0), default=1.0, show_default=True,
+              help="A view is an inlier when its reprojection RMS is below this (px), 0.05..100.")
+@click.option("--max-blur-px", type=Number(0.5, 100.0), default=2.5, show_default=True,
+              help="Views whose board edges are blurred more than this (equivalent Gaussian sigma, px) are dropped.")
+@click.option("--no-bayer", is_flag=True, help="The images are grey, not raw RGGB mosaics.")
+@click.option("--fps", type=Number(0.0, 1000.0, min_open=True), default=22.0, show_default=True,
+              help="Frame rate written into the ORB-SLAM3 settings, in (0, 1000].")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
+@quiet_option()
+def solve_cmd(session: Path, out: Path, overwrite: bool, board_file: Path | None, seed: int, trials: int,
+              inlier_px: float, max_blur_px: float, no_bayer: bool, fps: float, as_json: bool, quiet: bool) -> int:
+    """Calibrate the stereo pair from a board session (SESSION/left/*.png, SESSION/right/*.png, the board in
+    SESSION/board.yaml or --board): intrinsics and distortion per camera, extrinsics, rectification, with a robust
+    selection over random subsets of the views; dropped views are listed in report.json."""
+    from bracketry.calibration.camera_info import camera_info_yaml, kitti_text, rectified_camera, report
+    from bracketry.calibration.solve import solve_stereo
+
+    if board_file is None:
+        board_file = session / "board.yaml"
+        if not board_file.is_file():
+            raise BracketryError(f"no board.yaml in {session}: give the board with --board board.yaml")
+    board = load_board(board_file)
+    pairs = image_pairs(session)
+    t0 = time.perf_counter()
+    left, right, size = detect_session(pairs, board, not no_bayer, quiet)
+    sol = solve_stereo(left, right, board, size, seed=seed, trials=trials, inlier_px=inlier_px,
+                       max_blur_px=max_blur_px)
+    solve_s = time.perf_counter() - t0
+    rep = report(sol, len(pairs), solve_s)
+    rep["views_files"] = [p[0].name for p in pairs]
+    rep["board"] = board.to_dict()
+    files = {"left.yaml": camera_info_yaml(sol, "left"), "right.yaml": camera_info_yaml(sol, "right"),
+             "calib_kitti.txt": kitti_text(sol), ORBSLAM3_SETTINGS: _orbslam3_settings(sol, fps),
+             "report.json": json.dumps(rep, indent=1) + "\n"}
+    out.mkdir(exist_ok=True)
+    for name, text in files.items():
+        tmp = out / f".{name}.tmp"
+        tmp.write_text(text)
+        tmp.replace(out / name)
+    if as_json:
+        click.echo(json.dumps(rep, indent=1))
+        return EXIT_OK
+    rect = rectified_camera(sol)
+    for side in ("left", "right"):
+        K, D = sol.side(side).K, sol.side(side).D
+        click.echo(f"{side:5s}  fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} cx {K[0, 2]:.2f} cy {K[1, 2]:.2f} px  "
+                   f"k1 {D[0]:+.4f} k2 {D[1]:+.4f}  RMS {sol.side(side).rms_px:.3f} px over "
+                   f"{len(sol.side(side).used)} views")
+    click.echo(f"stereo baseline {sol.baseline_m * 1000:.2f} mm, rectified fx' {rect['fx_px']:.2f} px, RMS "
+               f"{sol.stereo_rms_px:.3f} px over {len(sol.used)} views; {len(sol.dropped)} view(s) dropped "
+               f"(report.json); {solve_s:.1f} s")
+    click.echo(f"wrote {', '.join(files)} to {out}")
+    return EXIT_OK
+
+
+def _orbslam3_settings(sol: Any, fps: float) -> str:
+    """ORB-SLAM3 stereo settings of the rectified pair, as the benchmark writes them (needs the emulator)."""
+    from bracketry.calibration.camera_info import rectified_camera
+
+    try:
+        from bracketry_emulator.slam.settings import OrbSlamCamera, settings_yaml
+    except ImportError as exc:
+        raise BracketryError(f"the ORB-SLAM3 settings need the emulator extra (pip install -e '.[emulator]'): "
+                             f"{exc}") from None
+    r = rectified_camera(sol)
+    cam = OrbSlamCamera(r["fx_px"], r["fy_px"], r["cx_px"], r["cy_px"], r["baseline_m"], *sol.size)
+    return settings_yaml(cam, fps)
