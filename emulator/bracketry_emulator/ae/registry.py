@@ -25,6 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 from bracketry.errors import BracketryError
 
+from ..stats.controls import CONTROLS_KEYWORD, NON_CAUSAL_METHODS, control_methods
 from .base import AEMethod
 from .classical import ClassicalAE, ConstantExposure, ConvergingFixAE, FixAE
 
@@ -35,8 +36,6 @@ if TYPE_CHECKING:
 PAPER_METHODS: tuple[str, ...] = ("fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl")
 #: Every built-in id (``all`` on the command line is :data:`PAPER_METHODS`; ``zhang`` and ``oracle`` by name).
 BUILTIN_METHODS: tuple[str, ...] = (*PAPER_METHODS, "zhang", "oracle")
-#: Built-ins that are not AE methods a camera could run: they read the next step's images (see :mod:`.oracle`)
-NON_CAUSAL_METHODS: tuple[str, ...] = ("oracle",)
 ENTRY_POINT_GROUP = "bracketry.ae_methods"
 _CONSTANT = re.compile(r"^constant-(\d+(?:\.\d*)?|\.\d+)$")
 
@@ -240,7 +239,8 @@ def method_traits(spec: str, **options: Any) -> MethodTraits:
 #: digit, at most 64 characters
 _SAFE_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._+-]{0,63}$")
 #: names a method cannot take: keywords of --methods / --stats-methods, the files beside the method folders
-_RESERVED = {"all", "paper", "summary.json", "exposures.csv", "exposure_times.png", "closedloop_options.json"}
+_RESERVED = {"all", "paper", CONTROLS_KEYWORD, "summary.json", "exposures.csv", "exposure_times.png",
+             "closedloop_options.json"}
 _REPEAT_SUFFIX = re.compile(r"\.r\d+$")  # the benchmark's repeat folders: <method>.r<n>
 _OPTION_KEY = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
@@ -299,8 +299,8 @@ def check_method_name(name: str, source: str) -> None:
                              "characters)")
     if name.lower() in _RESERVED or _REPEAT_SUFFIX.search(name):
         raise BracketryError(f"AE method {source} is named {name!r}, which names something else in the outputs "
-                             "(all, paper, summary.json, exposures.csv, exposure_times.png, closedloop_options.json, "
-                             "<method>.r<n>): rename it")
+                             "(all, paper, controls, summary.json, exposures.csv, exposure_times.png, "
+                             "closedloop_options.json, <method>.r<n>): rename it")
 
 
 def is_builtin(name: str) -> bool:
@@ -345,8 +345,12 @@ def resolve_methods(specs: Sequence[str | MethodSpec], options: Mapping[str, Map
     plugins' constructors, keyed by the method's name or by its id as given (``loader_options``: ``seed``,
     ``parity``, ``drl_weights`` as :func:`get_method`). Each plugin is created once here (so a constructor that
     rejects an option fails now). Raises BracketryError (one line) for an unknown id, an option for an unknown or
-    built-in method, a name that is not a safe folder name, and two methods of one name."""
+    built-in method, a name that is not a safe folder name, and two methods of one name. The keyword ``controls``
+    stands for the control rows (:func:`~bracketry_emulator.stats.controls.control_methods`: the non-causal
+    oracle and a grid of constant exposures)."""
     options = {str(k): dict(v) for k, v in (options or {}).items()}
+    specs = [x for item in specs for x in (control_methods() if isinstance(item, str)
+                                           and item.strip().lower() == CONTROLS_KEYWORD else [item])]
     used: set[str] = set()
     out: list[MethodSpec] = []
     for item in specs:
@@ -375,6 +379,11 @@ def resolve_methods(specs: Sequence[str | MethodSpec], options: Mapping[str, Map
                                  "names a method's outputs, so give one of them another name")
         seen[spec.name.casefold()] = spec
     return list(dict.fromkeys(out))
+
+
+def is_non_causal(name: str) -> bool:
+    """Whether method ``name`` reads the next step's images (a control row, not an AE method)."""
+    return name.lower() in NON_CAUSAL_METHODS
 
 
 def _resolve_plugin(source: str, options: Mapping[str, Mapping[str, Any]], used: set[str],

@@ -7,6 +7,14 @@ import math
 import numpy as np
 
 from bracketry_emulator.metrics.manifest import success_counts
+from bracketry_emulator.stats.controls import (
+    BEST_CONSTANT,
+    CONSTANT,
+    NON_CAUSAL,
+    WORST_CONSTANT,
+    constant_ms,
+    control_roles,
+)
 from bracketry_emulator.stats.mannwhitney import METRICS, SYMBOL, Comparison, verdict_table
 from bracketry_emulator.stats.paired import friedman, wilcoxon_to_reference
 
@@ -192,3 +200,39 @@ def medians_table(results: list[dict], methods: list[str]) -> list[list[str]]:
                      _fmt(med("coverage_mean", 100.0), 1), _fmt(med("matches_mean"), 0),
                      _fmt(med("time_before_failure_s"), 1)])
     return rows
+
+
+def controls_table(results: list[dict], methods: list[str]) -> list[list[str]]:
+    """The control rows among ``methods`` (:func:`~bracketry_emulator.stats.controls.control_roles`): role, constant
+    exposure (ms), successful trajectories, median time before failure and RTE; header only without controls."""
+    rows = [["method", "role", "exposure (ms)", "successful", "failure time median (s)", "RTE median (%)"]]
+    roles = control_roles(results, methods)
+    for m in methods:
+        if m not in roles:
+            continue
+        rs = [r for r in results if r["method"] == m]
+        ms = constant_ms(m)
+        rows.append([m, roles[m], "per step" if ms is None else f"{ms:g}",
+                     f"{sum(bool(r['success']) for r in rs)}/{len(rs)}",
+                     _fmt(_median([float(r.get("time_before_failure_s", float("nan"))) for r in rs]), 1),
+                     _fmt(_median([float(r.get("rte_pct", float("nan"))) for r in rs]), 2)])
+    return rows
+
+
+#: role -> the short mark a control row's name carries in the report's tables
+ROLE_MARKS = {NON_CAUSAL: "non-causal", CONSTANT: "control", BEST_CONSTANT: "best constant",
+              WORST_CONSTANT: "worst constant"}
+
+
+def method_labels(results: list[dict], methods: list[str]) -> dict[str, str]:
+    """{method: its name as the report's Markdown and HTML tables show it}: control rows carry a mark of their role
+    (:data:`ROLE_MARKS`), e.g. ``oracle (non-causal)``, ``constant-0.0625 (worst constant)``."""
+    roles = control_roles(results, methods)
+    return {m: f"{m} ({ROLE_MARKS[roles[m]]})" if m in roles else m for m in methods}
+
+
+def relabel(rows: list[list[str]], labels: dict[str, str], header: bool = False) -> list[list[str]]:
+    """``rows`` with the method names of the first column (``header``: of the header row) as ``labels`` give them."""
+    if header:
+        return [[labels.get(c, c) for c in rows[0]], *rows[1:]]
+    return [rows[0], *[[labels.get(r[0], r[0]), *r[1:]] for r in rows[1:]]]

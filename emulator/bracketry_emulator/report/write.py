@@ -22,9 +22,12 @@ from bracketry_emulator.report import html_page, plots
 from bracketry_emulator.report.latex import write_latex
 from bracketry_emulator.report.tables import (
     METRIC_UNITS,
+    controls_table,
     failed_runs_table,
     medians_table,
+    method_labels,
     paired_tables,
+    relabel,
     results_table,
     run_values,
     stats_tables,
@@ -102,6 +105,10 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     files["friedman.csv"] = _write_csv(rep / "friedman.csv", friedman_rows)
     failed_rows = failed_runs_table(results)
     files["failed_runs.csv"] = _write_csv(rep / "failed_runs.csv", failed_rows)
+    ctl_rows = controls_table(results, methods)
+    if len(ctl_rows) > 1:
+        files["controls.csv"] = _write_csv(rep / "controls.csv", ctl_rows)
+    labels = method_labels(results, methods)
     files.update(write_latex(rep, verdicts, suc_rows, med_rows, reference, alpha))
 
     box_figs: list[tuple[str, str]] = []
@@ -150,6 +157,10 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
                   f"tests and the Bonferroni count).")
     if plugins:
         intro += " Plugins (name: source, options): " + "; ".join(plugins) + "."
+    if len(ctl_rows) > 1:
+        intro += (" Control rows (marked): the oracle is NON-CAUSAL (it reads the next step's images, so no camera "
+                  "can run it: an upper reference, not a method); constant exposures frame the results, the grid's "
+                  "best and worst ranked by successful trajectories, then time before failure, then RTE.")
     intro += (" Paired tests (every method runs on the same trajectories): Wilcoxon signed-rank against the reference "
               "with the rank-biserial effect r, and Friedman across methods with Kendall's W.")
     no_ref = sorted({r["reference"] for r in results if str(r.get("reference", "")).startswith("no reference")})
@@ -158,14 +169,18 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     verdict_title = "Statistical difference with " + reference
     failed_title = "Failed SLAM runs (left out of the statistics)"
     # at a glance (in this order), then the long tables (folded in the HTML page)
-    glance = [(verdict_title, verdicts), *([(failed_title, failed_rows)] if len(failed_rows) > 1 else []),
-              ("Successful trajectories per subset", suc_rows), ("Summary", sum_rows),
-              ("Medians and spread over repeats", med_rows)]
+    suc_shown, sum_shown, med_shown = (relabel(suc_rows, labels, header=True), relabel(sum_rows, labels),
+                                       relabel(med_rows, labels))
+    glance = [(verdict_title, relabel(verdicts, labels, header=True)),
+              *([("Control rows", ctl_rows)] if len(ctl_rows) > 1 else []),
+              *([(failed_title, failed_rows)] if len(failed_rows) > 1 else []),
+              ("Successful trajectories per subset", suc_shown), ("Summary", sum_shown),
+              ("Medians and spread over repeats", med_shown)]
     folded = [("Per trajectory", res_rows), ("Tests", pvalues),
               ("Paired: Wilcoxon signed-rank against " + reference, wilcoxon_rows),
               ("Paired: Friedman across methods", friedman_rows)]
     sections = [*glance, *folded]
-    md = ["# Auto-exposure benchmark", "", intro, "", f"## {verdict_title}", "", _markdown(verdicts), "",
+    md = ["# Auto-exposure benchmark", "", intro, "", f"## {verdict_title}", "", _markdown(glance[0][1]), "",
           "## Metrics per method", ""] + [f"![{cap}]({name})\n" for name, cap in box_figs]
     for title, rows in sections[1:]:
         md += [f"## {title}", "", _markdown(rows), ""]
@@ -178,9 +193,9 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     files["report.md"].write_text("\n".join(md))
     hp = html_page
     body = [hp.section(verdict_title, hp.verdict_legend(reference)
-                       + hp.table(hp.by_method(verdicts), verdict_cells=True)),
+                       + hp.table(hp.by_method(glance[0][1]), verdict_cells=True)),
             hp.section("Metrics per method", hp.figures(box_figs))]
-    body += [hp.section(title, hp.table(hp.by_method(rows) if rows is suc_rows else rows))
+    body += [hp.section(title, hp.table(hp.by_method(rows) if rows is suc_shown else rows))
              for title, rows in glance[1:]]
     if look_figs:
         body.append(hp.section("Exposure and images", hp.figures(look_figs)))
