@@ -39,7 +39,7 @@ import time
 
 import numpy as np
 
-from bracketry.sim.frames import cycle_time_s, noise_bank, world_frame
+from bracketry.sim.frames import cycle_rates, expose_frame, noise_bank, reference_time_s, trigger_time_s
 from bracketry_emulator.extensions import extensions_disabled
 from bracketry_emulator.runtime_policy import apply_profile
 from bracketry_emulator.synth import World
@@ -51,14 +51,15 @@ FPS = 22.0
 
 
 def _cycle(world: World, bank: np.ndarray, side: str, c: int) -> tuple[float, float, float, list[np.ndarray]]:
-    """(cycle CPU s, radiance CPU s, exposures CPU s, frames) of bracket cycle ``c`` of ``side``."""
+    """(cycle CPU s, radiance CPU s, reprojection + exposures CPU s, frames) of bracket cycle ``c`` of ``side``."""
     n = len(BRACKETS_US)
-    t_s = cycle_time_s(c * n, n, FPS)
     world._cache.clear()  # a new cycle renders its scene (as in the rig: each cycle is a new world time)
     c0 = time.process_time()
-    world.radiance(side, t_s)
+    world.radiance(side, reference_time_s(c, BRACKETS_US, FPS))
     c1 = time.process_time()
-    frames = [world_frame(world, bank, side, t_s, float(e)) for e in BRACKETS_US]
+    rates = cycle_rates(world, side, c, BRACKETS_US, FPS)
+    frames = [expose_frame(world, bank, side, r, trigger_time_s(c * n + j, FPS), float(e))
+              for j, (r, e) in enumerate(zip(rates, BRACKETS_US))]
     c2 = time.process_time()
     return c2 - c0, c1 - c0, c2 - c1, frames
 

@@ -10,10 +10,13 @@ from __future__ import annotations
 
 import dataclasses
 from collections import OrderedDict
+from collections.abc import Sequence
 
 import numpy as np
 
 from bracketry.errors import BracketryError
+from bracketry_emulator.synth import blur
+from bracketry_emulator.synth.blur import Motion
 from bracketry_emulator.synth.calibration import SIDES, StereoCalibration, default_calibration
 from bracketry_emulator.synth.camera_model import CameraModel
 from bracketry_emulator.synth.render import RenderResult, SideRenderer
@@ -22,6 +25,8 @@ from bracketry_emulator.synth.scene import PRESETS, Scene, build_scene
 from bracketry_emulator.synth.trajectory import LoopTrajectory, mat_mul
 
 DEFAULT_RESOLUTION = (960, 600)
+#: how a frame's exposure interval is integrated (see :class:`World`)
+BLUR_METHODS = ("reproject", "render")
 _SCENE_CACHE: OrderedDict[tuple, Scene] = OrderedDict()
 _SCENE_CACHE_SIZE = 2
 
@@ -66,16 +71,20 @@ class World:
             time: the radiance at ``t_s`` is lit as at ``t_s``); None: the preset's fixed light. Its preset must be
             ``preset`` (see :func:`~bracketry_emulator.synth.scenario.world_from_scenario`).
         detail: ground texture resolution factor (1.0: 4 cm texels near the path).
-        motion_blur: integrate the moving scene over each exposure (slices of ``blur_slice_us``, at most
-            ``blur_max`` renders per frame); off by default (frames are instantaneous at their timestamp).
+        motion_blur: integrate the moving scene over each exposure [t_s, t_s + exposure] (on by default; off:
+            the frame is the instantaneous render at its mid-exposure instant, the time of its ground-truth pose).
+        blur_px: the image motion between consecutive instants of an exposure, at most (pixels; the number of
+            instants follows from the fastest-moving pixel over the exposure, up to ``blur_max``).
+        blur_method: "reproject" (one render at the frame's mid-exposure, warped by its range to every instant: see
+            :mod:`bracketry_emulator.synth.blur`) or "render" (a full render at every instant: exact, costly).
     """
 
     def __init__(self, preset: str = "forest-winter", seed: int = 0,
                  resolution: tuple[int, int] = DEFAULT_RESOLUTION, calibration: StereoCalibration | None = None,
                  camera: CameraModel | None = None, trajectory: LoopTrajectory | None = None,
                  scenario: Scenario | None = None,
-                 detail: float = 1.0, cache_size: int = 8, motion_blur: bool = False,
-                 blur_slice_us: float = 8000.0, blur_max: int = 4) -> None:
+                 detail: float = 1.0, cache_size: int = 8, motion_blur: bool = True,
+                 blur_px: float = 1.0, blur_max: int = 64, blur_method: str = "reproject") -> None:
         if preset not in PRESETS:
             raise BracketryError(f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
         w, h = int(resolution[0]), int(resolution[1])
@@ -83,9 +92,14 @@ class World:
             raise BracketryError(f"resolution {w}x{h}: width and height must be even and >= 16")
         self.preset = preset
         self.seed = int(seed)
+        if blur_method not in BLUR_METHODS:
+            raise BracketryError(f"unknown blur method {blur_method!r} (choose from {', '.join(BLUR_METHODS)})")
+        if not blur_px > 0:
+            raise BracketryError(f"blur_px must be > 0 (got {blur_px})")
         self.motion_blur = bool(motion_blur)
-        self.blur_slice_us = float(blur_slice_us)
+        self.blur_px = float(blur_px)
         self.blur_max = max(1, int(blur_max))
+        self.blur_method = blur_method
         self.resolution = (w, h)
         self.calibration = calibration if calibration is not None else default_calibration(w, h)
         if self.calibration.size != (w, h):
@@ -103,6 +117,7 @@ class World:
             self.scene = scenario_scene(scenario, self.seed, self.trajectory, self.detail)
             self._light = LightField(scenario, self.scene, self.trajectory, self.seed)
         self._renderers: dict[str, SideRenderer] = {}
+        self._cell_rays: dict[str, blur.CellRays] = {}
         self._gain: dict[str, np.ndarray] = {}
         self._cache: OrderedDict[tuple[str, float], RenderResult] = OrderedDict()
         self._cache_size = cache_size
@@ -158,27 +173,114 @@ class World:
             self._cache.popitem(last=False)
         return res
 
-    def blur_times_s(self, t_s: float, exposure_us: float) -> list[float]:
-        """Instants averaged for a frame exposed from ``t_s`` for ``exposure_us``: [t_s] without motion blur, else
-        the centres of n equal slices of the exposure, n = ceil(exposure / blur_slice_us) (at most blur_max)."""
-        if not self.motion_blur or exposure_us <= self.blur_slice_us:
-            return [float(t_s)]
-        n = min(self.blur_max, int(np.ceil(exposure_us / self.blur_slice_us)))
-        return [float(t_s) + (k + 0.5) / n * exposure_us * 1e-6 for k in range(n)]
+    def _cells(self, side: str) -> blur.CellRays:
+        if side not in self._cell_rays:
+            w, h = self.resolution
+            self._cell_rays[side] = blur.CellRays.of(self._renderer(side).rays, w, h)
+        return self._cell_rays[side]
+
+    def motions(self, side: str, t_ref_s: float, intervals: Sequence[tuple[float, float]]) -> list[Motion]:
+        """The image motion of each frame exposed over ``(t_s, exposure_us)`` in ``intervals`` relative to the render
+        of ``side`` at ``t_ref_s``, linear over its exposure (see :mod:`bracketry_emulator.synth.blur`).
+
+        Flows are projected at each frame's mid-exposure (the render's own instant has none); a frame's velocity is
+        the difference of the flows of its neighbours in time (with the render's instant), or, for a lone frame,
+        of the flows at the ends of its exposure."""
+        res = self.radiance(side, t_ref_s)
+        cells = self._cells(side)
+        intr = self.calibration.side(side)
+        R_ref, p_ref = self.world_pose(t_ref_s, side)
+        memo: dict[float, tuple[np.ndarray, np.ndarray] | None] = {float(t_ref_s): None}
+
+        def flow(t: float) -> tuple[np.ndarray, np.ndarray] | None:
+            if t not in memo:
+                R, p = self.world_pose(t, side)
+                memo[t] = blur.cell_flow(cells, res.range_m, intr, R_ref, p_ref, R, p)
+            return memo[t]
+
+        def diff(a: float, b: float) -> tuple[np.ndarray, np.ndarray]:
+            fa, fb = flow(a), flow(b)
+            zero = np.zeros_like(cells.gx)
+            (ua, va), (ub, vb) = fa if fa is not None else (zero, zero), fb if fb is not None else (zero, zero)
+            inv = np.float32(1.0 / (b - a))
+            return (ub - ua) * inv, (vb - va) * inv
+
+        mids = [self.mid_exposure_s(t, e) for t, e in intervals]
+        points = sorted({*mids, float(t_ref_s)})
+        out = []
+        for (t_s, exposure_us), mid in zip(intervals, mids):
+            if len(points) < 2:
+                vu, vv = diff(float(t_s), float(t_s) + float(exposure_us) * 1e-6)
+            else:
+                i = points.index(mid)
+                vu, vv = diff(points[max(0, i - 1)], points[min(len(points) - 1, i + 1)])
+            f = flow(mid)
+            out.append(Motion(mid, None if f is None else f[0], None if f is None else f[1], vu, vv))
+        return out
+
+    def blur_times_s(self, t_s: float, exposure_us: float, side: str = "left",
+                     t_ref_s: float | None = None) -> list[float]:
+        """Instants averaged for a frame of ``side`` exposed from ``t_s`` for ``exposure_us``: the mid-exposure
+        instant without motion blur; else the centres of n equal slices of the exposure, n such that no pixel moves
+        more than ``blur_px`` between consecutive instants (at most ``blur_max``; measured on the render at
+        ``t_ref_s``, default mid-exposure)."""
+        mid = self.mid_exposure_s(t_s, exposure_us)
+        if not self.motion_blur:
+            return [mid]
+        motion = self.motions(side, mid if t_ref_s is None else float(t_ref_s), [(t_s, exposure_us)])[0]
+        return blur.sub_instants(t_s, exposure_us, motion.max_px(exposure_us * 1e-6), self.blur_px, self.blur_max)
+
+    def _gained(self, side: str, radiance: np.ndarray) -> np.ndarray:
+        self._renderer(side)
+        return radiance * self._gain[side]
+
+    def rates_e_per_us(self, side: str, intervals: Sequence[tuple[float, float]],
+                       t_ref_s: float | None = None) -> list[np.ndarray]:
+        """Expected photo-electrons per microsecond of every pixel (radiance x QE x vignetting), float32 (H, W), of
+        each frame exposed over ``(t_s, exposure_us)`` in ``intervals``, averaged over its exposure (see
+        :meth:`blur_times_s`); without motion blur, at its mid-exposure instant.
+
+        ``t_ref_s`` (method "reproject"): the one render every frame is warped from (default: each frame's own
+        mid-exposure). The simulated rig renders one instant per bracket cycle this way."""
+        if not self.motion_blur:
+            return [self._gained(side, self.radiance(side, self.mid_exposure_s(t, e)).radiance) for t, e in intervals]
+        if t_ref_s is None:  # each frame from its own render
+            return [self.rates_e_per_us(side, [iv], self.mid_exposure_s(*iv))[0] for iv in intervals]
+        out = []
+        for (t_s, exposure_us), motion in zip(intervals, self.motions(side, float(t_ref_s), intervals)):
+            times = blur.sub_instants(t_s, exposure_us, motion.max_px(exposure_us * 1e-6), self.blur_px,
+                                      self.blur_max)
+            if self.blur_method == "render":
+                rad = self.integrate(side, times)
+            else:
+                rad = blur.average_warps(self.radiance(side, float(t_ref_s)).radiance, self._cells(side), motion,
+                                         times)
+            out.append(self._gained(side, rad))
+        return out
+
+    def integrate(self, side: str, times_s: Sequence[float]) -> np.ndarray:
+        """Mean radiance float32 (H, W) of full renders at ``times_s`` (the exact integral, as dense as the
+        instants)."""
+        rad = self.radiance(side, times_s[0]).radiance.copy()
+        for t in times_s[1:]:
+            rad += self.radiance(side, t).radiance
+        rad *= np.float32(1.0 / len(times_s))
+        return rad
 
     def rate_e_per_us(self, side: str, t_s: float, exposure_us: float | None = None) -> np.ndarray:
         """Expected photo-electrons per microsecond of every pixel (radiance x QE x vignetting), float32 (H, W).
 
-        With ``motion_blur`` and an ``exposure_us``, the rate is averaged over the exposure (see
-        :meth:`blur_times_s`)."""
-        times = [float(t_s)] if exposure_us is None else self.blur_times_s(t_s, exposure_us)
-        rad = self.radiance(side, times[0]).radiance
-        if len(times) > 1:
-            rad = rad.copy()
-            for t in times[1:]:
-                rad += self.radiance(side, t).radiance
-            rad *= np.float32(1.0 / len(times))
-        return rad * self._gain[side]
+        Without ``exposure_us``: at the instant ``t_s``; with it: of the frame exposed from ``t_s`` for
+        ``exposure_us`` (see :meth:`rates_e_per_us`)."""
+        if exposure_us is None:
+            return self._gained(side, self.radiance(side, float(t_s)).radiance)
+        return self.rates_e_per_us(side, [(t_s, exposure_us)])[0]
+
+    @staticmethod
+    def mid_exposure_s(t_s: float, exposure_us: float) -> float:
+        """The mid-exposure instant of a frame triggered at ``t_s`` (s) exposed ``exposure_us``: its timestamp and
+        the time of its ground-truth pose (the rig's ``FrameMeta.mid_exposure_host_ns``)."""
+        return float(t_s) + 0.5 * float(exposure_us) * 1e-6
 
     def frame_rng(self, side: str, t_s: float, exposure_us: float) -> np.random.Generator:
         """The deterministic noise generator of one frame (from the seed, the side, the time and the exposure)."""
@@ -191,8 +293,9 @@ class World:
         start of the walk) exposed ``exposure_us`` microseconds.
 
         ``rng`` draws the noise; None uses :meth:`frame_rng` (so the same call gives the same frame).
-        ``noise=False`` gives the exact noise-free image. With ``motion_blur`` the scene is integrated over the
-        exposure, which starts at ``t_s`` (the frame timestamp and the time of its ground-truth pose)."""
+        ``noise=False`` gives the exact noise-free image. The exposure starts at ``t_s`` (the trigger); with
+        ``motion_blur`` the scene is integrated over [t_s, t_s + exposure], else rendered at mid-exposure
+        (``t_s + exposure / 2``: the instant of the frame's ground-truth pose, see :meth:`mid_exposure_s`)."""
         rate = self.rate_e_per_us(side, t_s, exposure_us)
         if not noise:
             return self.camera.expose(rate, exposure_us, None)
@@ -220,6 +323,7 @@ class World:
                     "elevation_deg": float(np.degrees(np.arcsin(lt.sun_dir[2]))),
                     "disk_radiance": lt.disk_radiance},
             "groundtruth_frame": "left camera optical frame (x right, y down, z forward) at t = 0",
-            "motion_blur": {"enabled": self.motion_blur, "slice_us": self.blur_slice_us, "max_slices": self.blur_max,
-                            "exposure_start": "frame timestamp"},
+            "motion_blur": {"enabled": self.motion_blur, "method": self.blur_method, "max_step_px": self.blur_px,
+                            "max_instants": self.blur_max, "exposure": "[trigger, trigger + exposure]",
+                            "pose_and_timestamp": "mid-exposure (trigger + exposure / 2)"},
         }

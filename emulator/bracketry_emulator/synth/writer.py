@@ -3,12 +3,18 @@
 Trajectory output (``write_trajectory``)::
 
     DIR/camera_left|camera_right/<exposure_ms>/<timestamp_ns>.png   16-bit PNG, raw RGGB 12-bit codes
-    DIR/groundtruth.txt      TUM: t_s tx ty tz qx qy qz qw of the left camera, one line per frame timestamp
+    DIR/groundtruth.txt      TUM: t_s tx ty tz qx qy qz qw of the left camera at each frame's timestamp
+                             (its mid-exposure instant), one line per frame
     DIR/calibration/         left.yaml, right.yaml (ROS camera_info), calib_kitti.txt, pcalib.txt (TUM response)
     DIR/camera_model.json    camera model + world + timing parameters
 
-Frame k is triggered at t_s = k / fps with exposure brackets[k % n] (both cameras at the same instant, the same
-timestamp); it is rendered at that instant (no motion blur), which is also the time of its ground-truth pose.
+Frame timing (both cameras triggered together, so a stereo pair shares its timestamp): frame k is triggered at
+t_s = start_s + k / fps (22 fps: brackets 45.5 ms apart; the real sample's are 45.7 ms apart on average, its cycle of
+six 274 ms) with exposure E = brackets[k % n], and exposed over [t_s, t_s + E]: with motion blur (the
+World's default) the scene is integrated over that interval, else rendered at its middle. Its timestamp (file name
+and ``groundtruth.txt``) is the mid-exposure instant, t0_ns + round((k / fps + E / 2) * 1e9), the instant the real
+rig stamps (``FrameMeta.mid_exposure_host_ns``; VersaVIS stamps BorealHDR images so), and its ground-truth pose is
+the camera's pose at that instant: one ground-truth line per frame, each bracket of a cycle at its own instant.
 
 Static protocol output (``write_static``), one camera at one fixed pose::
 
@@ -116,26 +122,28 @@ def write_trajectory(world: World, out_dir: Path, seconds: float = 10.0,
     exposures_us = [float(b) * 1000.0 for b in brackets_ms]
     gt_lines = ["# bracketry synthetic ground truth (TUM): t_s tx ty tz qx qy qz qw",
                 "# pose of the left camera (optical frame: x right, y down, z forward) in the left camera frame "
-                "at the first frame; one line per frame timestamp"]
+                "at the first trigger; one line per frame, at its timestamp = its mid-exposure instant"]
     total = n_frames * len(sides)
     done = 0
     for k in range(n_frames):
-        t_s = start_s + k / fps
-        t_ns = t0_ns + round(k * 1e9 / fps)
+        t_s = start_s + k / fps  # trigger: the exposure is [t_s, t_s + exp_us]
         exp_us = exposures_us[k % n]
+        mid_s = world.mid_exposure_s(t_s, exp_us)
+        t_ns = t0_ns + round((k / fps + 0.5 * exp_us * 1e-6) * 1e9)
         for side in sides:
             img = world.render(side, t_s, exp_us, rng=world.frame_rng(side, t_s, exp_us))
             write_png(out_dir / f"camera_{side}" / exposure_dir_name(exp_us) / f"{t_ns}.png", img)
             done += 1
             if progress is not None:
                 progress(done, total)
-        T = world.pose(t_s) if start_s == 0.0 else relative_pose(world.pose(start_s), world.pose(t_s))
+        T = world.pose(mid_s) if start_s == 0.0 else relative_pose(world.pose(start_s), world.pose(mid_s))
         gt_lines.append(tum_line(t_ns, T))
     (out_dir / "groundtruth.txt").write_text("\n".join(gt_lines) + "\n")
     summary = {"frames": n_frames, "cycles": cycles, "sides": list(sides), "fps": fps,
                "brackets_ms": [float(b) for b in brackets_ms], "t0_ns": t0_ns, "start_s": start_s,
                "duration_s": n_frames / fps,
-               "timing": "frame k: t_ns = t0_ns + round(k * 1e9 / fps), exposure brackets[k % n], rendered at t_ns",
+               "timing": "frame k: triggered at k / fps, exposed over [k / fps, k / fps + E], E = brackets[k % n]; "
+                         "t_ns = t0_ns + round((k / fps + E / 2) * 1e9) (mid-exposure), its pose at t_ns",
                "radiance_range_db": _radiance_range_db(world, start_s)}
     write_common(world, out_dir, {"dataset": "trajectory", "recording": summary})
     return summary

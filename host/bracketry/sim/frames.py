@@ -1,8 +1,12 @@
 """Pixels for the simulated cameras: frame k of the bracket cycle, rendered ahead by a separate process, each frame
 carrying its own index.
 
-Frame k of a side is the synthetic world at the world time of its bracket cycle (:func:`cycle_time_s`) exposed
-``brackets[k % n]``. One renderer process per side
+Frame k of a side is the synthetic world exposed ``brackets[k % n]`` from its own trigger instant ``k / fps``
+(:func:`trigger_time_s`), with the motion blur of that interval; its pose is the camera's at its mid-exposure
+instant (:func:`frame_time_s`). Each bracket cycle is ray cast once, at the middle of the cycle's span
+(:func:`reference_time_s`), and that render is reprojected by its range to each bracket's instants
+(``World.rates_e_per_us``, :mod:`bracketry_emulator.synth.blur`): six full renders per cycle would not keep up
+with the triggers on two cores. One renderer process per side
 (:func:`render_frames`, started by :meth:`FrameSchedule.start`) writes the frames in order into one shared memory
 file per side and counts them in a small shared counter, so the rig starts recording while later frames are still
 being rendered. The fake camera's image source serves each side its next bracket frame, by count (the k-th bracket
@@ -13,7 +17,7 @@ bracket cycle (the priming trigger) gets no frame.
 
 Identity, not timing: every served frame carries the index k of the rendered frame it shows, written into its first
 :data:`FRAME_ID_PIXELS` pixels (row 0) by :func:`embed_frame_id`; :func:`read_frame_id` reads it back from a
-recorded image. The ground truth of a recorded frame is the pose at world time ``cycle_time_s(k)`` of that k, so
+recorded image. The ground truth of a recorded frame is the pose at world time ``frame_time_s(k)`` of that k, so
 merged or dropped triggers, late buffers and a loaded machine cannot give a frame another frame's pose. A frame
 served without a rendered image (the renderer far behind, an exposure outside the bracket cycle such as the priming
 trigger) has no identity: its pose is unknown and reported, never guessed.
@@ -165,8 +169,8 @@ class FrameSchedule:
 
     # ----------------------------------------------------------------------------------------------- timing
     def t_s(self, k: int) -> float:
-        """World time of frame k, seconds: the first trigger of its bracket cycle (see :func:`cycle_time_s`)."""
-        return cycle_time_s(k, len(self.brackets_us), self.fps)
+        """World time of frame k's pose, seconds: its mid-exposure instant (see :func:`frame_time_s`)."""
+        return frame_time_s(k, self.brackets_us, self.fps)
 
     def exposure_us(self, k: int) -> int:
         """Exposure of frame k, microseconds."""
@@ -371,11 +375,38 @@ def _environment(values: dict[str, str]) -> Iterator[None]:
             os.environ.pop(k, None)
 
 
-def cycle_time_s(k: int, n_brackets: int, fps: float) -> float:
-    """World time of frame k: every frame of a bracket cycle shows the world at the cycle's first trigger,
-    ``(k // n) * n / fps`` (one scene render per cycle, exposed n ways: what keeps the renderer ahead of the
-    triggers on two cores; a bracket is one instant, as the emulator treats it)."""
-    return (k // n_brackets) * n_brackets / fps
+def trigger_time_s(k: int, fps: float) -> float:
+    """World time of frame k's trigger, seconds: ``k / fps`` (its exposure is [k / fps, k / fps + exposure])."""
+    return k / fps
+
+
+def frame_time_s(k: int, brackets_us: Sequence[float], fps: float) -> float:
+    """World time of frame k's ground-truth pose: its mid-exposure instant, ``k / fps + brackets[k % n] / 2``."""
+    return trigger_time_s(k, fps) + 0.5e-6 * float(brackets_us[k % len(brackets_us)])
+
+
+def reference_time_s(cycle: int, brackets_us: Sequence[float], fps: float) -> float:
+    """World time of the one render of bracket cycle ``cycle``: the middle of its span, from its first trigger to the
+    end of its last exposure (the reprojection to each bracket moves the image as little as it can)."""
+    n = len(brackets_us)
+    first = trigger_time_s(cycle * n, fps)
+    last_end = trigger_time_s(cycle * n + n - 1, fps) + 1e-6 * float(brackets_us[-1])
+    return 0.5 * (first + last_end)
+
+
+def cycle_rates(world: Any, side: str, cycle: int, brackets_us: Sequence[float], fps: float,
+                renders: str = "cycle") -> list[np.ndarray]:
+    """Expected photo-electrons per microsecond (float32 (H, W)) of each frame of bracket cycle ``cycle`` of ``side``
+    (a ``bracketry_emulator.synth.World``): bracket j exposed from its own trigger with its own blur.
+
+    ``renders``: "cycle" (the rig's: one render per cycle at :func:`reference_time_s`, reprojected to each bracket's
+    instants) or "frame" (one render per frame at its mid-exposure, reprojected within its exposure: the offline
+    writer's, six times the ray casting)."""
+    n = len(brackets_us)
+    intervals = [(trigger_time_s(cycle * n + j, fps), float(brackets_us[j])) for j in range(n)]
+    if renders == "frame":
+        return world.rates_e_per_us(side, intervals)
+    return world.rates_e_per_us(side, intervals, t_ref_s=reference_time_s(cycle, brackets_us, fps))
 
 
 def _pattern(side: str, k: int, exposure_us: float, width: int, height: int) -> np.ndarray:
@@ -387,20 +418,26 @@ def _pattern(side: str, k: int, exposure_us: float, width: int, height: int) -> 
 
 def noise_bank(world: Any, side_index: int) -> np.ndarray:
     """The standard normal variates of one side's frames (float32, (NOISE_BANK_FRAMES + 1) * W * H): drawn once,
-    each frame's noise is a window of them (see :func:`world_frame`)."""
+    each frame's noise is a window of them (see :func:`expose_frame`)."""
     w, h = world.resolution
     rng = np.random.default_rng(np.random.SeedSequence([world.seed, side_index, NOISE_BANK_FRAMES]))
     return rng.standard_normal((NOISE_BANK_FRAMES + 1) * w * h, dtype=np.float32)
 
 
-def world_frame(world: Any, bank: np.ndarray, side: str, t_s: float, exposure_us: float) -> np.ndarray:
-    """The rig's frame of ``side`` (a ``bracketry_emulator.synth.World``) at world time ``t_s`` exposed
-    ``exposure_us``: uint16 (H, W) 12-bit codes, its noise the window of ``bank`` (see :func:`noise_bank`) at a place
-    drawn from the frame's own generator."""
+def expose_frame(world: Any, bank: np.ndarray, side: str, rate_e_per_us: np.ndarray, t_s: float,
+                 exposure_us: float) -> np.ndarray:
+    """The rig's frame of ``side`` (a ``bracketry_emulator.synth.World``) triggered at world time ``t_s``, exposed
+    ``exposure_us`` at ``rate_e_per_us`` (see :func:`cycle_rates`): uint16 (H, W) 12-bit codes, its noise the window
+    of ``bank`` (see :func:`noise_bank`) at a place drawn from the frame's own generator."""
     w, h = world.resolution
     at = int(world.frame_rng(side, t_s, exposure_us).integers(0, NOISE_BANK_FRAMES * w * h))
-    return world.camera.expose(world.rate_e_per_us(side, t_s, exposure_us), exposure_us, None,
-                               normal=bank[at:at + w * h])
+    return world.camera.expose(rate_e_per_us, exposure_us, None, normal=bank[at:at + w * h])
+
+
+def world_frame(world: Any, bank: np.ndarray, side: str, t_s: float, exposure_us: float) -> np.ndarray:
+    """One frame of ``side`` triggered at ``t_s`` and exposed ``exposure_us`` from its own render (reprojected within
+    its exposure), exposed as :func:`expose_frame` does."""
+    return expose_frame(world, bank, side, world.rate_e_per_us(side, t_s, exposure_us), t_s, exposure_us)
 
 
 def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[int], fps: float, n_frames: int,
@@ -429,13 +466,17 @@ def render_frames(folder: str, world_spec: WorldSpec | None, brackets_us: list[i
         if world is not None:  # standard normal variates drawn once: each frame's noise is a window of them
             for side in sides:
                 banks[side] = noise_bank(world, (all_sides or sides).index(side))
+        n = len(brackets_us)
+        rates: dict[str, list[np.ndarray]] = {}
         for k in range(n_frames):
             if k % 64 == 0 and os.getppid() != parent:
                 return  # the rig process is gone (killed): outside its process group, nobody else ends us
-            t_s, exp_us = cycle_time_s(k, len(brackets_us), fps), float(brackets_us[k % len(brackets_us)])
+            t_s, exp_us = trigger_time_s(k, fps), float(brackets_us[k % n])
             for side in sides:
                 if world is not None:
-                    img = world_frame(world, banks[side], side, t_s, exp_us)
+                    if k % n == 0 or side not in rates:  # the cycle's one render, reprojected to its brackets
+                        rates[side] = cycle_rates(world, side, k // n, brackets_us, fps)
+                    img = expose_frame(world, banks[side], side, rates[side][k % n], t_s, exp_us)
                 else:
                     img = _pattern(side, k, exp_us, w, h)
                 embed_frame_id(img, k)

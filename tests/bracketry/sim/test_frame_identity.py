@@ -14,9 +14,10 @@ from bracketry.sim.frames import (
     MAX_FRAME_ID,
     FrameSchedule,
     clear_frame_id,
-    cycle_time_s,
     embed_frame_id,
+    frame_time_s,
     read_frame_id,
+    reference_time_s,
 )
 
 BRACKETS_US = [1000, 2000, 4000, 8000, 16000, 32000]
@@ -46,8 +47,11 @@ def test_frames_without_identity_read_none() -> None:
         embed_frame_id(img, MAX_FRAME_ID + 1)
 
 
-def test_cycle_time() -> None:
-    assert [cycle_time_s(k, 6, 20.0) for k in (0, 5, 6, 11, 12)] == [0.0, 0.0, 0.3, 0.3, 0.6]
+def test_frame_times_are_each_frames_own_mid_exposure() -> None:
+    """Frame k is triggered at k / fps; its pose is at its mid-exposure; a cycle's one render at its span's middle."""
+    got = [frame_time_s(k, BRACKETS_US, 20.0) for k in (0, 1, 5, 6, 12)]
+    assert got == pytest.approx([0.0005, 0.051, 0.266, 0.3005, 0.6005], abs=1e-12)
+    assert reference_time_s(1, BRACKETS_US, 20.0) == pytest.approx(0.5 * (0.3 + 0.55 + 0.032))
 
 
 def test_source_serves_each_side_its_next_bracket_frame(tmp_path: Path) -> None:

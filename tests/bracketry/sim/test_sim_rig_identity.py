@@ -21,7 +21,7 @@ from bracketry.cameras.netns import netns_available
 from bracketry.recording import topics as T
 from bracketry.recording.decode import decode, decode_image_msg
 from bracketry.recording.reader import RecordingReader
-from bracketry.sim.frames import cycle_time_s, read_frame_id
+from bracketry.sim.frames import frame_time_s, read_frame_id
 from bracketry_testkit import missing_component
 
 pytestmark = [pytest.mark.aravis, pytest.mark.socat, pytest.mark.slow]
@@ -120,5 +120,5 @@ def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_show
     assert len(gt) == len(known_left)
     for (t_ns, k), (gt_ns, pose) in zip(known_left, gt):
         assert gt_ns == t_ns, "the ground-truth stamp is the recorded frame's own"
-        T_wc = world.pose(cycle_time_s(k, 6, fps))
+        T_wc = world.pose(frame_time_s(k, BRACKETS_US, fps))
         assert np.allclose(pose[:3], T_wc[:3, 3], atol=1e-5), (k, pose[:3], T_wc[:3, 3])

@@ -25,8 +25,9 @@ from bracketry_emulator.synth.camera_model import N_LEVELS, srgb_oetf
 from bracketry_emulator.synth.render import exp_f32, rotate_rays
 from bracketry_emulator.synth.trajectory import mat_mul
 
-#: renders a few frames of both presets and prints the digest of their radiance, range, codes and poses, then that
-#: of a product numpy sends to OpenBLAS (it shows the kernels really differ)
+#: renders a few frames of both presets and prints the digest of their radiance, range, codes (motion-blurred: the
+#: reprojection of :mod:`bracketry_emulator.synth.blur`) and poses, then that of a product numpy sends to OpenBLAS
+#: (it shows the kernels really differ)
 _SCRIPT = """
 import hashlib
 import numpy as np
@@ -37,7 +38,8 @@ for preset in ("forest-winter", "campus-summer"):
     for t in (0.0, 7.7, 23.1):
         for side in ("left", "right"):
             r = w.radiance(side, t)
-            for a in (r.radiance, r.range_m, w.render(side, t, 4000.0), w.pose(t, side)):
+            for a in (r.radiance, r.range_m, w.render(side, t, 4000.0), w.render(side, t, 32000.0), w.pose(t, side),
+                      *w.rates_e_per_us(side, [(t, 1000.0), (t + 0.1, 32000.0)], t_ref_s=t + 0.05)):
                 h.update(np.ascontiguousarray(a).tobytes())
 R = w.world_pose(7.7, "left")[0].astype(np.float32)
 print(h.hexdigest(), hashlib.sha256((R @ w._renderer("left").rays).tobytes()).hexdigest())

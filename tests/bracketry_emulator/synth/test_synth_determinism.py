@@ -6,7 +6,6 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import pytest
 
 from bracketry_emulator.synth import World, write_trajectory
 from bracketry_emulator.synth.world import _SCENE_CACHE
@@ -54,22 +53,3 @@ def test_synth_frame_source_api() -> None:
     a = world.render("left", 0.25, 2000.0, rng=np.random.default_rng(5))
     b = world.render("left", 0.25, 2000.0, rng=np.random.default_rng(5))
     assert np.array_equal(a, b)
-
-
-def test_synth_motion_blur_integrates_over_the_exposure() -> None:
-    sharp = World("forest-winter", seed=0, resolution=(160, 100))
-    blurred = World("forest-winter", seed=0, resolution=(160, 100), motion_blur=True)
-    assert blurred.blur_times_s(2.0, 1000.0) == [2.0]
-    times = blurred.blur_times_s(2.0, 32000.0)
-    assert len(times) == 4 and times[0] > 2.0 and times[-1] < 2.032
-    # short exposures: identical; long ones: same mean level, smoother image
-    assert np.array_equal(sharp.render("left", 2.0, 1000.0, noise=False), blurred.render("left", 2.0, 1000.0,
-                                                                                             noise=False))
-    a = sharp.rate_e_per_us("left", 2.016, 32000.0)  # instantaneous, at mid-exposure
-    b = blurred.rate_e_per_us("left", 2.0, 32000.0)
-    assert not np.array_equal(a, b)
-    expected = np.mean([sharp.rate_e_per_us("left", t) for t in times], axis=0)
-    assert np.allclose(b, expected, rtol=1e-5, atol=1e-7)
-    assert float(b.mean()) == pytest.approx(float(a.mean()), rel=0.1)
-    grad = [float(np.abs(np.diff(np.log(x + 1e-3), axis=1)).mean()) for x in (a, b)]
-    assert grad[1] < grad[0]

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import itertools
+from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
@@ -11,13 +12,25 @@ import pytest
 
 from bracketry_emulator.synth import CameraModel, World, srgb_lut
 from bracketry_emulator.synth.camera_model import pcalib_from_lut, pcalib_lut, srgb_oetf
+from bracketry_emulator.synth.trajectory import LoopTrajectory
 
 RES = (320, 200)
 
 
+@dataclass
+class _Held(LoopTrajectory):
+    """The walk's pose at ``at_s``, held: an exposure sweep of one view (every exposure has its own mid-exposure
+    instant, and the World blurs a moving camera)."""
+
+    at_s: float = 3.0
+
+    def pose(self, t_s: float) -> tuple[np.ndarray, np.ndarray]:
+        return super().pose(self.at_s)
+
+
 @pytest.fixture(scope="module")
 def world() -> World:
-    return World("forest-winter", seed=1, resolution=RES)
+    return World("forest-winter", seed=1, resolution=RES, trajectory=_Held())
 
 
 def test_synth_srgb_lut_is_the_samples_encoding() -> None:
@@ -48,7 +61,7 @@ def test_synth_noise_variance_follows_the_model() -> None:
     cam = CameraModel(response="linear", full_well_e=20000.0, read_noise_e=6.0)
     world = World("campus-summer", seed=2, resolution=(160, 100), camera=cam)
     t_s, exposure_us = 4.0, 4000.0
-    rate = world.rate_e_per_us("left", t_s)
+    rate = world.rate_e_per_us("left", t_s, exposure_us)  # the frame's own (mid-exposure, motion-blurred) rate
     frames = np.stack([world.render("left", t_s, exposure_us, rng=np.random.default_rng(k)) for k in range(25)])
     frames = frames.astype(np.float64)
     g = cam.gain_e_per_dn
@@ -107,8 +120,9 @@ def test_synth_vignetting_darkens_corners() -> None:
     assert 0.6 < v[0, 0] < 0.85
 
 
-def test_synth_world_spans_over_100_db(world: World) -> None:
+def test_synth_world_spans_over_100_db() -> None:
     # walking towards the low winter sun: the solar disk and the shade under the trees in one frame
+    world = World("forest-winter", seed=1, resolution=RES)
     tr = world.trajectory
     sun = world.scene.lighting.sun_dir
     times = np.arange(0.0, tr.length_m / tr.speed_mps, 2.0)
