@@ -107,8 +107,9 @@ def command() -> None:
               help="Walking speed in km/h, in (0, 20].")
 @click.option("--start-s", type=Number(0.0, 1e6), default=0.0, show_default=True,
               help="Start time along the walk (s).")
-@click.option("--motion-blur", is_flag=True,
-              help="Integrate the motion over each exposure (up to 4 renders per long frame; slower).")
+@click.option("--motion-blur/--no-motion-blur", default=True, show_default=True,
+              help="Integrate the motion over each exposure (one render per frame, moved by its range to instants "
+                   "~1 px of motion apart); off: each frame is the render at its mid-exposure.")
 def trajectory_cmd(out: Path, overwrite: bool, preset: str, seed: int, response: str, calibration: Path | None,
                    quiet: bool, seconds: float, resolution: str, brackets_ms: str, fps: float, speed_kmh: float,
                    start_s: float, motion_blur: bool) -> int:
