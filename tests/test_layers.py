@@ -67,7 +67,7 @@ EMULATOR_FLOORS: dict[str, int] = {
     "bracketry_emulator.emulation": 2, "bracketry_emulator.vo": 2, "bracketry_emulator.metrics": 2,
     "bracketry_emulator.ae": 3, "bracketry_emulator.accuracy": 3, "bracketry_emulator.slam": 3,
     "bracketry_emulator.report": 3,
-    "bracketry_emulator.benchmark": 4,
+    "bracketry_emulator.benchmark": 4, "bracketry_emulator.envs": 4,
     "bracketry_emulator.cli": 5,
 }
 #: the source folder of each package

@@ -44,6 +44,8 @@ COMMANDS: dict[str, tuple[str, str, str, str | None]] = {
     "accuracy": ("bracketry_emulator.cli.accuracy", "command", "Measure the emulator's accuracy.", "emulator"),
     "benchmark": ("bracketry_emulator.cli.benchmark", "command", "Benchmark AE methods: VO, metrics, statistics.",
                   "emulator"),
+    "train": ("bracketry_emulator.cli.train", "command", "Train learned AE methods on emulated exposures (DRL).",
+              "learn"),
     "slam": ("bracketry_emulator.cli.slam", "command", "SLAM backend tools: build an ORB-SLAM3 vocabulary.",
              "emulator"),
     "demo": ("bracketry.cli.demo", "command", "Run the whole pipeline on the embedded default.", None),
