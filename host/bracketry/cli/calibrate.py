@@ -16,7 +16,9 @@ import click
 
 from bracketry.cli.options import (
     EXIT_OK,
+    EXIT_PROBLEMS,
     SEED,
+    Integer,
     Number,
     count,
     input_dir,
@@ -96,6 +98,25 @@ def _read(path: Path) -> Any:
     return img
 
 
+def _check_png_sizes(pairs: list[tuple[Path, Path]], size: tuple[int, int]) -> None:
+    """Every PNG of the pairs is ``size`` (width, height), read from its header (other formats are checked when
+    read)."""
+    import struct
+
+    for pair in pairs:
+        for p in pair:
+            if p.suffix.lower() != ".png":
+                continue
+            with open(p, "rb") as f:
+                head = f.read(24)
+            if len(head) < 24 or head[12:16] != b"IHDR":
+                raise BracketryError(f"{p} is not a PNG image")
+            wh = struct.unpack(">II", head[16:24])
+            if wh != size:
+                raise BracketryError(f"{p} is {wh[0]}x{wh[1]} but {pairs[0][0]} is {size[0]}x{size[1]}: a "
+                                     "session's images must all have one size")
+
+
 def detect_session(pairs: list[tuple[Path, Path]], board: Any, bayer: bool, quiet: bool
                    ) -> tuple[list[Any], list[Any], tuple[int, int]]:
     """Detect the board in every pair; the images must all have one size. Returns the left and right detections
@@ -105,6 +126,8 @@ def detect_session(pairs: list[tuple[Path, Path]], board: Any, bayer: bool, quie
 
     left: list[Any] = []
     right: list[Any] = []
+    first = _read(pairs[0][0])
+    _check_png_sizes(pairs, (int(first.shape[1]), int(first.shape[0])))
     size: tuple[int, int] | None = None
     bar = Progress("detect", unit="pair", enabled=not quiet)
     try:
@@ -203,3 +226,116 @@ def _orbslam3_settings(sol: Any, fps: float) -> str:
     r = rectified_camera(sol)
     cam = OrbSlamCamera(r["fx_px"], r["fy_px"], r["cx_px"], r["cy_px"], r["baseline_m"], *sol.size)
     return settings_yaml(cam, fps)
+
+
+class _FolderBackend:
+    """The monitor's backend while a capture reads an image folder: no sensors to show or switch."""
+
+    def __init__(self, source: Path) -> None:
+        self.source = source
+
+    def monitor_status(self) -> dict[str, Any]:
+        import shutil as _shutil
+
+        free_mb = _shutil.disk_usage(self.source).free // (1024 * 1024)
+        return {"time_ns": time.time_ns(), "sensors": {}, "errors": {}, "cameras": {},
+                "disk": {"free_mb": free_mb, "time_left_s": None},
+                "recording": {"active": False, "name": None, "segment": 0, "seconds": 0},
+                "message": f"board capture from {self.source.name}", "brackets_us": [], "fps_target": 0,
+                "sensors_on": False}
+
+    def monitor_action(self, action: str, body: dict[str, Any]) -> dict[str, Any]:
+        from bracketry.monitor.server import ActionError
+
+        raise ActionError("no rig here: this capture reads an image folder")
+
+    def monitor_limits_us(self) -> tuple[tuple[int, ...], int, int]:
+        return (), 1, 1
+
+
+@command.command("capture")
+@click.option("--from", "source", type=input_dir(), required=True,
+              help="Session folder to read the stereo pairs from in order, as a live stream (left/, right/).")
+@click.option("--out", "out", type=output_dir(), required=True,
+              help="Folder for the kept views (new or empty): left/, right/, board.yaml, capture.json.")
+@overwrite_option()
+@click.option("--board", "board_file", type=input_file(), default=None,
+              help="board.yaml of the board (default: the --from folder's board.yaml).")
+@click.option("--max-blur-px", type=Number(0.5, 100.0), default=2.5, show_default=True,
+              help="Pairs whose board edges are blurred more than this (equivalent Gaussian sigma, px) are skipped.")
+@click.option("--no-bayer", is_flag=True, help="The images are grey, not raw RGGB mosaics.")
+@click.option("--monitor", "monitor_port", type=Integer(0, 65535), default=None,
+              help="Serve the monitor page with the live corners and coverage on 127.0.0.1:PORT (0: any port).")
+@click.option("--rate-hz", type=Number(0.0, 1000.0), default=0.0, show_default=True,
+              help="Pairs per second to replay at (0: as fast as they are read), 0..1000.")
+@click.option("--hold-s", type=Number(0.0, 3600.0), default=0.0, show_default=True,
+              help="Keep the monitor page up this long after the last pair, 0..3600 s.")
+@quiet_option()
+def capture_cmd(source: Path, out: Path, overwrite: bool, board_file: Path | None, max_blur_px: float,
+                no_bayer: bool, monitor_port: int | None, rate_hz: float, hold_s: float, quiet: bool) -> int:
+    """Select calibration views from a stream of stereo pairs: a pair is kept when the board is found in both
+    images, sharp enough and not a near-duplicate of a kept view; the monitor page (--monitor) shows the corners,
+    the coverage bars (x, y, size, skew) and when the set is enough. Exit 1 when the kept set is not enough.
+
+    The stream is an image folder (a recorded session); driving the rig itself in a calibration mode is not
+    implemented yet."""
+    import shutil as _shutil
+
+    from bracketry.calibration.detect import detect, to_gray8
+    from bracketry.monitor.calibration_feed import CaptureFeed
+
+    if board_file is None:
+        board_file = source / "board.yaml"
+        if not board_file.is_file():
+            raise BracketryError(f"no board.yaml in {source}: give the board with --board board.yaml")
+    board = load_board(board_file)
+    pairs = image_pairs(source)
+    first = _read(pairs[0][0])
+    size = (int(first.shape[1]), int(first.shape[0]))
+    _check_png_sizes(pairs, size)  # before anything is written
+    feed = CaptureFeed(board, size, max_blur_px)
+    server = None
+    if monitor_port is not None:
+        from bracketry.monitor.hub import PreviewHub
+        from bracketry.monitor.server import MonitorServer
+
+        server = MonitorServer(_FolderBackend(source), PreviewHub(), "127.0.0.1", monitor_port,
+                               calibration=feed).start()
+        click.echo(f"monitor: {server.url}", err=True)
+    out.mkdir(exist_ok=True)
+    for side in ("left", "right"):
+        (out / side).mkdir(exist_ok=True)
+    log = []
+    try:
+        t_next = time.monotonic()
+        for pair in pairs:
+            imgs = [_read(p) for p in pair]
+            for p, img in zip(pair, imgs, strict=True):
+                if (int(img.shape[1]), int(img.shape[0])) != size:
+                    raise BracketryError(f"{p} is {img.shape[1]}x{img.shape[0]} but the stream is "
+                                         f"{size[0]}x{size[1]}: a session's images must all have one size")
+            grays = (to_gray8(imgs[0], bayer=not no_bayer), to_gray8(imgs[1], bayer=not no_bayer))
+            kept, why = feed.offer(grays, (detect(grays[0], board), detect(grays[1], board)))
+            log.append({"pair": pair[0].name, "kept": kept, "why": why})
+            if kept:
+                for side, p in zip(("left", "right"), pair, strict=True):
+                    _shutil.copyfile(p, out / side / p.name)
+            if not quiet:
+                st = feed.coverage.status()
+                bars = " ".join(f"{k} {v:.0%}" for k, v in st["bars"].items())  # type: ignore[attr-defined]
+                click.echo(f"{pair[0].name}: {'kept' if kept else why}; {st['kept']} kept; {bars}", err=True)
+            if rate_hz > 0:
+                t_next += 1.0 / rate_hz
+                time.sleep(max(0.0, t_next - time.monotonic()))
+        feed.finish()
+        (out / "board.yaml").write_text(board_file.read_text())
+        status = feed.coverage.status()
+        (out / "capture.json").write_text(json.dumps({"source": str(source), **status, "pairs": log}, indent=1)
+                                          + "\n")
+        if server is not None and hold_s > 0:
+            time.sleep(hold_s)
+    finally:
+        if server is not None:
+            server.close()
+    click.echo(f"kept {status['kept']} of {len(pairs)} pairs in {out}; {status['advice']}")
+    return EXIT_OK if status["enough"] else EXIT_PROBLEMS

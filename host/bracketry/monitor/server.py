@@ -7,6 +7,8 @@ Endpoints (JSON unless noted; documented in ``host/bracketry/monitor/MONITOR.md`
 - ``GET /api/previews`` per camera and bracket: exposure, histogram, over/under-exposed shares, preview URL;
 - ``GET /api/preview/{side}/{bracket}.png`` the preview image (PNG);
 - ``GET /api/advisor`` dynamic range, coverage and a suggested table (per camera and for the rig);
+- ``GET /api/calibration`` a board capture's coverage and latest corners (``{"active": false}`` without one);
+- ``GET /api/calibration/{side}.png`` the capture's latest preview of a camera (PNG);
 - ``POST /api/action`` ``{"action": "sensors_on" | "sensors_off" | "record_start" | "record_stop" |
   "apply_brackets", "brackets_us": [...]}``: always needs the token.
 
@@ -30,6 +32,7 @@ from aiohttp import web
 from bracketry.errors import BracketryError
 from bracketry.monitor.address import is_loopback
 from bracketry.monitor.advisor import advise
+from bracketry.monitor.calibration_feed import CaptureFeed
 from bracketry.monitor.hub import PreviewHub
 
 log = logging.getLogger("bracketry.monitor")
@@ -71,15 +74,17 @@ class _Ctx:
     hub: PreviewHub
     token: str
     read_needs_token: bool
+    calibration: CaptureFeed | None = None
 
 
 class MonitorServer:
     """Serve the monitor of ``backend`` on ``host:port``; :meth:`start` raises BracketryError if it cannot listen."""
 
-    def __init__(self, backend: Backend, hub: PreviewHub, host: str, port: int, token: str | None = None) -> None:
+    def __init__(self, backend: Backend, hub: PreviewHub, host: str, port: int, token: str | None = None,
+                 calibration: CaptureFeed | None = None) -> None:
         self.host, self.port = host, port
         self.token = token or new_token()
-        self._ctx = _Ctx(backend, hub, self.token, not is_loopback(host))
+        self._ctx = _Ctx(backend, hub, self.token, not is_loopback(host), calibration)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._runner: web.AppRunner | None = None
         self._thread: threading.Thread | None = None
@@ -194,6 +199,16 @@ def make_app(ctx: _Ctx) -> web.Application:
         loop = asyncio.get_running_loop()
         return web.json_response(await loop.run_in_executor(None, advisor_report, ctx.backend, ctx.hub))
 
+    async def calibration(_request: web.Request) -> web.Response:
+        feed = ctx.calibration
+        return web.json_response({"active": False} if feed is None else feed.snapshot())
+
+    async def calibration_png(request: web.Request) -> web.Response:
+        png = None if ctx.calibration is None else ctx.calibration.preview_png(request.match_info["side"])
+        if png is None:
+            raise web.HTTPNotFound()
+        return web.Response(body=png, content_type="image/png")
+
     async def action(request: web.Request) -> web.Response:
         try:
             body = await request.json()
@@ -216,6 +231,8 @@ def make_app(ctx: _Ctx) -> web.Application:
     app.router.add_get("/api/previews", previews)
     app.router.add_get("/api/preview/{side}/{bracket}.png", preview_png)
     app.router.add_get("/api/advisor", advisor)
+    app.router.add_get("/api/calibration", calibration)
+    app.router.add_get("/api/calibration/{side}.png", calibration_png)
     app.router.add_post("/api/action", action)
     return app
 

@@ -206,6 +206,10 @@ ROWS = [
     Row("number", "calibrate solve {tmp} --out {tmp}/cal --trials 0", words="--trials"),
     Row("number", "calibrate solve {tmp} --out {tmp}/cal --inlier-px nan", words="--inlier-px"),
     Row("path", "calibrate solve {tmp} --out {tmp}/full", words="--overwrite"),
+    Row("file", "calibrate capture --from {tmp}/none --out {tmp}/kept", words="does not exist"),
+    Row("file", "calibrate capture --from {tmp} --out {tmp}/kept", words="no board.yaml"),
+    Row("number", "calibrate capture --from {tmp} --out {tmp}/kept --monitor 70000", words="--monitor"),
+    Row("number", "calibrate capture --from {tmp} --out {tmp}/kept --rate-hz -1", words="--rate-hz"),
     Row("file", "status --socket {tmp}/none.sock", words="no daemon is listening"),
     Row("file", "status --config {tmp}/none.toml", words="does not exist"),
     # ---- recordings: empty, not MCAP

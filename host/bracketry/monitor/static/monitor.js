@@ -141,6 +141,57 @@ async function tickAdvisor() {
   try { showAdvice(await getJSON("/api/advisor")); } catch (e) { /* shown by tick() */ }
 }
 
+// A board capture (bracketry calibrate capture): the latest pair with its corners (green: kept, orange: not),
+// the coverage bars (x, y, size, skew as ROS camera_calibration) and whether the set is enough.
+let calVersion = -1;
+
+function drawCorners(side, cal) {
+  const canvas = document.getElementById("cal-" + side);
+  const img = new Image();
+  img.onload = () => {
+    canvas.width = img.naturalWidth;
+    canvas.height = img.naturalHeight;
+    const ctx = canvas.getContext("2d");
+    ctx.drawImage(img, 0, 0);
+    const pts = (cal.last && cal.last.corners[side]) || [];
+    ctx.fillStyle = cal.last && cal.last.kept ? "#3f3" : "#fa3";
+    for (const [x, y] of pts) ctx.fillRect(x * canvas.width - 2, y * canvas.height - 2, 4, 4);
+    canvas.dataset.corners = pts.length;
+    canvas.dataset.version = cal.version;
+  };
+  img.src = withToken("/api/calibration/" + side + ".png?v=" + cal.version);
+}
+
+function showCalibration(cal) {
+  const box = document.getElementById("calibration");
+  if (!cal.active) { box.hidden = true; return; }
+  box.hidden = false;
+  for (const [name, v] of Object.entries(cal.bars)) {
+    const bar = document.querySelector('#cal-bars [data-param="' + name + '"]');
+    bar.querySelector("progress").value = v;
+    bar.querySelector(".val").textContent = Math.round(100 * v) + "%";
+    bar.dataset.value = v;
+  }
+  const badge = document.getElementById("cal-enough");
+  badge.textContent = cal.enough ? "ENOUGH" : cal.kept + " kept";
+  badge.className = "badge" + (cal.enough ? " ok" : "");
+  const last = cal.last ? (cal.last.kept ? "last pair kept" : "last pair: " + cal.last.why) : "no pair yet";
+  document.getElementById("cal-info").textContent = cal.kept + " views kept of " + cal.offered + " pairs; " + last +
+    (cal.done ? "; capture ended" : "");
+  document.getElementById("cal-advice").textContent = cal.advice;
+  box.dataset.kept = cal.kept;
+  box.dataset.enough = cal.enough;
+  if (cal.version !== calVersion && cal.last) {
+    calVersion = cal.version;
+    drawCorners("left", cal);
+    drawCorners("right", cal);
+  }
+}
+
+async function tickCalibration() {
+  try { showCalibration(await getJSON("/api/calibration")); } catch (e) { /* shown by tick() */ }
+}
+
 document.getElementById("apply").onclick = () => suggested && act("apply_brackets", {brackets_us: suggested});
 document.getElementById("sensors-on").onclick = () => act("sensors_on");
 document.getElementById("sensors-off").onclick = () => act("sensors_off");
@@ -149,5 +200,7 @@ document.getElementById("record-stop").onclick = () => act("record_stop");
 if (!token) for (const b of document.querySelectorAll("button")) b.disabled = true;
 tick();
 tickAdvisor();
+tickCalibration();
 setInterval(tick, 1000);
+setInterval(tickCalibration, 1000);
 setInterval(tickAdvisor, 3000);
