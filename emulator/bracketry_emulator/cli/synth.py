@@ -9,10 +9,12 @@ import click
 from bracketry.cli.options import (
     EXIT_OK,
     SEED,
+    WORKERS,
     Duration,
     Number,
     count,
     input_dir,
+    input_file,
     option,
     output_dir,
     overwrite_option,
@@ -32,24 +34,53 @@ def _parse_ms_list(text: str, what: str) -> tuple[float, ...]:
     return values
 
 
+def _camera(response: str):
+    from bracketry_emulator.synth import CameraModel
+
+    if response in ("srgb", "linear"):
+        return CameraModel(response=response)
+    path = Path(response)
+    if not path.is_file():
+        raise BracketryError(f"--response must be srgb, linear or a pcalib file (not found: {response})")
+    return CameraModel.with_pcalib_file(path)
+
+
+def _scenario_world(ctx: click.Context, scenario_file: Path, seed: int, seconds: float, resolution: str,
+                    brackets_ms: str, fps: float, response: str, calibration: Path | None, detail: float,
+                    motion_blur: bool):
+    """The world of a scenario file, and its duration, brackets and fps (the command line's where given)."""
+    from click.core import ParameterSource
+
+    from bracketry_emulator.synth import parse_resolution
+    from bracketry_emulator.synth.calibration import load_calibration
+    from bracketry_emulator.synth.scenario import load_scenario, world_from_scenario
+
+    def given(name: str) -> bool:
+        return ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE
+
+    if given("preset") or given("speed_kmh"):
+        raise BracketryError("--preset and --speed-kmh come from the scenario (its preset, route.pace_kmh)")
+    sc = load_scenario(scenario_file)
+    size = parse_resolution(resolution) if given("resolution") else sc.resolution
+    calib = load_calibration(calibration, *size) if calibration is not None else None
+    world = world_from_scenario(sc, seed=seed if given("seed") else sc.seed, resolution=size, detail=detail,
+                                camera=_camera(response), calibration=calib, motion_blur=motion_blur)
+    brackets = _parse_ms_list(brackets_ms, "--brackets-ms") if given("brackets_ms") else sc.brackets_ms
+    return (world, seconds if given("seconds") else sc.duration_s, brackets, fps if given("fps") else sc.fps)
+
+
 def _make_world(preset: str, seed: int, resolution: str, response: str, calibration: Path | None,
-                speed_kmh: float, motion_blur: bool = False):
-    from bracketry_emulator.synth import CameraModel, LoopTrajectory, World, parse_resolution
+                speed_kmh: float, motion_blur: bool = False, detail: float = 1.0):
+    from bracketry_emulator.synth import LoopTrajectory, World, parse_resolution
     from bracketry_emulator.synth.calibration import load_calibration
 
     size = parse_resolution(resolution)
-    if response in ("srgb", "linear"):
-        camera = CameraModel(response=response)
-    else:
-        path = Path(response)
-        if not path.is_file():
-            raise BracketryError(f"--response must be srgb, linear or a pcalib file (not found: {response})")
-        camera = CameraModel.with_pcalib_file(path)
+    camera = _camera(response)
     calib = load_calibration(calibration, *size) if calibration is not None else None
     if speed_kmh <= 0 or speed_kmh > 20:
         raise BracketryError("--speed-kmh must be in (0, 20]")
     return World(preset, seed, size, calibration=calib, camera=camera, trajectory=LoopTrajectory(speed_kmh=speed_kmh),
-                 motion_blur=motion_blur)
+                 motion_blur=motion_blur, detail=detail)
 
 
 def _out_dir(out: Path) -> Path:
@@ -110,14 +141,26 @@ def command() -> None:
 @click.option("--motion-blur/--no-motion-blur", default=True, show_default=True,
               help="Integrate the motion over each exposure (one render per frame, moved by its range to instants "
                    "~1 px of motion apart); off: each frame is the render at its mid-exposure.")
-def trajectory_cmd(out: Path, overwrite: bool, preset: str, seed: int, response: str, calibration: Path | None,
-                   quiet: bool, seconds: float, resolution: str, brackets_ms: str, fps: float, speed_kmh: float,
-                   start_s: float, motion_blur: bool) -> int:
+@click.option("--scenario", "scenario_file", type=input_file(), default=None,
+              help="A scenario YAML (route, pace, time of day, weather, lighting events; see DATASET.md and the "
+                   "shipped ones in bracketry_emulator/synth/scenarios/): its preset, seed, duration, resolution, "
+                   "fps and brackets unless given here.")
+@click.option("--detail", type=Number(0.05, 2.0), default=1.0, show_default=True,
+              help="Ground texture detail (1.0: 4 cm texels near the path; less builds the world faster).")
+@click.pass_context
+def trajectory_cmd(ctx: click.Context, out: Path, overwrite: bool, preset: str, seed: int, response: str,
+                   calibration: Path | None, quiet: bool, seconds: float, resolution: str, brackets_ms: str, fps: float,
+                   speed_kmh: float, start_s: float, motion_blur: bool, scenario_file: Path | None,
+                   detail: float) -> int:
     """A stereo walk along a loop: BorealHDR tree + groundtruth.txt + calibration/ + camera_model.json."""
     from bracketry_emulator.synth import write_trajectory
 
-    brackets = _parse_ms_list(brackets_ms, "--brackets-ms")
-    world = _make_world(preset, seed, resolution, response, calibration, speed_kmh, motion_blur)
+    if scenario_file is not None:
+        world, seconds, brackets, fps = _scenario_world(ctx, scenario_file, seed, seconds, resolution, brackets_ms,
+                                                        fps, response, calibration, detail, motion_blur)
+    else:
+        brackets = _parse_ms_list(brackets_ms, "--brackets-ms")
+        world = _make_world(preset, seed, resolution, response, calibration, speed_kmh, motion_blur, detail)
     out = _out_dir(out)
     bar, update = _progress("synth trajectory", quiet)
     try:
@@ -125,6 +168,10 @@ def trajectory_cmd(out: Path, overwrite: bool, preset: str, seed: int, response:
                                    progress=update)
     finally:
         bar.close()
+    if world.scenario is not None:
+        import yaml
+
+        (out / "scenario.yaml").write_text(yaml.safe_dump(world.scenario.to_dict(), sort_keys=False))
     click.echo(f"wrote {summary['frames']} frames x {len(summary['sides'])} cameras ({summary['cycles']} bracket "
                f"cycles, {summary['duration_s']:.2f} s, radiance range {summary['radiance_range_db']:.0f} dB) "
                f"to {out}")
@@ -172,3 +219,34 @@ def static_cmd(out: Path, overwrite: bool, preset: str, seed: int, response: str
 
 
 command.add_command(calibration_cmd)  # bracketry synth calibration (its own module)
+
+
+@command.command("suite")
+@click.option("--out", "out", type=output_dir(existing="resume"), required=True,
+              help="Output folder: new, empty, or holding this very suite (then reused as it is).")
+@overwrite_option("Replace a non-empty --out that holds something else.")
+@click.option("--size", type=click.Choice(["demo", "full"]), required=True,
+              help="demo: 14 trajectories of 3 s at 320x200; full: 24 of 60 s at 640x400.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="Suite seed (every world seed follows from it).")
+@click.option("--workers", type=WORKERS, default=2, show_default=True,
+              help="Trajectories rendered in parallel processes (the bytes do not depend on it).")
+@click.option("--no-cache", is_flag=True,
+              help="Render straight into --out (default: render into the cache, $BRACKETRY_CACHE or "
+                   "~/.cache/bracketry/synth-suites, and link from there).")
+@quiet_option()
+def suite_cmd(out: Path, overwrite: bool, size: str, seed: int, workers: int, no_cache: bool, quiet: bool) -> int:
+    """A versioned suite of synthetic trajectories with ground truth and DIR/manifest.yaml (subsets forest,
+    sun-shadow, glare, day-cycle; split train/test), for ``bracketry benchmark DIR/manifest.yaml``."""
+    from bracketry.progress import Progress
+    from bracketry_emulator.synth.suite import cache_dir, make_suite
+
+    bar = Progress("synth suite", unit="trajectory", enabled=not quiet)
+    try:
+        ident, how = make_suite(out, size, seed, overwrite=overwrite, use_cache=not no_cache,
+                                workers=max(1, workers), progress=lambda d, t: bar.set(d, t))
+    finally:
+        bar.close()
+    where = "" if no_cache else f" (cache: {cache_dir(size, seed)})"
+    click.echo(f"suite v{ident['version']} {size} seed {seed} {how} in {out}{where}; "
+               f"benchmark it with: bracketry benchmark {out / 'manifest.yaml'}")
+    return EXIT_OK

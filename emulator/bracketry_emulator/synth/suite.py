@@ -1,0 +1,286 @@
+"""The synthetic benchmark suite: shipped scenarios rendered into trajectories and a manifest (``synth suite``).
+
+Layout of a rendered suite::
+
+    DIR/manifest.yaml                       trajectories (path, subset, name, split) + suite: {version, size, seed}
+    DIR/<subset>/<name>/                    one synthetic trajectory (BorealHDR tree, groundtruth.txt,
+                                            calibration/, camera_model.json, scenario.yaml: its scenario)
+
+Subsets after the paper's: ``forest``, ``sun-shadow`` (Belair-like), ``glare`` (Campus1-like), ``day-cycle`` (one
+campus loop at six times of day, Campus2-like). Sizes: ``full`` (24 trajectories of 60 s at 640x400) and ``demo``
+(14 of 3 s at 320x200). A suite is cached by (version, size, seed) in ``user_cache_dir()/synth-suites``; the same
+seed gives the same bytes. Bump :data:`SUITE_VERSION` whenever anything changes what a suite renders.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import yaml
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.synth.scenario import merge, read_scenario_doc, scenario_from_dict, shipped_scenarios
+
+#: the suite's version: part of its cache key and of its manifest
+SUITE_VERSION = "1"
+SUBSETS = ("forest", "sun-shadow", "glare", "day-cycle")
+DAY_CYCLE_HOURS = (6.0, 9.0, 12.0, 15.0, 18.0, 20.2)
+
+
+@dataclass(frozen=True)
+class SizeSpec:
+    """How big each trajectory of a suite size is: resolution (W, H), duration (s), ground texture detail."""
+
+    resolution: tuple[int, int]
+    duration_s: float
+    detail: float
+
+
+SIZES = {"demo": SizeSpec((320, 200), 3.0, 0.25), "full": SizeSpec((640, 400), 60.0, 0.5)}
+
+
+@dataclass(frozen=True)
+class Entry:
+    """One trajectory of the suite: its subset, name, scenario file (stem), world index (the world seed is drawn
+    from the suite seed and the subset's worlds: entries with the same index share a world), overrides of the
+    scenario, split, and the sizes it belongs to."""
+
+    subset: str
+    name: str
+    scenario: str
+    world: int
+    overrides: tuple[tuple[str, Any], ...] = ()
+    split: str = "test"
+    sizes: tuple[str, ...] = ("demo", "full")
+
+
+def _e(subset: str, name: str, scenario: str, world: int, split: str = "test",
+       sizes: tuple[str, ...] = ("demo", "full"),
+       **overrides: Any) -> Entry:
+    return Entry(subset, name, scenario, world, tuple(sorted(overrides.items())), split, sizes)
+
+
+_FULL = ("full",)
+#: the suite: 24 trajectories at size full (19 test, 5 train), 14 of them at size demo (11 test, 3 train)
+ENTRIES: tuple[Entry, ...] = (
+    _e("forest", "forest_canopy_a", "forest-canopy", 0),
+    _e("forest", "forest_canopy_b", "forest-canopy", 1, "train", _FULL, route={"start_fraction": 0.5}),
+    _e("forest", "forest_fresh_snow_a", "forest-fresh-snow", 2),
+    _e("forest", "forest_dusk_a", "forest-dusk", 3),
+    _e("forest", "forest_fast_a", "forest-fast", 4, "train"),
+    _e("forest", "forest_canopy_c", "forest-canopy", 5, "test", _FULL, sun={"hour": 14.5}),
+    _e("forest", "forest_fresh_snow_b", "forest-fresh-snow", 6, "test", _FULL, route={"start_fraction": 0.6}),
+    _e("forest", "forest_fast_b", "forest-fast", 7, "test", _FULL, route={"pace_kmh": 11.0}),
+    _e("sun-shadow", "sun_shadow_a", "sun-shadow", 0),
+    _e("sun-shadow", "sun_shadow_b", "sun-shadow", 1, "train",
+       lighting_events=[{"kind": "clouds", "cover": 0.6, "opacity": 1.0, "speed_mps": 12, "direction_deg": 150,
+                         "size_m": 35},
+                        {"kind": "canopy_patches", "from": 0.0, "to": 1.0, "density": 0.85, "period_m": 11,
+                         "duty": 0.5}]),
+    _e("sun-shadow", "sun_shadow_c", "sun-shadow", 2, "test", _FULL, route={"start_fraction": 0.4}),
+    _e("sun-shadow", "sun_shadow_d", "sun-shadow", 3, "test", _FULL, sun={"hour": 15.0}),
+    _e("sun-shadow", "sun_shadow_e", "sun-shadow", 4, "test", _FULL, route={"pace_kmh": 6.0}),
+    _e("sun-shadow", "sun_shadow_f", "sun-shadow", 5, "test", _FULL,
+       lighting_events=[{"kind": "clouds", "cover": 0.4, "opacity": 1.0, "speed_mps": 20, "direction_deg": 300,
+                         "size_m": 60}]),
+    _e("glare", "glare_a", "glare", 0),
+    _e("glare", "glare_b", "glare", 1, "train", _FULL, sun={"azimuth_deg": 120.0}),
+    _e("glare", "glare_c", "glare", 2, "test", ("demo", "full"), route={"start_fraction": 0.5},
+       sun={"elevation_deg": 5.0}),
+    _e("glare", "glare_d", "glare", 3, "test", _FULL, sun={"elevation_deg": 12.0, "azimuth_deg": 300.0}),
+    *(_e("day-cycle", f"day_cycle_{int(h):02d}{round(h % 1 * 60):02d}", "day-cycle", 0,
+         "train" if h == 15.0 else "test", sun={"hour": h}) for h in DAY_CYCLE_HOURS),
+)
+
+
+def entries(size: str) -> list[Entry]:
+    """The trajectories of a suite size, in manifest order."""
+    if size not in SIZES:
+        raise BracketryError(f"unknown suite size {size!r} (choose from {', '.join(SIZES)})")
+    return [e for e in ENTRIES if size in e.sizes]
+
+
+def world_seed(suite_seed: int, entry: Entry) -> int:
+    """The world seed of an entry: drawn from the suite seed, the subset and the entry's world index."""
+    digest = hashlib.sha256(f"{suite_seed}/{entry.subset}/{entry.world}".encode()).digest()
+    return int.from_bytes(digest[:4], "little")
+
+
+def entry_scenario_doc(entry: Entry, size: str, suite_seed: int) -> dict:
+    """The scenario document an entry renders (shipped file + the entry's overrides + the size's settings)."""
+    files = shipped_scenarios()
+    if entry.scenario not in files:
+        raise BracketryError(f"suite entry {entry.name}: no shipped scenario {entry.scenario!r}")
+    spec = SIZES[size]
+    doc = merge(read_scenario_doc(files[entry.scenario]), dict(entry.overrides))
+    w, h = spec.resolution
+    doc.update(name=entry.name, subset=entry.subset, seed=world_seed(suite_seed, entry),
+               duration_s=spec.duration_s, resolution=f"{w}x{h}")
+    for ev in doc.get("lighting_events") or []:  # dimming keys follow the trajectory's duration
+        if isinstance(ev, dict) and ev.get("kind") == "dimming" and isinstance(ev.get("times_s"), list):
+            last = float(ev["times_s"][-1]) or 1.0
+            ev["times_s"] = [float(t) / last * spec.duration_s for t in ev["times_s"]]
+    return doc
+
+
+def user_cache_dir() -> Path:
+    """``$BRACKETRY_CACHE`` or ``$XDG_CACHE_HOME/bracketry`` or ``~/.cache/bracketry``."""
+    env = os.environ.get("BRACKETRY_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "bracketry"
+
+
+def suite_id(size: str, seed: int) -> dict:
+    """What identifies a rendered suite (its manifest's ``suite:`` block)."""
+    return {"version": SUITE_VERSION, "size": size, "seed": int(seed)}
+
+
+def cache_dir(size: str, seed: int) -> Path:
+    """Where the suite of (size, seed) at this version is cached."""
+    return user_cache_dir() / "synth-suites" / f"v{SUITE_VERSION}-{size}-seed{int(seed)}"
+
+
+def read_suite_id(folder: Path) -> dict | None:
+    """The ``suite:`` block of ``folder/manifest.yaml`` when it is a complete rendered suite, else None."""
+    try:
+        doc = yaml.safe_load((folder / "manifest.yaml").read_text())
+    except (OSError, yaml.YAMLError):
+        return None
+    return doc.get("suite") if isinstance(doc, dict) and isinstance(doc.get("suite"), dict) else None
+
+
+def _render_one(args: tuple[Path, dict, float]) -> str:
+    from bracketry_emulator.synth.scenario import world_from_scenario
+    from bracketry_emulator.synth.writer import write_trajectory
+
+    out, doc, detail = args
+    sc = scenario_from_dict(doc)
+    world = world_from_scenario(sc, detail=detail)
+    tmp = out.with_name(out.name + ".partial")
+    if tmp.exists():
+        shutil.rmtree(tmp)
+    write_trajectory(world, tmp, seconds=sc.duration_s, brackets_ms=sc.brackets_ms, fps=sc.fps)
+    (tmp / "scenario.yaml").write_text(yaml.safe_dump(sc.to_dict(), sort_keys=False))
+    if out.exists():
+        shutil.rmtree(out)
+    tmp.rename(out)
+    return out.name
+
+
+def render_suite(out: Path, size: str, seed: int = 0, workers: int = 1,
+                 progress: Callable[[int, int], None] | None = None) -> dict:
+    """Render the suite of ``size`` and ``seed`` into ``out`` (created; existing trajectories are replaced) and
+    write ``out/manifest.yaml`` last. Returns the manifest document. ``workers`` > 1 renders trajectories in that
+    many processes (the bytes do not depend on it)."""
+    ents = entries(size)
+    spec = SIZES[size]
+    out.mkdir(parents=True, exist_ok=True)
+    manifest = out / "manifest.yaml"
+    if manifest.exists():
+        manifest.unlink()
+    jobs = []
+    for e in ents:
+        (out / e.subset).mkdir(exist_ok=True)
+        jobs.append((out / e.subset / e.name, entry_scenario_doc(e, size, seed), spec.detail))
+    for _, doc, _ in jobs:  # every scenario is valid before any work
+        scenario_from_dict(doc)
+    done = 0
+    if workers > 1 and len(jobs) > 1:
+        import multiprocessing
+
+        with multiprocessing.get_context("fork").Pool(min(workers, len(jobs))) as pool:
+            for _ in pool.imap_unordered(_render_one, jobs):
+                done += 1
+                if progress is not None:
+                    progress(done, len(jobs))
+    else:
+        for job in jobs:
+            _render_one(job)
+            done += 1
+            if progress is not None:
+                progress(done, len(jobs))
+    doc = {"suite": suite_id(size, seed),
+           "description": f"bracketry synthetic suite v{SUITE_VERSION}, size {size}, seed {seed}: "
+                          f"{len(ents)} trajectories of {spec.duration_s:g} s at {spec.resolution[0]}x"
+                          f"{spec.resolution[1]}",
+           "trajectories": [{"path": f"{e.subset}/{e.name}", "subset": e.subset, "name": e.name, "split": e.split,
+                             "scenario": e.scenario} for e in ents]}
+    manifest.write_text(yaml.safe_dump(doc, sort_keys=False))
+    return doc
+
+
+def _link_tree(src: Path, dst: Path) -> None:
+    """Hard-link (or copy, across file systems) every file of ``src`` into ``dst``."""
+    for root, _dirs, files in os.walk(src):
+        rel = Path(root).relative_to(src)
+        (dst / rel).mkdir(parents=True, exist_ok=True)
+        for f in files:
+            target = dst / rel / f
+            if target.exists():
+                target.unlink()
+            try:
+                os.link(Path(root) / f, target)
+            except OSError:
+                shutil.copy2(Path(root) / f, target)
+
+
+def make_suite(out: Path, size: str, seed: int = 0, overwrite: bool = False, use_cache: bool = True,
+               workers: int = 1, progress: Callable[[int, int], None] | None = None) -> tuple[dict, str]:
+    """The suite of (size, seed) in ``out``: reused when ``out`` already holds it, linked from the cache when the
+    cache holds it, else rendered (into the cache, then linked; or straight into ``out`` without cache).
+
+    Returns (suite id, how: "reused" | "cached" | "rendered"). A non-empty ``out`` that holds anything else is
+    refused unless ``overwrite`` (then it is replaced)."""
+    entries(size)
+    want = suite_id(size, seed)
+    if read_suite_id(out) == want:
+        return want, "reused"
+    if out.exists() and any(out.iterdir()):
+        if not overwrite:
+            raise BracketryError(f"--out {out} is not empty and does not hold this suite ({size}, seed {seed}, "
+                                 f"version {SUITE_VERSION}); use --overwrite to replace it")
+        shutil.rmtree(out)
+    if not use_cache:
+        render_suite(out, size, seed, workers, progress)
+        return want, "rendered"
+    cache = cache_dir(size, seed)
+    how = "cached"
+    if read_suite_id(cache) != want:
+        render_suite(cache, size, seed, workers, progress)
+        how = "rendered"
+    _link_tree(cache, out)
+    return want, how
+
+
+# ---------------------------------------------------------------------------------------------------- measures
+def view_dynamic_range_stops(radiance: np.ndarray, lo_pct: float = 1.0, hi_pct: float = 99.0) -> float:
+    """Dynamic range of one view in stops: log2 of the ``hi_pct`` over the ``lo_pct`` percentile of the radiance
+    (float (H, W); the darkest and brightest 1 % of the pixels by default)."""
+    lo, hi = np.percentile(np.asarray(radiance, np.float64), [lo_pct, hi_pct])
+    return float(np.log2(hi / max(lo, 1e-12)))
+
+
+def scene_brightness(radiance: np.ndarray) -> float:
+    """The brightness of a view: the median radiance (robust to the sky and the sun)."""
+    return float(np.median(radiance))
+
+
+def brightness_change(times_s: np.ndarray, brightness: np.ndarray, window_s: float = 2.0) -> float:
+    """Largest ratio of brightness between two instants at most ``window_s`` apart (>= 1)."""
+    t = np.asarray(times_s, np.float64)
+    b = np.asarray(brightness, np.float64)
+    best = 1.0
+    for i in range(t.size):
+        near = (t >= t[i]) & (t <= t[i] + window_s + 1e-9)
+        hi, lo = b[near].max(), b[near].min()
+        best = max(best, float(hi / max(lo, 1e-12)))
+    return best
