@@ -9,6 +9,7 @@ in the ground-truth frame (the left camera's optical frame at t = 0; x right, y 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections import OrderedDict
 from collections.abc import Sequence
 
@@ -77,6 +78,8 @@ class World:
             instants follows from the fastest-moving pixel over the exposure, up to ``blur_max``).
         blur_method: "reproject" (one render at the frame's mid-exposure, warped by its range to every instant: see
             :mod:`bracketry_emulator.synth.blur`) or "render" (a full render at every instant: exact, costly).
+        blur_renders: with "reproject", ray cast a frame up to this many times (each render moved to its share of
+            the instants): more renders average out more of the aliasing of a point-sampled render.
     """
 
     def __init__(self, preset: str = "forest-winter", seed: int = 0,
@@ -84,7 +87,8 @@ class World:
                  camera: CameraModel | None = None, trajectory: LoopTrajectory | None = None,
                  scenario: Scenario | None = None,
                  detail: float = 1.0, cache_size: int = 8, motion_blur: bool = True,
-                 blur_px: float = 1.0, blur_max: int = 64, blur_method: str = "reproject") -> None:
+                 blur_px: float = 1.0, blur_max: int = 64, blur_method: str = "reproject",
+                 blur_renders: int = 1) -> None:
         if preset not in PRESETS:
             raise BracketryError(f"unknown preset {preset!r} (choose from {', '.join(PRESETS)})")
         w, h = int(resolution[0]), int(resolution[1])
@@ -100,6 +104,7 @@ class World:
         self.blur_px = float(blur_px)
         self.blur_max = max(1, int(blur_max))
         self.blur_method = blur_method
+        self.blur_renders = max(1, int(blur_renders))
         self.resolution = (w, h)
         self.calibration = calibration if calibration is not None else default_calibration(w, h)
         if self.calibration.size != (w, h):
@@ -244,8 +249,8 @@ class World:
         mid-exposure). The simulated rig renders one instant per bracket cycle this way."""
         if not self.motion_blur:
             return [self._gained(side, self.radiance(side, self.mid_exposure_s(t, e)).radiance) for t, e in intervals]
-        if t_ref_s is None:  # each frame from its own render
-            return [self.rates_e_per_us(side, [iv], self.mid_exposure_s(*iv))[0] for iv in intervals]
+        if t_ref_s is None:  # each frame from its own render(s)
+            return [self._gained(side, self._frame_radiance(side, t, e)) for t, e in intervals]
         out = []
         for (t_s, exposure_us), motion in zip(intervals, self.motions(side, float(t_ref_s), intervals)):
             times = blur.sub_instants(t_s, exposure_us, motion.max_px(exposure_us * 1e-6), self.blur_px,
@@ -257,6 +262,28 @@ class World:
                                          times)
             out.append(self._gained(side, rad))
         return out
+
+    def _frame_radiance(self, side: str, t_s: float, exposure_us: float) -> np.ndarray:
+        """Radiance float32 (H, W) of one frame averaged over its exposure from its own renders: the instants of
+        :meth:`blur_times_s` cut into ``min(blur_renders, n)`` equal runs, each run ray cast at its middle and that
+        render moved to the run's instants (several renders average out the aliasing of a point-sampled render)."""
+        mid = self.mid_exposure_s(t_s, exposure_us)
+        motion = self.motions(side, mid, [(t_s, exposure_us)])[0]
+        times = blur.sub_instants(t_s, exposure_us, motion.max_px(exposure_us * 1e-6), self.blur_px, self.blur_max)
+        if self.blur_method == "render":
+            return self.integrate(side, times)
+        k = min(self.blur_renders, len(times))
+        if k == 1:
+            return blur.average_warps(self.radiance(side, mid).radiance, self._cells(side), motion, times)
+        bounds = [round(i * len(times) / k) for i in range(k + 1)]
+        acc = np.zeros_like(self.radiance(side, mid).radiance)
+        for a, b in itertools.pairwise(bounds):
+            run = times[a:b]
+            ref = 0.5 * (run[0] + run[-1])
+            m = self.motions(side, ref, [(t_s, exposure_us)])[0]
+            acc += blur.average_warps(self.radiance(side, ref).radiance, self._cells(side), m, run) * \
+                np.float32(len(run) / len(times))
+        return acc
 
     def integrate(self, side: str, times_s: Sequence[float]) -> np.ndarray:
         """Mean radiance float32 (H, W) of full renders at ``times_s`` (the exact integral, as dense as the
@@ -324,6 +351,7 @@ class World:
                     "disk_radiance": lt.disk_radiance},
             "groundtruth_frame": "left camera optical frame (x right, y down, z forward) at t = 0",
             "motion_blur": {"enabled": self.motion_blur, "method": self.blur_method, "max_step_px": self.blur_px,
-                            "max_instants": self.blur_max, "exposure": "[trigger, trigger + exposure]",
+                            "max_instants": self.blur_max, "renders_per_frame": self.blur_renders,
+                            "exposure": "[trigger, trigger + exposure]",
                             "pose_and_timestamp": "mid-exposure (trigger + exposure / 2)"},
         }

@@ -158,3 +158,16 @@ def test_brackets_of_one_cycle_are_each_at_their_own_instant(tmp_path: Path) -> 
                                       world.render("left", k / 22.0, e_us, noise=False))
     steps = np.linalg.norm(np.diff(np.array(poses), axis=0), axis=1)
     assert (steps > 0.01).all()  # 4 km/h: ~5 cm between brackets
+
+
+def test_one_render_per_instant_is_the_dense_integral() -> None:
+    """blur_renders >= the number of instants: every instant ray cast, i.e. the mean of full renders ("render")."""
+    kw = {"resolution": (96, 60), "trajectory": LoopTrajectory(speed_kmh=5.0)}
+    dense = World("forest-winter", seed=0, blur_method="render", **kw)
+    many = World("forest-winter", seed=0, blur_renders=64, **kw)
+    t, e = 3.0, 32000.0
+    assert len(dense.blur_times_s(t, e)) >= 2
+    assert np.allclose(many.rate_e_per_us("left", t, e), dense.rate_e_per_us("left", t, e), rtol=1e-5, atol=1e-7)
+    two = World("forest-winter", seed=0, blur_renders=2, **kw).rate_e_per_us("left", t, e)
+    one = World("forest-winter", seed=0, **kw).rate_e_per_us("left", t, e)
+    assert not np.array_equal(two, one) and float(two.mean()) == pytest.approx(float(one.mean()), rel=0.05)
