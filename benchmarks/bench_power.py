@@ -1,0 +1,188 @@
+"""Statistical power of the benchmark: how often its statistics flag known-bad controls, and a copy of AE50.
+
+Usage: .venv/bin/python benchmarks/bench_power.py [--seeds 10] [--slam builtin|orbslam3] [--repeats 1]
+                                                  [--out DIR] [--quick]
+
+For each seed, a suite is rendered and benchmarked with four methods: ``ae50`` (the reference), a far-too-short
+constant (``constant-0.0625``: four stops under the shortest bracket), a far-too-long one (``constant-64``: one stop
+over the longest bracket, emulated with gain) and ``ae50copy``, a plug-in (an import path, as a researcher ships one)
+whose rule is AE50's. The statistics are the report's: Mann-Whitney U against AE50 with Bonferroni over the three
+compared methods (alpha 0.05), per metric; the paired Wilcoxon signed-rank is counted beside it.
+
+- **power**: the share of seeds in which a bad control is flagged *worse* than AE50 on RTE or on time before failure;
+- **false positives**: the share of seeds in which the copy is flagged (better or worse) on any metric.
+
+Each with its count and a 95 % Clopper-Pearson interval. Goal (issue 28): power >= 0.9; the copy flagged in at most
+1 of 10 seeds.
+
+The suite: ``bracketry synth suite --size demo --seed S`` when that command exists, else (said in the output) six
+snowy-forest walks of 4 s at 320x200 (``bracketry synth trajectory``, seeds 100 S + k). Localisation: the built-in
+VO by default (deterministic: its results do not move between runs, so the copy's results are AE50's, bit for bit;
+ORB-SLAM3 over 10 seeds did not fit a session on this 2-core machine), ``--slam orbslam3 --repeats N`` for
+ORB-SLAM3 with N runs per (trajectory, method) (statistics on the medians: its run-to-run spread is what makes a
+copy differ from its original). Prints the table, the time per stage, and writes ``power.json`` into ``--out``.
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import json  # noqa: E402
+import shutil  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import textwrap  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+from bracketry_emulator.runtime_policy import apply_profile  # noqa: E402
+
+SHORT, LONG, COPY = "constant-0.0625", "constant-64", "ae50copy"
+COPY_MODULE = textwrap.dedent('''
+    """AE50 as a plug-in: the classical rule at 50 % (a copy, to measure the benchmark's false positives)."""
+    from bracketry_emulator.ae.classical import ClassicalAE
+
+
+    class AE50Copy(ClassicalAE):
+        name = "ae50copy"
+
+        def __init__(self):
+            super().__init__(50.0, name="ae50copy")
+''')
+#: metrics on which a bad control counts as flagged (worse than AE50)
+POWER_METRICS = ("rte_pct", "time_before_failure_s")
+BIN = Path(sys.executable).parent / "bracketry"
+
+
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    """Exact two-sided ``level`` interval of a binomial proportion with ``k`` successes in ``n`` trials."""
+    from scipy.stats import beta
+
+    a = (1.0 - level) / 2.0
+    lo = 0.0 if k == 0 else float(beta.ppf(a, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1.0 - a, k + 1, n - k))
+    return lo, hi
+
+
+def has_suite_command() -> bool:
+    """Whether ``bracketry synth suite`` exists in this checkout."""
+    return subprocess.run([str(BIN), "synth", "suite", "--help"], capture_output=True).returncode == 0
+
+
+def make_suite(root: Path, seed: int, use_suite: bool) -> Path:
+    """The seed's suite under ``root``; returns its manifest."""
+    if use_suite:
+        subprocess.run([str(BIN), "synth", "suite", "--out", str(root), "--size", "demo", "--seed", str(seed), "-q"],
+                       check=True, capture_output=True)
+        return root / "manifest.yaml"
+    entries = []
+    for k in range(6):
+        name = f"walk{k}"
+        subprocess.run([str(BIN), "synth", "trajectory", "--out", str(root / name), "--seed", str(100 * seed + k),
+                        "--duration-s", "4", "--resolution", "320x200", "-q"], check=True, capture_output=True)
+        entries.append(f"  - {{path: {name}, subset: forest}}")
+    (root / "manifest.yaml").write_text("trajectories:\n" + "\n".join(entries) + "\n")
+    return root / "manifest.yaml"
+
+
+def flags(results: list[dict]) -> dict[str, dict[str, dict[str, str]]]:
+    """{test: {method: {metric: verdict}}} of the report's statistics against AE50 (Bonferroni over 3 methods)."""
+    from bracketry_emulator.report.tables import per_metric_values, per_trajectory_values
+    from bracketry_emulator.stats.mannwhitney import METRICS, verdict_table
+    from bracketry_emulator.stats.paired import wilcoxon_to_reference
+
+    methods = ["ae50", SHORT, LONG, COPY]
+    mw = verdict_table(per_metric_values(results, methods), "ae50")
+    out: dict[str, dict[str, dict[str, str]]] = {"mann-whitney": {m: {} for m in methods[1:]},
+                                                  "wilcoxon": {m: {} for m in methods[1:]}}
+    for key, comps in mw.items():
+        for m, c in comps.items():
+            out["mann-whitney"][m][key] = c.verdict
+    for key, (_label, higher) in METRICS.items():
+        comps = wilcoxon_to_reference(per_trajectory_values(results, methods, key), "ae50", higher)
+        for m, c in comps.items():
+            out["wilcoxon"][m][key] = c.verdict
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--seeds", type=int, default=10, help="suites (seeds 0..N-1)")
+    ap.add_argument("--slam", choices=("builtin", "orbslam3"), default="builtin")
+    ap.add_argument("--repeats", type=int, default=1, help="SLAM runs per (trajectory, method)")
+    ap.add_argument("--out", type=Path, default=None, help="keep the suites, benchmarks and power.json here")
+    ap.add_argument("--quick", action="store_true", help="3 seeds")
+    args = ap.parse_args()
+    apply_profile("timing")
+    from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
+    from bracketry_emulator.benchmark.slam import slam_options
+    from bracketry_emulator.stats.mannwhitney import WORSE
+
+    n_seeds = 3 if args.quick else args.seeds
+    work = args.out or Path(tempfile.mkdtemp(prefix="bench_power_"))
+    work.mkdir(parents=True, exist_ok=True)
+    plugin_dir = work / "plugin"
+    plugin_dir.mkdir(exist_ok=True)
+    (plugin_dir / "ae50copy_mod.py").write_text(COPY_MODULE)
+    sys.path.insert(0, str(plugin_dir))
+    use_suite = has_suite_command()
+    suite_text = ("bracketry synth suite --size demo" if use_suite
+                  else "6 snowy-forest walks of 4 s at 320x200 (no `synth suite` in this checkout)")
+    slam = slam_options(args.slam, None, "0" if args.slam == "orbslam3" else None, True, args.repeats, resolve=False)
+    print(f"suite: {suite_text}; SLAM: {args.slam}, {args.repeats} run(s) per (trajectory, method); "
+          f"{n_seeds} seeds", flush=True)
+    per_seed = []
+    render_s = bench_s = 0.0
+    for seed in range(n_seeds):
+        t0 = time.perf_counter()
+        manifest = make_suite(work / f"suite{seed}", seed, use_suite)
+        t1 = time.perf_counter()
+        res = run_benchmark(BenchmarkConfig([manifest], ["ae50", SHORT, LONG, "ae50copy_mod:AE50Copy"],
+                                            work / f"bench{seed}", workers=os.cpu_count() or 1,
+                                            windows_m=(1.0, 2.0, 5.0), stats_methods="all", slam=slam,
+                                            setup_check=False))
+        t2 = time.perf_counter()
+        render_s += t1 - t0
+        bench_s += t2 - t1
+        f = flags(res.results)
+        mw = f["mann-whitney"]
+        row = {"seed": seed, "trajectories": len({r["trajectory"] for r in res.results}),
+               "short": any(mw[SHORT].get(k) == WORSE for k in POWER_METRICS),
+               "long": any(mw[LONG].get(k) == WORSE for k in POWER_METRICS),
+               "copy": any(v not in ("equal", "n/a") for v in mw[COPY].values()),
+               "verdicts": f, "render_s": round(t1 - t0, 1), "benchmark_s": round(t2 - t1, 1)}
+        per_seed.append(row)
+        print(f"seed {seed}: {row['trajectories']} trajectories, short flagged {row['short']}, long flagged "
+              f"{row['long']}, copy flagged {row['copy']} (render {t1 - t0:.0f} s, benchmark {t2 - t1:.0f} s)",
+              flush=True)
+    n = len(per_seed)
+    table = []
+    for what, key, goal in (("far-too-short constant flagged worse (power)", "short", ">= 0.9"),
+                            ("far-too-long constant flagged worse (power)", "long", ">= 0.9"),
+                            ("AE50 plug-in copy flagged at all (false positive)", "copy", "<= 1 of 10")):
+        k = sum(bool(r[key]) for r in per_seed)
+        lo, hi = clopper_pearson(k, n)
+        table.append({"what": what, "count": k, "seeds": n, "rate": k / n, "ci95": [lo, hi], "goal": goal})
+    print(f"\n| {'what':52s} | count | rate | 95 % CI (Clopper-Pearson) | goal |")
+    print(f"|{'-' * 54}|-------|------|---------------------------|------|")
+    for t in table:
+        print(f"| {t['what']:52s} | {t['count']}/{t['seeds']} | {t['rate']:.2f} | "
+              f"[{t['ci95'][0]:.2f}, {t['ci95'][1]:.2f}] | {t['goal']} |")
+    print(f"\ntime: render {render_s:.0f} s, benchmark {bench_s:.0f} s (wall, {os.cpu_count()} CPUs, load average "
+          f"{os.getloadavg()[0]:.1f})")
+    doc = {"suite": suite_text, "slam": args.slam, "repeats": args.repeats, "table": table, "seeds": per_seed,
+           "render_s": round(render_s, 1), "benchmark_s": round(bench_s, 1)}
+    if args.out is None:
+        shutil.rmtree(work, ignore_errors=True)
+    else:
+        (work / "power.json").write_text(json.dumps(doc, indent=1) + "\n")
+        print(f"written: {work / 'power.json'}")
+
+
+if __name__ == "__main__":
+    main()
