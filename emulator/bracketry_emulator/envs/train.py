@@ -60,6 +60,7 @@ class TrainConfig:
     gradient_steps: int = 1
     critic_hidden: int = 256
     share_encoder: bool = True
+    init_alpha: float = 0.368  # the entropy weight's start (theirs: log alpha_0 = -1), adapted from there
     width: int = 256
     augment: bool = True
     checkpoint_every: int = 5_000
@@ -117,7 +118,7 @@ def new_model(venv: Any, cfg: TrainConfig) -> Any:
                      "share_features_extractor": cfg.share_encoder}
     return sb3.SAC("CnnPolicy", venv, learning_rate=cfg.learning_rate, buffer_size=cfg.buffer_size,
                    learning_starts=cfg.learning_starts, batch_size=cfg.batch_size, tau=cfg.tau, gamma=cfg.gamma,
-                   train_freq=cfg.train_freq, gradient_steps=cfg.gradient_steps, ent_coef="auto_0.368",
+                   train_freq=cfg.train_freq, gradient_steps=cfg.gradient_steps, ent_coef=f"auto_{cfg.init_alpha:g}",
                    policy_kwargs=policy_kwargs, seed=cfg.seed, device="cpu", verbose=0)
 
 
