@@ -497,11 +497,10 @@ class LightField:
                 covered = rng.random(n_cells) < e["cover"]
                 u = (np.arange(_N_CLOUD) + 0.5) * (period / _N_CLOUD)
                 cover = covered[np.minimum((u / e["size_m"]).astype(np.int64), n_cells - 1)].astype(np.float64)
-                k = max(1, round(4.0 / (period / _N_CLOUD)))  # soft edges of ~4 m
-                kernel = np.ones(k) / k
-                soft = np.real(np.fft.ifft(np.fft.fft(cover) * np.fft.fft(np.concatenate(
-                    [kernel, np.zeros(_N_CLOUD - k)]))))
-                soft = np.clip(np.roll(soft, -(k // 2)), 0.0, 1.0)
+                k = max(1, round(4.0 / (period / _N_CLOUD)))  # soft edges of ~4 m: a circular moving average
+                padded = np.concatenate([cover[-(k // 2):] if k // 2 else cover[:0], cover, cover[:k]])
+                csum = np.concatenate([[0.0], np.cumsum(padded)])  # sequential sums: the same bits on every CPU
+                soft = np.clip((csum[k:k + _N_CLOUD] - csum[:_N_CLOUD]) / k, 0.0, 1.0)
                 total = direct_g + sky_g
                 shadow = ((1.0 - e["opacity"]) * direct_g + sky_g) / total if total > 0 else 1.0
                 table = (1.0 - (1.0 - shadow) * soft).astype(np.float32)

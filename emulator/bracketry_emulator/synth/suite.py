@@ -284,3 +284,76 @@ def brightness_change(times_s: np.ndarray, brightness: np.ndarray, window_s: flo
         hi, lo = b[near].max(), b[near].min()
         best = max(best, float(hi / max(lo, 1e-12)))
     return best
+
+
+def scenario_figures(doc: dict, resolution: tuple[int, int] = (160, 100), step_s: float = 0.5,
+                     detail: float = 0.25) -> dict:
+    """What a scenario asks of an exposure, measured on its rendered radiance (left camera, every ``step_s`` over
+    its duration, at ``resolution``): the dynamic range of one view in stops (median and max over the views, see
+    :func:`view_dynamic_range_stops`), the largest brightness change within 2 s (:func:`brightness_change` of
+    :func:`scene_brightness`), the brightness range over the walk, and the pace."""
+    from bracketry_emulator.synth.scenario import world_from_scenario
+
+    sc = scenario_from_dict(doc)
+    world = world_from_scenario(sc, resolution=resolution, detail=detail, motion_blur=False)
+    times = np.arange(0.0, sc.duration_s, step_s)
+    stops, bright = [], []
+    for t in times:
+        rad = world.radiance("left", float(t)).radiance
+        stops.append(view_dynamic_range_stops(rad))
+        bright.append(scene_brightness(rad))
+    b = np.array(bright)
+    return {"name": sc.name, "subset": sc.subset, "preset": sc.preset, "pace_kmh": sc.route.pace_kmh,
+            "sun_elevation_deg": float(np.degrees(np.arcsin(world.scene.lighting.sun_dir[2])))
+            if sc.sun.elevation_deg is None or sc.sun.elevation_deg > 0.5 else sc.sun.elevation_deg,
+            "view_range_stops_median": float(np.median(stops)), "view_range_stops_max": float(np.max(stops)),
+            "change_2s_x": brightness_change(times, b, 2.0),
+            "brightness_range_stops": float(np.log2(b.max() / max(b.min(), 1e-12)))}
+
+
+def thumbnail_strip(doc: dict, n: int = 6, resolution: tuple[int, int] = (192, 120), exposure_us: float = 4000.0,
+                    detail: float = 0.25) -> np.ndarray:
+    """A strip of ``n`` views spread over the scenario's duration: top row the radiance tone-mapped over 16 stops
+    (log scale: what is there), bottom row the camera's frame at a fixed ``exposure_us`` (what one exposure keeps).
+    uint8 BGR (2 H, n W, 3)."""
+    import cv2
+
+    from bracketry_emulator.synth.scenario import world_from_scenario
+
+    sc = scenario_from_dict(doc)
+    world = world_from_scenario(sc, resolution=resolution, detail=detail, motion_blur=False)
+    top, bottom = [], []
+    for t in np.linspace(0.0, sc.duration_s, n, endpoint=False) + 0.5:
+        rad = world.radiance("left", float(t)).radiance.astype(np.float64)
+        lo = np.log2(max(float(np.percentile(rad, 99.5)), 1e-9)) - 16.0
+        tone = np.clip((np.log2(np.maximum(rad, 1e-12)) - lo) / 16.0, 0, 1)
+        mosaic = (tone * 255).astype(np.uint8)
+        top.append(cv2.cvtColor(mosaic, cv2.COLOR_BayerBG2BGR))
+        codes = world.render("left", float(t), exposure_us, noise=False)
+        bottom.append(cv2.cvtColor((codes >> 4).astype(np.uint8), cv2.COLOR_BayerBG2BGR))
+    return np.vstack([np.hstack(top), np.hstack(bottom)])
+
+
+def _figures_main(out_dir: Path) -> None:
+    """Thumbnail strips of the shipped scenarios into ``out_dir`` and their figures as a Markdown table."""
+    import cv2
+
+    out_dir.mkdir(parents=True, exist_ok=True)
+    print("| scenario | subset | pace km/h | sun elevation | one view: stops (median / max) | "
+          "brightness change within 2 s | brightness over the walk |")
+    print("|---|---|---|---|---|---|---|")
+    for name, path in shipped_scenarios().items():
+        doc = read_scenario_doc(path)
+        if name == "day-cycle":
+            doc = merge(doc, {"sun": {"hour": 9.0}})
+        f = scenario_figures(doc)
+        cv2.imwrite(str(out_dir / f"{name}.png"), thumbnail_strip(doc))
+        print(f"| {name} | {f['subset']} | {f['pace_kmh']:g} | {f['sun_elevation_deg']:.1f} deg | "
+              f"{f['view_range_stops_median']:.1f} / {f['view_range_stops_max']:.1f} | {f['change_2s_x']:.1f}x | "
+              f"{f['brightness_range_stops']:.1f} stops |", flush=True)
+
+
+if __name__ == "__main__":
+    import sys
+
+    _figures_main(Path(sys.argv[1]) if len(sys.argv) > 1 else Path("emulator/docs/scenarios"))

@@ -70,3 +70,60 @@ def test_sun_position_follows_the_time_of_day() -> None:
     assert np.cos(np.radians(morning_az)) > 0 > np.cos(np.radians(evening_az))
     dusk, _ = sun_position(Sun(hour=20.5, day_of_year=172, latitude_deg=46.8))
     assert dusk < 0
+
+
+#: renders frames of a scenario with every kind of light (canopy, patches, clouds, dimming, glare, fresh snow) and
+#: prints the digest of their radiance and codes
+_SCENARIO_SCRIPT = """
+import hashlib
+import numpy as np
+from bracketry_emulator.synth.scenario import scenario_from_dict, world_from_scenario
+doc = {"preset": "forest-winter", "sun": {"elevation_deg": 9.0, "azimuth_deg": 200.0}, "weather": {"glare": 2.0},
+       "content": {"tree_density": 0.5, "treeline_scale": 0.4},
+       "lighting_events": [{"kind": "canopy", "from": 0.0, "to": 0.3, "density": 0.98},
+                           {"kind": "canopy_patches", "from": 0.3, "to": 0.8, "period_m": 7},
+                           {"kind": "clouds", "speed_mps": 15, "size_m": 25},
+                           {"kind": "dimming", "times_s": [0, 30], "factors": [1, 0.3]},
+                           {"kind": "fresh_snow", "from": 0.5, "to": 0.9}]}
+w = world_from_scenario(scenario_from_dict(doc), resolution=(160, 100), detail=0.25)
+h = hashlib.sha256()
+for t in (0.0, 5.3, 11.9, 17.2, 24.0):
+    h.update(np.ascontiguousarray(w.radiance("left", t).radiance).tobytes())
+    h.update(w.render("right", t, 8000.0).tobytes())
+print(h.hexdigest())
+"""
+
+
+@pytest.mark.slow
+def test_scenario_frames_are_the_same_under_every_openblas_kernel_and_numpy_dispatch() -> None:
+    import os
+    import platform
+    import subprocess
+    import sys
+
+    if platform.machine() not in ("x86_64", "AMD64"):
+        pytest.skip("the OpenBLAS kernels compared are x86-64 ones")
+    flags: set[str] = set()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("flags"):
+                flags = set(line.split(":", 1)[1].split())
+                break
+    except OSError:
+        pass
+    settings: dict[str, dict[str, str]] = {"default": {}}
+    settings.update({k: {"OPENBLAS_CORETYPE": k} for k, need in
+                     {"Haswell": {"avx2", "fma"}, "Sandybridge": {"avx"}, "Prescott": {"sse3"}}.items()
+                     if need <= flags})
+    settings["numpy baseline"] = {"NPY_DISABLE_CPU_FEATURES": "X86_V3 X86_V4 AVX512_ICL AVX512_SPR"}
+    settings["no C kernels"] = {"BRACKETRY_NO_CKERNEL": "1"}
+    base = {k: v for k, v in os.environ.items() if k not in ("OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")}
+    procs = {name: subprocess.Popen([sys.executable, "-c", _SCENARIO_SCRIPT], env={**base, **extra},
+                                    stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for name, extra in settings.items()}
+    digests = {}
+    for name, proc in procs.items():
+        stdout, stderr = proc.communicate(timeout=300)
+        assert proc.returncode == 0, (name, stderr[-2000:])
+        digests[name] = stdout.strip()
+    assert len(set(digests.values())) == 1, digests
