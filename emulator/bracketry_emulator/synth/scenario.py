@@ -701,6 +701,7 @@ def world_from_dataset(path: str | Path):  # -> World
     kwargs: dict[str, Any] = {}
     for key, name, kind in (("enabled", "motion_blur", bool), ("method", "blur_method", str),
                             ("max_step_px", "blur_px", float), ("max_instants", "blur_max", int),
+                            ("renders_per_frame", "blur_renders", int),
                             ("slice_us", "blur_slice_us", float), ("max_slices", "blur_max", int)):
         if key in blur and name in params:
             kwargs[name] = kind(blur[key])
