@@ -9,7 +9,7 @@ bracket's saturated fraction once per decoded bracket. Same rules and results as
 from __future__ import annotations
 
 from bisect import bisect_left
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 
 import numpy as np
 
@@ -69,17 +69,19 @@ class EmulationCache:
         return hit
 
     def stereo(self, seq_index: int, brackets: dict[str, dict[int, np.ndarray]], target_us: float,
-               ae_camera: str) -> dict[str, EmulatedImage]:
+               ae_camera: str, times_ns: Mapping[str, Mapping[int, int]] | None = None) -> dict[str, EmulatedImage]:
         """Every side of ``brackets`` ({side: {exposure_us: uint16 HxW}}: the sequence's brackets; only those
         :func:`needed_brackets` names are read) emulated at ``target_us``, all from ONE source bracket (one stereo
         capture). With ``parity`` upstream, ``ae_camera`` alone decides the source, as the authors' left emulator
-        does (their right emulator decides on its own, which the joint decision corrects)."""
+        does (their right emulator decides on its own, which the joint decision corrects). ``times_ns``: {side:
+        {exposure_us: mid-exposure stamp ns}} of the brackets, for the emulator's motion blur."""
         cfg = self.emulator.config
         needed = needed_brackets(tuple(next(iter(brackets.values()))), target_us, cfg.selection)
         subsets = {side: {e: frames[e] for e in needed} for side, frames in brackets.items()}
         decide = (ae_camera,) if cfg.parity == "upstream" else None
         source = self.source(seq_index, subsets, target_us, decide)
-        return {side: self.emulate(seq_index, side, subsets[side], target_us, source) for side in subsets}
+        return {side: self.emulate(seq_index, side, subsets[side], target_us, source,
+                                   None if times_ns is None else times_ns.get(side)) for side in subsets}
 
     def ae_choice(self, ae_camera: str) -> Callable[[dict[int, np.ndarray], float], int]:
         """``(ae_images, target_us) -> source bracket (us)``: the decision :meth:`stereo` takes with ``parity``
@@ -93,12 +95,12 @@ class EmulationCache:
         return choose
 
     def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float,
-                source_us: int | None = None) -> EmulatedImage:
+                source_us: int | None = None, times_ns: Mapping[int, int] | None = None) -> EmulatedImage:
         """:meth:`Emulator.emulate` of one side's brackets ``{exposure_us: uint16 HxW}``, cached per target."""
         key = (seq_index, side, float(target_us))
         hit = self._cache.get(key)
         if hit is None:
-            hit = self.emulator.emulate(images, target_us, source_us)
+            hit = self.emulator.emulate(images, target_us, source_us, times_ns)
             self._cache[key] = hit
         return hit
 

@@ -82,12 +82,15 @@ class LoopConfig:
     def to_json(self) -> dict[str, Any]:
         """The settings that decide the closed loops' results, as a JSON object (the benchmark's cache keys and
         ``closedloop_options.json``): selection, crf, parity, ``init_exposure_us``, seed, ``ae_camera``; the
-        exposure bounds only where they are not the defaults. Which files are written and how (cameras, images,
-        PNG encoding, overwrite, memory) and the DRL weights (a method's own input) are not in it; nor the
-        emulator's other settings (:meth:`from_json` gives their defaults, see :meth:`round_trips`)."""
+        exposure bounds only where they are not the defaults, ``blur`` (motion-blur emulation) only when on.
+        Which files are written and how (cameras, images, PNG encoding, overwrite, memory) and the DRL weights
+        (a method's own input) are not in it; nor the emulator's other settings (:meth:`from_json` gives their
+        defaults, see :meth:`round_trips`)."""
         doc: dict[str, Any] = {"selection": self.emulator.selection, "crf": str(self.emulator.crf),
                                "init_exposure_us": self.init_exposure_us, "seed": self.seed,
                                "ae_camera": self.ae_camera, "parity": self.emulator.parity}
+        if self.emulator.blur:  # only when on: the keys of runs without it stay as they were
+            doc["blur"] = True
         for name in ("min_exposure_us", "max_exposure_us"):
             if getattr(self, name) != _DEFAULTS[name]:
                 doc[name] = getattr(self, name)
@@ -103,7 +106,7 @@ class LoopConfig:
         if unknown:
             raise ValueError(f"unknown closed-loop option(s): {', '.join(sorted(unknown))}")
         o = {**_JSON_DEFAULTS, **{k: v for k, v in doc.items() if v is not None}}
-        cfg = cls(emulator=emulator_config(o["selection"], str(o["crf"]), str(o["parity"])),
+        cfg = cls(emulator=emulator_config(o["selection"], str(o["crf"]), str(o["parity"]), blur=bool(o["blur"])),
                   ae_camera=o["ae_camera"], init_exposure_us=float(o["init_exposure_us"]), seed=int(o["seed"]),
                   min_exposure_us=float(o["min_exposure_us"]), max_exposure_us=float(o["max_exposure_us"]),
                   **given)
@@ -123,7 +126,7 @@ _DEFAULTS = {f.name: f.default for f in fields(LoopConfig)}
 _JSON_DEFAULTS: dict[str, Any] = {"selection": SELECTIONS[0], "crf": DEFAULT_CRF, "parity": PARITIES[0],
                                   "init_exposure_us": _DEFAULTS["init_exposure_us"], "seed": _DEFAULTS["seed"],
                                   "ae_camera": _DEFAULTS["ae_camera"], "min_exposure_us": _DEFAULTS["min_exposure_us"],
-                                  "max_exposure_us": _DEFAULTS["max_exposure_us"]}
+                                  "max_exposure_us": _DEFAULTS["max_exposure_us"], "blur": False}
 
 
 @dataclass

@@ -198,7 +198,7 @@ class Worker:
         s = self.settings
         seq = self.sequences[seq_i]
         with self.stages.time("emulation"):
-            images = self.emu.stereo(seq_i, self._brackets, target_us, s.ae_camera)
+            images = self.emu.stereo(seq_i, self._brackets, target_us, s.ae_camera, seq.timestamps_ns)
         self.writers[spec].write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
         for feed in self.feeds.get(spec, ()):
             feed.write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
@@ -228,7 +228,8 @@ class Worker:
         subsets = {side: {e: frames[e] for e in needed} for side, frames in brackets.items()}
         decide = (s.ae_camera,) if s.emulator.parity == "upstream" else None
         source = emu.source(seq_i, subsets, target_us, decide)
-        return emu.emulate(seq_i, s.ae_camera, subsets[s.ae_camera], target_us, source).image
+        times = self.sequences[seq_i].timestamps_ns.get(s.ae_camera)
+        return emu.emulate(seq_i, s.ae_camera, subsets[s.ae_camera], target_us, source, times).image
 
     def close(self) -> tuple[dict[str, MethodRun], dict[str, dict[str, float]]]:
         """Finish the writes and the feeds; returns (the runs, this worker's stage times)."""

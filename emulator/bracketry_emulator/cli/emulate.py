@@ -37,7 +37,7 @@ from bracketry_emulator.defaults import (
 
 def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str, depth: int,
                      gain_db: float, noise: Path | None = None, fusion_brackets: str = FUSION_BRACKETS[0],
-                     motion: str = "none", deghost_sigma: float | None = None) -> object:
+                     motion: str = "none", deghost_sigma: float | None = None, blur: bool = False) -> object:
     from bracketry_emulator.emulation.noise import resolve_noise_model
     from bracketry_emulator.emulation.settings import emulator_config
 
@@ -57,7 +57,7 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
         raise BracketryError(f"--deghost-sigma must be > 0, got {deghost_sigma}")
     model, _source = resolve_noise_model(noise, dataset if dataset.is_dir() else None)
     return emulator_config(selection, crf, parity, depth=depth, gain_db=gain_db, fusion_brackets=fusion_brackets,
-                           motion=motion, deghost_sigma=deghost_sigma, noise=model)
+                           motion=motion, deghost_sigma=deghost_sigma, noise=model, blur=blur)
 
 
 @click.command("emulate")
@@ -96,6 +96,9 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
               show_default=True, help="Fusion: global motion compensation between the brackets.")
 @click.option("--deghost-sigma", type=Number(0.0, 1e6, min_open=True), default=None,
               help="Fusion: drop pixels of a non-reference bracket more than this many noise sigmas off the reference.")
+@click.option("--emulate-blur", is_flag=True,
+              help="Emulate the motion blur of an exposure longer than its source bracket (optical flow to the "
+                   "bracket nearest in time; emulator/bracketry_emulator/emulation/blur.py).")
 @click.option("--init-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
               default=DEFAULT_INIT_EXPOSURE_US / 1000.0, show_default=True,
               help="First target exposure of every method (the authors: 4 ms).")
@@ -124,7 +127,7 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 def command(dataset: Path, methods: str, method_option: tuple[str, ...], method_options: Path | None,
             out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
             ae_camera: str, depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
-            deghost_sigma: float | None, init_exposure_ms: float, min_exposure_ms: float,
+            deghost_sigma: float | None, emulate_blur: bool, init_exposure_ms: float, min_exposure_ms: float,
             max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
             no_images: bool, png_compression: str, overwrite: bool, quiet: bool) -> int:
     """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world or MCAP).
@@ -141,7 +144,7 @@ def command(dataset: Path, methods: str, method_option: tuple[str, ...], method_
     specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
     plugin_options = parse_method_options(method_option, method_options)
     emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db, noise, fusion_brackets, motion,
-                           deghost_sigma)
+                           deghost_sigma, emulate_blur)
     cfg = LoopConfig(emulator=emu, camera=camera, ae_camera=ae_camera,  # type: ignore[arg-type]
                      init_exposure_us=init_exposure_ms * 1000.0, min_exposure_us=min_exposure_ms * 1000.0,
                      max_exposure_us=max_exposure_ms * 1000.0, seed=seed,

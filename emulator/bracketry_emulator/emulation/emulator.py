@@ -19,12 +19,17 @@ gain (the scaled longest bracket already has it; fusion's less noisy irradiance 
 ``EmulatedImage.exposure_us`` / ``gain_db`` record what the camera would have been set to (steps.csv).
 ``beyond="extrapolate"`` records the target as an exposure (the signal is the same).
 
+Motion blur (``blur=True``, given the brackets' mid-exposure stamps): a camera exposure longer than the source
+bracket gets the blur of the missing time from the image velocity between the source and its nearest bracket in time
+(:mod:`.blur`).
+
 ``parity="upstream"`` reproduces the authors' output bit-exactly
 (with ``crf`` = their pcalib file: upstream lifting, truncation, no cap at the saturated code).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
@@ -38,6 +43,7 @@ from ..crf.response import Rounding
 from ..dataset.model import BracketSequence
 from ..defaults import FUSION_BRACKETS, SELECTIONS
 from .align import Motion
+from .blur import STEP_PX, Velocity, add_motion_blur, image_velocity
 from .fusion import FusionBrackets, FusionResult, fuse, fusion_brackets
 from .kernel import LutCache, apply_lut
 from .noise import NoiseModel
@@ -70,6 +76,8 @@ class EmulatorConfig:
         seed: seed of the added noise (deterministic per call).
         beyond: a target beyond the longest bracket: "gain" (the longest bracket's exposure plus analog gain, with
             the noise model's noise) or "extrapolate" (recorded as the target exposure).
+        blur: emulate the motion blur of a camera exposure longer than the source bracket (needs the brackets'
+            timestamps: ``times_ns`` of :meth:`Emulator.emulate`).
     """
 
     selection: Selection = "highernosat"
@@ -86,6 +94,7 @@ class EmulatorConfig:
     add_noise: bool | None = None
     seed: int = 0
     beyond: Literal["gain", "extrapolate"] = "gain"
+    blur: bool = False
 
     def validate(self) -> None:
         """Raise BracketryError on an invalid combination (one clear line)."""
@@ -166,6 +175,7 @@ class Emulator:
         # cache holds the arrays themselves so their ids stay unique while cached.
         self._fusion_cache: list[tuple[tuple[np.ndarray, ...], int, FusionResult]] = []
         self._sat_cache: list[tuple[np.ndarray, str, float]] = []
+        self._velocity_cache: list[tuple[np.ndarray, np.ndarray, Velocity]] = []
 
     @property
     def gain(self) -> float:
@@ -222,12 +232,13 @@ class Emulator:
             return select_upstream(exps, target_us, fractions)
         return select_highernosat(exps, target_us, fractions, self.config.alpha)
 
-    def emulate(self, images: dict[int, np.ndarray], target_us: float, source_us: int | None = None
-                ) -> EmulatedImage:
+    def emulate(self, images: dict[int, np.ndarray], target_us: float, source_us: int | None = None,
+                times_ns: Mapping[int, int] | None = None) -> EmulatedImage:
         """Emulate the image at ``target_us`` from ``{exposure_us: uint16 HxW Bayer codes}`` (one sequence).
 
         ``source_us``: the source bracket (fusion: the reference bracket) decided by the caller, e.g. once for both
-        cameras by :meth:`select_stereo`; None = this camera's own selection.
+        cameras by :meth:`select_stereo`; None = this camera's own selection. ``times_ns``: {exposure_us:
+        mid-exposure stamp (ns)} of the brackets, for ``blur`` (without it no blur is emulated).
         Do not modify the bracket arrays in place between calls (fusion caches its irradiance map per array set).
         Raises BracketryError for no brackets, a non-positive target, mismatched image shapes or a ``source_us``
         that is not among the brackets.
@@ -241,7 +252,7 @@ class Emulator:
         if source_us is not None and source_us not in images:
             raise BracketryError(f"source bracket {source_us} us is not among the brackets {sorted(images)}")
         if self.config.selection == "fusion" and len(images) >= 2:
-            return self._emulate_fusion(images, target_us, source_us)
+            return self._emulate_fusion(images, target_us, source_us, times_ns)
         if source_us is not None:
             source = int(source_us)
         else:
@@ -250,7 +261,15 @@ class Emulator:
         factor = exposure_us / source
         total = factor * gain
         src = images[source]
-        if self._adds_noise(gain) and not (factor == 1.0 and self.config.add_noise is None):
+        velocity = self._velocity(images, source, times_ns) if exposure_us > source else None
+        if velocity is not None and velocity.max_px((exposure_us - source) * 1e-6) >= STEP_PX:
+            blurred = add_motion_blur(self.response.icrf[src], velocity, (exposure_us - source) * 1e-6)
+            linear = total * blurred.astype(np.float64)
+            if self._adds_noise(gain):
+                missing = self._missing_variance(blurred, factor, gain)
+                linear += self._rng(target_us, source).standard_normal(src.shape) * np.sqrt(missing)
+            image = self.response.encode(linear, self.rounding)
+        elif self._adds_noise(gain) and not (factor == 1.0 and self.config.add_noise is None):
             linear = total * self.response.icrf[src]
             missing = self._missing_variance(self.response.icrf[src], factor, gain)
             linear += self._rng(target_us, source).standard_normal(src.shape) * np.sqrt(missing)
@@ -267,6 +286,27 @@ class Emulator:
         if self.config.beyond == "gain" and target_us > longest:
             return float(longest), self.gain * target_us / longest
         return float(target_us), self.gain
+
+    def _velocity(self, images: dict[int, np.ndarray], source: int, times_ns: Mapping[int, int] | None
+                  ) -> Velocity | None:
+        """The image velocity of bracket ``source`` from the bracket nearest to it in time (None without ``blur``,
+        stamps or another bracket); cached per pair of arrays."""
+        if not self.config.blur or times_ns is None or source not in times_ns:
+            return None
+        others = [e for e in images if e != source and e in times_ns and times_ns[e] != times_ns[source]]
+        if not others:
+            return None
+        other = min(others, key=lambda e: (abs(times_ns[e] - times_ns[source]), e))
+        a, b = images[source], images[other]
+        for ca, cb, v in self._velocity_cache:
+            if ca is a and cb is b:
+                return v
+        sat = self.response.saturated_code
+        v = image_velocity(self.response.icrf[a], source, times_ns[source], a < sat,
+                           self.response.icrf[b], other, times_ns[other], b < sat)
+        self._velocity_cache.append((a, b, v))
+        del self._velocity_cache[:-8]
+        return v
 
     def _adds_noise(self, gain: float) -> bool:
         return self.config.add_noise if self.config.add_noise is not None else gain != 1.0
@@ -292,8 +332,8 @@ class Emulator:
         have = (g * factor) ** 2 * nm.variance(source_linear)
         return np.maximum(target_var - have, 0.0)
 
-    def _emulate_fusion(self, images: dict[int, np.ndarray], target_us: float, ref_us: int | None = None
-                        ) -> EmulatedImage:
+    def _emulate_fusion(self, images: dict[int, np.ndarray], target_us: float, ref_us: int | None = None,
+                        times_ns: Mapping[int, int] | None = None) -> EmulatedImage:
         ref = int(ref_us) if ref_us is not None else self.select(images, target_us)
         used = fusion_brackets(list(images), target_us, self.config.fusion_brackets)
         key = tuple(images[e] for e in sorted({*used, ref}))
@@ -309,9 +349,13 @@ class Emulator:
             self._fusion_cache.append((key, ref, result))
             del self._fusion_cache[:-4]
         exposure_us, g = self.exposure_and_gain(images, target_us)
-        linear = result.irradiance * (exposure_us * g)
+        irradiance = result.irradiance
+        velocity = self._velocity(images, ref, times_ns) if exposure_us > ref else None
+        if velocity is not None:
+            irradiance = add_motion_blur(irradiance, velocity, (exposure_us - ref) * 1e-6)
+        linear = irradiance * (exposure_us * g)
         if self._adds_noise(g):
-            target_var = self.config.noise.variance(result.irradiance * exposure_us, g)
+            target_var = self.config.noise.variance(irradiance * exposure_us, g)
             have = (g * exposure_us) ** 2 * result.variance
             missing = np.maximum(target_var - have, 0.0)
             linear = linear + self._rng(target_us, ref).standard_normal(linear.shape) * np.sqrt(missing)
