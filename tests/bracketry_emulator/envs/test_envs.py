@@ -153,3 +153,14 @@ def test_policy_ae_sees_the_environments_observation(tmp_path: Path) -> None:
     assert seen[0][-1] == obs0[-1] == np.float32(np.log2(1.0) / 8)
     with pytest.raises(BracketryError, match="unknown option"):
         PolicyAE(lambda o: 0.0, colour="red")
+
+
+@pytest.mark.realdata
+def test_real_sample_is_an_episode(borealhdr_sample: Path) -> None:
+    env = ExposureEnv(borealhdr_sample, reward="feat")
+    check_env(env, skip_render_check=True)
+    traj = env.trajectory(0)
+    assert traj.exposures_us == (1000, 2000, 4000, 8000, 16000, 32000) and traj.brackets.shape[-1] == 256
+    _, info = env.reset(seed=0, options={"init_exposure_us": 4000.0})
+    _, r, _, _, info = env.step(np.zeros(1, np.float32))
+    assert info["exposure_us"] == 4000.0 and r > 0.5  # hundreds of ORB corners and matches in the forest
