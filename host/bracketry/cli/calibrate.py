@@ -74,11 +74,16 @@ def load_board(path: Path) -> Any:
 
 
 def image_pairs(folder: Path) -> list[tuple[Path, Path]]:
-    """(left, right) image files of a session folder: ``left/`` and ``right/`` holding images of the same names."""
+    """(left, right) image files of a session: ``left/`` and ``right/`` holding images of the same names (a board
+    session), or a BorealHDR tree (``bracketry export --format borealhdr`` of a recording):
+    ``camera_left/<exposure>/`` and ``camera_right/<exposure>/``, the k-th image of a side with the k-th of the
+    other (the pairing's order) in each exposure folder."""
+    if (folder / "camera_left").is_dir() and (folder / "camera_right").is_dir():
+        return _borealhdr_pairs(folder)
     sides = [folder / "left", folder / "right"]
     if not all(d.is_dir() for d in sides):
         raise BracketryError(f"{folder} has no left/ and right/ image folders (a board session: left/NNNNNN.png, "
-                             "right/NNNNNN.png)")
+                             "right/NNNNNN.png) nor camera_left/ and camera_right/ (a BorealHDR tree)")
     names = [{p.name for p in d.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES} for d in sides]
     if names[0] != names[1]:
         odd = sorted(names[0] ^ names[1])
@@ -87,6 +92,22 @@ def image_pairs(folder: Path) -> list[tuple[Path, Path]]:
     if not names[0]:
         raise BracketryError(f"no images in {folder}/left (png, tif, pgm, jpg)")
     return [(sides[0] / n, sides[1] / n) for n in sorted(names[0])]
+
+
+def _borealhdr_pairs(folder: Path) -> list[tuple[Path, Path]]:
+    pairs = []
+    lefts = sorted(d for d in (folder / "camera_left").iterdir() if d.is_dir())
+    for d in lefts:
+        r = folder / "camera_right" / d.name
+        files = [sorted(p for p in x.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES) if x.is_dir() else []
+                 for x in (d, r)]
+        if len(files[0]) != len(files[1]):
+            raise BracketryError(f"{d} holds {len(files[0])} images but {r} {len(files[1])}: give image pairs "
+                                 "(bracketry verify the recording)")
+        pairs += list(zip(files[0], files[1], strict=True))
+    if not pairs:
+        raise BracketryError(f"no images in {folder}/camera_left/*/ (png, tif, pgm, jpg)")
+    return pairs
 
 
 def _read(path: Path) -> Any:
@@ -149,7 +170,7 @@ def detect_session(pairs: list[tuple[Path, Path]], board: Any, bayer: bool, quie
 
 
 @command.command("solve")
-@click.argument("session", type=input_dir())
+@click.argument("session", type=input_dir(), metavar="SESSION")
 @click.option("--out", "out", type=output_dir(), required=True,
               help="Calibration folder to write (new or empty): left.yaml, right.yaml, calib_kitti.txt, "
                    f"{ORBSLAM3_SETTINGS}, report.json.")
@@ -170,8 +191,9 @@ def detect_session(pairs: list[tuple[Path, Path]], board: Any, bayer: bool, quie
 @quiet_option()
 def solve_cmd(session: Path, out: Path, overwrite: bool, board_file: Path | None, seed: int, trials: int,
               inlier_px: float, max_blur_px: float, no_bayer: bool, fps: float, as_json: bool, quiet: bool) -> int:
-    """Calibrate the stereo pair from a board session (SESSION/left/*.png, SESSION/right/*.png, the board in
-    SESSION/board.yaml or --board): intrinsics and distortion per camera, extrinsics, rectification, with a robust
+    """Calibrate the stereo pair from a board session (SESSION/left/*.png, SESSION/right/*.png, or a recording
+    exported as a BorealHDR tree: SESSION/camera_left/<exposure>/, camera_right/; the board in SESSION/board.yaml
+    or --board): intrinsics and distortion per camera, extrinsics, rectification, with a robust
     selection over random subsets of the views; dropped views are listed in report.json."""
     from bracketry.calibration.camera_info import camera_info_yaml, kitti_text, rectified_camera, report
     from bracketry.calibration.solve import solve_stereo
@@ -319,7 +341,7 @@ def capture_cmd(source: Path, out: Path, overwrite: bool, board_file: Path | Non
             log.append({"pair": pair[0].name, "kept": kept, "why": why})
             if kept:
                 for side, p in zip(("left", "right"), pair, strict=True):
-                    _shutil.copyfile(p, out / side / p.name)
+                    _shutil.copyfile(p, out / side / pair[0].name)  # one name for both: solve pairs by name
             if not quiet:
                 st = feed.coverage.status()
                 bars = " ".join(f"{k} {v:.0%}" for k, v in st["bars"].items())  # type: ignore[attr-defined]

@@ -122,3 +122,25 @@ class _NoRig:
 
     def monitor_limits_us(self) -> tuple[tuple[int, ...], int, int]:
         return (), 1, 1
+
+
+def test_a_recording_exported_as_a_borealhdr_tree_gives_the_same_pairs(tmp_path: Path) -> None:
+    """``calibrate solve`` / ``capture`` read a board session folder or an exported recording (camera_left/<exp>/,
+    camera_right/<exp>/ named by each camera's own stamps): the k-th images of the two sides are a pair."""
+    from bracketry.cli.calibrate import image_pairs
+
+    for side in ("left", "right"):
+        (tmp_path / "s" / side).mkdir(parents=True)
+        (tmp_path / "t" / f"camera_{side}" / "1.0").mkdir(parents=True)
+        for k in range(3):
+            (tmp_path / "s" / side / f"{k:06d}.png").write_bytes(b"")
+            stamp = 1_700_000_000_000_000_000 + k * 45_000_000 + (7 if side == "right" else 0)
+            (tmp_path / "t" / f"camera_{side}" / "1.0" / f"{stamp}.png").write_bytes(b"")
+    folder = [(a.name, b.name) for a, b in image_pairs(tmp_path / "s")]
+    tree = image_pairs(tmp_path / "t")
+    assert folder == [(f"{k:06d}.png",) * 2 for k in range(3)]
+    assert [(a.parent.parent.name, b.parent.parent.name) for a, b in tree] == [("camera_left", "camera_right")] * 3
+    assert [int(b.stem) - int(a.stem) for a, b in tree] == [7, 7, 7]
+    tree[0][1].unlink()
+    with pytest.raises(Exception, match="give image pairs"):
+        image_pairs(tmp_path / "t")
