@@ -185,12 +185,16 @@ def detect_session(pairs: list[tuple[Path, Path]], board: Any, bayer: bool, quie
 @click.option("--max-blur-px", type=Number(0.5, 100.0), default=2.5, show_default=True,
               help="Views whose board edges are blurred more than this (equivalent Gaussian sigma, px) are dropped.")
 @click.option("--no-bayer", is_flag=True, help="The images are grey, not raw RGGB mosaics.")
+@click.option("--k3", "free_k3", is_flag=True,
+              help="Estimate the third radial coefficient k3 too (default: fixed at 0, as ROS camera_calibration "
+                   "and BorealHDR's files).")
 @click.option("--fps", type=Number(0.0, 1000.0, min_open=True), default=22.0, show_default=True,
               help="Frame rate written into the ORB-SLAM3 settings, in (0, 1000].")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON.")
 @quiet_option()
 def solve_cmd(session: Path, out: Path, overwrite: bool, board_file: Path | None, seed: int, trials: int,
-              inlier_px: float, max_blur_px: float, no_bayer: bool, fps: float, as_json: bool, quiet: bool) -> int:
+              inlier_px: float, max_blur_px: float, no_bayer: bool, free_k3: bool, fps: float, as_json: bool,
+              quiet: bool) -> int:
     """Calibrate the stereo pair from a board session (SESSION/left/*.png, SESSION/right/*.png, or a recording
     exported as a BorealHDR tree: SESSION/camera_left/<exposure>/, camera_right/; the board in SESSION/board.yaml
     or --board): intrinsics and distortion per camera, extrinsics, rectification, with a robust
@@ -207,7 +211,7 @@ def solve_cmd(session: Path, out: Path, overwrite: bool, board_file: Path | None
     t0 = time.perf_counter()
     left, right, size = detect_session(pairs, board, not no_bayer, quiet)
     sol = solve_stereo(left, right, board, size, seed=seed, trials=trials, inlier_px=inlier_px,
-                       max_blur_px=max_blur_px)
+                       max_blur_px=max_blur_px, fix_k3=not free_k3)
     solve_s = time.perf_counter() - t0
     rep = report(sol, len(pairs), solve_s)
     rep["views_files"] = [p[0].name for p in pairs]
