@@ -36,7 +36,6 @@ import cv2
 import numpy as np
 
 from bracketry_emulator.synth.calibration import CameraIntrinsics
-from bracketry_emulator.synth.trajectory import mat_mul
 
 #: offsets (row, column) of the four channel planes of a 2x2 Bayer cell, in the order of the stacked planes
 _CELL = ((0, 0), (0, 1), (1, 0), (1, 1))
@@ -62,6 +61,20 @@ class CellRays:
         return cls(np.ascontiguousarray(r.reshape(3, -1)), 2 * gx, 2 * gy, gx, gy)
 
 
+def _relative_pose(R_ref: np.ndarray, p_ref: np.ndarray, R_t: np.ndarray,
+                   p_t: np.ndarray) -> tuple[list[list[float]], list[float]]:
+    """(R_t^T R_ref, R_t^T (p_ref - p_t)) as Python floats: the reference camera's frame in the target camera's.
+
+    Summed in a fixed order in IEEE double (Python's float arithmetic has no fused multiply-add): the same bits on
+    every CPU, without the exactly rounded (and slower) products of :func:`~bracketry_emulator.synth.trajectory.mat_mul`
+    that the poses themselves need."""
+    rt, rr = np.asarray(R_t, np.float64).tolist(), np.asarray(R_ref, np.float64).tolist()
+    d = (np.asarray(p_ref, np.float64) - np.asarray(p_t, np.float64)).tolist()
+    M = [[(rt[0][i] * rr[0][j] + rt[1][i] * rr[1][j]) + rt[2][i] * rr[2][j] for j in range(3)] for i in range(3)]
+    b = [(rt[0][i] * d[0] + rt[1][i] * d[1]) + rt[2][i] * d[2] for i in range(3)]
+    return M, b
+
+
 def cell_flow(cells: CellRays, range_m: np.ndarray, intr: CameraIntrinsics, R_ref: np.ndarray, p_ref: np.ndarray,
               R_t: np.ndarray, p_t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Image motion (du, dv) float32 (H/2, W/2), pixels, of each cell's point from a render at pose (R_ref, p_ref) to
@@ -70,15 +83,14 @@ def cell_flow(cells: CellRays, range_m: np.ndarray, intr: CameraIntrinsics, R_re
     ``range_m`` float32 (H, W): the render's range (inf: sky, a direction only). Poses: camera-to-world rotation
     float64 (3, 3), optical centre float64 (3,) m. A point behind the target camera does not move."""
     f32 = np.float32
-    M = mat_mul(np.ascontiguousarray(R_t.T), R_ref)  # reference camera -> target camera
-    b = mat_mul(np.ascontiguousarray(R_t.T), np.asarray(p_ref, np.float64) - np.asarray(p_t, np.float64))
+    M, b = _relative_pose(R_ref, p_ref, R_t, p_t)
     inv_r = np.divide(f32(1.0), np.ascontiguousarray(range_m[0::2, 0::2]).ravel(), dtype=f32)  # 0: sky
     rays = cells.rays
     c = []
     for i in range(3):  # M @ ray + b / r: the point in the target camera, scaled by 1 / r (the same projection)
-        acc = rays[0] * f32(M[i, 0])
-        acc += rays[1] * f32(M[i, 1])
-        acc += rays[2] * f32(M[i, 2])
+        acc = rays[0] * f32(M[i][0])
+        acc += rays[1] * f32(M[i][1])
+        acc += rays[2] * f32(M[i][2])
         acc += inv_r * f32(b[i])
         c.append(acc)
     ok = c[2] > f32(1e-3)
