@@ -28,7 +28,6 @@ import yaml
 
 from bracketry.errors import BracketryError
 
-
 #: The splits a manifest entry may name (``split:``): trajectories to train learning methods on, and held-out ones.
 SPLITS = ("train", "test")
 
