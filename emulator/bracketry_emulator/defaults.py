@@ -22,6 +22,9 @@ SELECTIONS: tuple[str, ...] = ("highernosat", "upstream", "fusion")
 #: the brackets fusion combines (emulation/fusion.py): the pair around the target and every longer one, the pair
 #: only, or every bracket; the default first
 FUSION_BRACKETS: tuple[str, ...] = ("longer", "bounding", "all")
+#: the closed loop's images: emulated from the brackets, or rendered by a synthetic world (truth runs); the default
+#: first (the benchmark also takes "both")
+IMAGES: tuple[str, ...] = ("emulated", "truth")
 #: the methods as their papers describe them, or as the authors' code runs them; the default first
 PARITIES: tuple[str, ...] = ("default", "upstream")
 #: camera response: the sample's sRGB-encoded codes (or a pcalib.txt path)

@@ -32,7 +32,7 @@ from typing import Any
 from bracketry.errors import BracketryError
 
 from ..dataset import open_dataset
-from ..defaults import AE_CAMERAS, CAMERAS, DEFAULT_CRF, PARITIES, PNG_COMPRESSIONS, SELECTIONS
+from ..defaults import AE_CAMERAS, CAMERAS, DEFAULT_CRF, IMAGES, PARITIES, PNG_COMPRESSIONS, SELECTIONS
 from ..emulation import EmulatorConfig
 from ..stages import StageTimes, ae_stage
 from .loop import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US, MethodRun
@@ -60,6 +60,7 @@ class LoopConfig:
     overwrite: bool = False
     max_sequences: int | None = None
     memory_budget_bytes: int = 1 << 30
+    images: str = IMAGES[0]
 
     def validate(self) -> None:
         """Raise BracketryError (one line, naming the ``bracketry emulate`` option) on a bad setting: the one
@@ -74,6 +75,8 @@ class LoopConfig:
         if not lo_ms <= init_ms <= hi_ms:
             raise BracketryError(f"--init-exposure-ms {init_ms:g} is outside the bounds [--min-exposure-ms "
                                  f"{lo_ms:g}, --max-exposure-ms {hi_ms:g}]")
+        if self.images not in IMAGES:
+            raise BracketryError(f"--images must be one of {', '.join(IMAGES)}, got {self.images}")
         if self.png_compression not in PNG_COMPRESSIONS:
             raise BracketryError(f"--png-compression must be one of {', '.join(PNG_COMPRESSIONS)}, got "
                                  f"{self.png_compression}")
@@ -82,7 +85,8 @@ class LoopConfig:
     def to_json(self) -> dict[str, Any]:
         """The settings that decide the closed loops' results, as a JSON object (the benchmark's cache keys and
         ``closedloop_options.json``): selection, crf, parity, ``init_exposure_us``, seed, ``ae_camera``; the
-        exposure bounds only where they are not the defaults, ``blur`` (motion-blur emulation) only when on.
+        exposure bounds only where they are not the defaults, ``blur`` (motion-blur emulation) and ``images``
+        (truth runs) only when not their defaults.
         Which files are written and how (cameras, images, PNG encoding, overwrite, memory) and the DRL weights
         (a method's own input) are not in it; nor the emulator's other settings (:meth:`from_json` gives their
         defaults, see :meth:`round_trips`)."""
@@ -91,6 +95,8 @@ class LoopConfig:
                                "ae_camera": self.ae_camera, "parity": self.emulator.parity}
         if self.emulator.blur:  # only when on: the keys of runs without it stay as they were
             doc["blur"] = True
+        if self.images != IMAGES[0]:  # likewise
+            doc["images"] = self.images
         for name in ("min_exposure_us", "max_exposure_us"):
             if getattr(self, name) != _DEFAULTS[name]:
                 doc[name] = getattr(self, name)
@@ -109,7 +115,7 @@ class LoopConfig:
         cfg = cls(emulator=emulator_config(o["selection"], str(o["crf"]), str(o["parity"]), blur=bool(o["blur"])),
                   ae_camera=o["ae_camera"], init_exposure_us=float(o["init_exposure_us"]), seed=int(o["seed"]),
                   min_exposure_us=float(o["min_exposure_us"]), max_exposure_us=float(o["max_exposure_us"]),
-                  **given)
+                  images=str(o["images"]), **given)
         cfg.validate()
         return cfg
 
@@ -126,7 +132,8 @@ _DEFAULTS = {f.name: f.default for f in fields(LoopConfig)}
 _JSON_DEFAULTS: dict[str, Any] = {"selection": SELECTIONS[0], "crf": DEFAULT_CRF, "parity": PARITIES[0],
                                   "init_exposure_us": _DEFAULTS["init_exposure_us"], "seed": _DEFAULTS["seed"],
                                   "ae_camera": _DEFAULTS["ae_camera"], "min_exposure_us": _DEFAULTS["min_exposure_us"],
-                                  "max_exposure_us": _DEFAULTS["max_exposure_us"], "blur": False}
+                                  "max_exposure_us": _DEFAULTS["max_exposure_us"], "blur": False,
+                                  "images": IMAGES[0]}
 
 
 @dataclass
@@ -186,6 +193,12 @@ def _run_methods(dataset_path: str | Path, method_specs: list[MethodSpec], out_d
     for s in (*write_sides, cfg.ae_camera):
         if s not in dataset.sides:
             raise BracketryError(f"the dataset has no {s} camera (sides: {', '.join(dataset.sides)})")
+    truth_dir = None
+    if cfg.images == "truth":
+        from .truth import truth_recording
+
+        truth_recording(dataset.path)  # refuses any other dataset, before any work
+        truth_dir = str(dataset.path)
     sequences = dataset.sequences()
     if cfg.max_sequences is not None:
         sequences = sequences[: cfg.max_sequences]
@@ -195,7 +208,8 @@ def _run_methods(dataset_path: str | Path, method_specs: list[MethodSpec], out_d
     out.mkdir(parents=True, exist_ok=True)
     settings = LoopSettings(cfg.emulator, cfg.ae_camera, write_sides, tuple(dict.fromkeys([*write_sides,
                             cfg.ae_camera])), cfg.init_exposure_us, cfg.min_exposure_us, cfg.max_exposure_us,
-                            cfg.seed, cfg.drl_weights, cfg.write_images, cfg.png_compression, cfg.overwrite)
+                            cfg.seed, cfg.drl_weights, cfg.write_images, cfg.png_compression, cfg.overwrite,
+                            truth_dir)
     bar = _progress_bar(progress, len(specs) * len(sequences))
     stages = StageTimes()
     try:
@@ -214,7 +228,8 @@ def _run_methods(dataset_path: str | Path, method_specs: list[MethodSpec], out_d
                     "ae_camera": cfg.ae_camera, "mode": cfg.emulator.parity,
                     "init_exposure_ms": cfg.init_exposure_us / 1000.0,
                     "bounds_ms": [cfg.min_exposure_us / 1000.0, cfg.max_exposure_us / 1000.0], "seed": cfg.seed,
-                    "emulator": emu, "wall_s": round(summary.wall_s, 3), "dataset_problems": summary.problems}
+                    "emulator": emu, "images": cfg.images, "wall_s": round(summary.wall_s, 3),
+                    "dataset_problems": summary.problems}
     plugins = {m.name: m.to_json() for m in method_specs if not m.plain}
     if plugins:  # where each plugin came from and its options (built-ins: their name says it all)
         settings_doc["plugins"] = plugins

@@ -44,6 +44,7 @@ from .emulation_cache import EmulationCache, needed_brackets
 from .frame_source import FrameSource
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
 from .registry import MethodTraits, get_method
+from .truth import TruthCache
 from .writers import ImageSink, LinkingRunWriter, method_folder
 
 #: Sequences held in the shared frame buffer at most (its ring of slots): a worker decodes at most this many sequences
@@ -74,6 +75,8 @@ class LoopSettings:
     write_images: bool
     png_compression: str
     overwrite: bool
+    #: a synthetic trajectory whose world renders the images (truth runs, :mod:`.truth`); None: emulated
+    truth_dir: str | None = None
 
 
 def partition(traits: dict[str, MethodTraits], n: int) -> list[list[str]]:
@@ -129,7 +132,10 @@ class Worker:
         self.feeds = feeds or {}
         self.sequences = sequences
         frames.stages = self.stages
-        self.emu = EmulationCache(s.emulator)
+        if s.truth_dir is not None:
+            self.emu: EmulationCache = TruthCache(s.emulator, s.truth_dir)
+        else:
+            self.emu = EmulationCache(s.emulator)
         ae_i = s.emulate_sides.index(s.ae_camera)
         strategy = decode_strategy(s.emulator.selection, s.emulator.parity, len(s.emulate_sides), ae_i)
         self.source = FrameSource(frames, sequences, s.emulate_sides, strategy, self.emu.ae_choice(s.ae_camera),
@@ -143,7 +149,9 @@ class Worker:
         self._seq_i = -1
         #: methods that read the next step's images (``looks_ahead``, non-causal controls such as the oracle)
         self._looking_ahead: set[str] = set()
-        self._ahead_emu = EmulationCache(s.emulator)  # the next sequence's emulations (a look-ahead's own cache)
+        # the next sequence's emulations (a look-ahead's own cache; rendered too in a truth run)
+        self._ahead_emu = (TruthCache(s.emulator, s.truth_dir) if s.truth_dir is not None
+                           else EmulationCache(s.emulator))
         self._ahead: tuple[int, dict[str, dict[int, np.ndarray]]] | None = None  # (sequence, its brackets)
         for spec in specs:
             method = get_method(spec, seed=s.seed, drl_weights=s.drl_weights, parity=s.emulator.parity)

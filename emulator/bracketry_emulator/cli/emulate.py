@@ -28,6 +28,7 @@ from bracketry_emulator.defaults import (
     DEFAULT_MAX_EXPOSURE_US,
     DEFAULT_MIN_EXPOSURE_US,
     FUSION_BRACKETS,
+    IMAGES,
     MAX_EXPOSURE_OPTION_MS,
     PARITIES,
     PNG_COMPRESSIONS,
@@ -99,6 +100,9 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 @click.option("--emulate-blur", is_flag=True,
               help="Emulate the motion blur of an exposure longer than its source bracket (optical flow to the "
                    "bracket nearest in time; emulator/bracketry_emulator/emulation/blur.py).")
+@click.option("--images", type=click.Choice(IMAGES), default=IMAGES[0], show_default=True,
+              help="The closed loop's images: emulated from the brackets, or rendered by the synthetic world at each "
+                   "frame's instant with the chosen exposure (truth; a synthetic trajectory only).")
 @click.option("--init-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
               default=DEFAULT_INIT_EXPOSURE_US / 1000.0, show_default=True,
               help="First target exposure of every method (the authors: 4 ms).")
@@ -127,7 +131,8 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 def command(dataset: Path, methods: str, method_option: tuple[str, ...], method_options: Path | None,
             out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
             ae_camera: str, depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
-            deghost_sigma: float | None, emulate_blur: bool, init_exposure_ms: float, min_exposure_ms: float,
+            deghost_sigma: float | None, emulate_blur: bool, images: str, init_exposure_ms: float,
+            min_exposure_ms: float,
             max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
             no_images: bool, png_compression: str, overwrite: bool, quiet: bool) -> int:
     """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world or MCAP).
@@ -149,7 +154,8 @@ def command(dataset: Path, methods: str, method_option: tuple[str, ...], method_
                      init_exposure_us=init_exposure_ms * 1000.0, min_exposure_us=min_exposure_ms * 1000.0,
                      max_exposure_us=max_exposure_ms * 1000.0, seed=seed,
                      drl_weights=str(drl_weights) if drl_weights else None, write_images=not no_images,
-                     png_compression=png_compression, overwrite=overwrite, max_sequences=max_sequences)
+                     png_compression=png_compression, overwrite=overwrite, max_sequences=max_sequences,
+                     images=images)
     cfg.validate()  # before --overwrite removes anything
     if drl_weights is not None and "drl" in specs:
         _check_pth(drl_weights)

@@ -42,7 +42,11 @@ FLOW_SMOOTH_PX = 2.0
 
 
 #: the lowest linear level (DN, half-resolution gray) of both brackets where the flow is trusted
-MIN_FLOW_LEVEL = 16.0
+MIN_FLOW_LEVEL = 64.0
+#: the least local contrast (Sobel magnitude of the 8-bit log image, smoothed) where the flow is trusted
+MIN_TEXTURE = 8.0
+#: the flow is not trusted this close to the image border (half-resolution pixels)
+BORDER_PX = 8
 #: reach of the fill of untrusted pixels from trusted ones (half-resolution pixels, Gaussian sigma)
 FILL_SIGMA_PX = 8.0
 
@@ -102,9 +106,19 @@ def image_velocity(source_linear: np.ndarray, source_us: float, source_t_ns: int
     # Farneback's pyramid lost them (a textured scene moving 11 half-resolution pixels: Farneback's median 0.25)
     dis = cv2.DISOpticalFlow.create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
     flow = np.asarray(dis.calc(a8, b8, np.zeros((*a8.shape, 2), np.float32)))
-    # where either bracket is too dark to follow (noise) or saturated, the flow of the confident pixels around
-    sure = sv & ov & (src * np.float32(source_us) >= MIN_FLOW_LEVEL) & (oth * np.float32(other_us) >= MIN_FLOW_LEVEL)
+    # where either bracket is too dark to follow (noise) or saturated (or within 3 px of it: the edge of a saturated
+    # patch moves with its size, not with the scene), flat or at the border, the flow of the confident pixels around
+    near_sat = cv2.dilate((~(sv & ov)).astype(np.uint8), np.ones((7, 7), np.uint8)) > 0
+    sure = ~near_sat & (src * np.float32(source_us) >= MIN_FLOW_LEVEL) & (oth * np.float32(other_us) >= MIN_FLOW_LEVEL)
+    gx = cv2.Sobel(a8, cv2.CV_32F, 1, 0, ksize=3)
+    gy = cv2.Sobel(a8, cv2.CV_32F, 0, 1, ksize=3)
+    texture = cv2.GaussianBlur(np.sqrt(gx * gx + gy * gy), (0, 0), 2.0)
+    sure &= texture >= MIN_TEXTURE  # a flat patch has no motion to see
+    m = BORDER_PX
+    sure[:m, :] = sure[-m:, :] = False
+    sure[:, :m] = sure[:, -m:] = False
     flow = _fill(flow, sure)
+    flow = np.dstack([cv2.medianBlur(np.ascontiguousarray(flow[..., c]), 5) for c in range(2)])  # lone outliers
     flow = cv2.GaussianBlur(flow, (0, 0), FLOW_SMOOTH_PX) if FLOW_SMOOTH_PX > 0 else flow
     mag = np.sqrt(flow[..., 0] ** 2 + flow[..., 1] ** 2)
     still = mag < STILL_PX

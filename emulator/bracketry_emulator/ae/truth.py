@@ -1,0 +1,79 @@
+"""Truth runs: the closed loop's images rendered by the synthetic world instead of emulated from brackets.
+
+For a synthetic trajectory (``bracketry synth trajectory``: ``camera_model.json`` holds the world and the
+recording's ``t0_ns``, ``start_s``), each step's image is what the camera would have taken with the method's chosen
+exposure at that frame's instant: the step's frame is the bracket the emulator would use (same selection, so the same
+timestamp and ground-truth pose), triggered at its instant ``t_s = start_s + (t_ns - t0_ns) / 1e9 - E / 2`` (its
+stamp is mid-exposure), and :meth:`World.render` renders the target exposure from that trigger (same camera, noise
+model and response; the world's own motion blur; noise from the world's per-frame generator, so a run is
+reproducible). Nothing is emulated: the emulator's errors (noise, blur, motion between brackets, gain) are what a
+truth run leaves out.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from bracketry.errors import BracketryError
+
+from ..emulation import EmulatedImage, EmulatorConfig
+from .emulation_cache import EmulationCache
+
+
+def truth_recording(dataset_dir: str | Path) -> dict[str, Any]:
+    """The ``recording`` entry (t0_ns, start_s, fps) of a synthetic trajectory's ``camera_model.json``; raises
+    BracketryError (one line) for any other dataset."""
+    p = Path(dataset_dir) / "camera_model.json"
+    try:
+        info = json.loads(p.read_text())
+        rec = info["recording"]
+        info["world"]
+        return {"t0_ns": int(rec["t0_ns"]), "start_s": float(rec.get("start_s", 0.0)), "fps": float(rec["fps"])}
+    except (OSError, ValueError, KeyError, TypeError):
+        raise BracketryError(f"truth images need a synthetic trajectory (bracketry synth trajectory): {dataset_dir} "
+                             "has no camera_model.json with its world and recording") from None
+
+
+class TruthCache(EmulationCache):
+    """:class:`EmulationCache` whose images the world renders (module docstring); the source selection, the caches
+    and the gray conversions are the emulation's."""
+
+    def __init__(self, config: EmulatorConfig, dataset_dir: str | Path) -> None:
+        super().__init__(config)
+        self.dataset_dir = Path(dataset_dir)
+        rec = truth_recording(dataset_dir)
+        self.t0_ns, self.start_s = rec["t0_ns"], rec["start_s"]
+        self._world: Any = None
+
+    @property
+    def world(self) -> Any:
+        if self._world is None:
+            from ..synth import world_from_dataset
+
+            self._world = world_from_dataset(self.dataset_dir)
+        return self._world
+
+    def trigger_s(self, t_ns: int, exposure_us: float) -> float:
+        """World time (s) of the trigger of the frame stamped ``t_ns`` (mid-exposure) exposed ``exposure_us``."""
+        return self.start_s + (t_ns - self.t0_ns) * 1e-9 - 0.5 * exposure_us * 1e-6
+
+    def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float,
+                source_us: int | None = None, times_ns: Mapping[int, int] | None = None) -> EmulatedImage:
+        """The world's render of ``side`` at ``target_us`` from the trigger of the step's frame (the source bracket,
+        ``source_us`` or the emulator's own choice); needs ``times_ns`` ({exposure_us: stamp ns})."""
+        key = (seq_index, side, float(target_us))
+        hit = self._cache.get(key)
+        if hit is None:
+            if times_ns is None:
+                raise BracketryError("a truth image needs the frames' timestamps")
+            source = int(source_us) if source_us is not None else self.emulator.select(images, target_us)
+            t_s = self.trigger_s(int(times_ns[source]), float(source))
+            image = self.world.render(side, t_s, float(target_us))
+            hit = self._cache[key] = EmulatedImage(image, float(target_us), source, float(target_us) / source,
+                                                   "truth", (source,), float(target_us), 0.0)
+        return hit
