@@ -403,7 +403,8 @@ def sky_lighting(elev_deg: float, az_world_deg: float, overcast: float = 0.0) ->
     zenith = tuple(float(c * sky_k) for c in (1.2, 2.1, 4.2))
     horizon = tuple(float(c * sky_k) for c in (4.0, 4.5, 5.2))
     halo = tuple(float(c * t * clear) for c, t in zip((75.0, 68.0, 56.0), trans))
-    disk = float(2.0e4 * trans[1] / max(math.exp(-0.16), 1e-9) * clear)
+    # no sun (below the horizon, overcast): the disk's pixels are sky
+    disk = max(float(2.0e4 * trans[1] / math.exp(-0.16) * clear), horizon[1])
     return Lighting(sun_dir=sun_dir, sun_rgb=sun_rgb, sky_rgb=sky_rgb, zenith_rgb=zenith,  # type: ignore[arg-type]
                     horizon_rgb=horizon, halo_rgb=halo, disk_radiance=disk)  # type: ignore[arg-type]
 
@@ -440,10 +441,11 @@ def _arc_of_angle(base: LoopTrajectory, phi: np.ndarray) -> np.ndarray:
 
 
 def _window(s: np.ndarray, s0: float, s1: float, length: float, edge: float) -> np.ndarray:
-    """1 inside the arc [s0, s1] of a loop of ``length`` (wrapping when s1 < s0), 0 outside, linear edges."""
+    """1 inside the arc [s0, s1] of a loop of ``length`` (wrapping when s1 < s0), 0 outside, linear edges of width
+    ``edge`` centred on the ends (0.5 at s0 and s1)."""
     span = (s1 - s0) % length if s1 != s0 else length
     rel = np.mod(s - s0, length)
-    inside = np.minimum(rel + edge / 2, span + edge / 2 - rel)
+    inside = np.minimum(rel, span - rel)
     outside = np.minimum(length - rel, rel - span)  # distance past the far end / before the start, wrapped
     w = np.where(rel <= span, np.clip(0.5 + inside / edge, 0, 1), np.clip(0.5 - outside / edge, 0, 1))
     return w
@@ -539,7 +541,8 @@ class LightField:
         if not self.clouds:
             return 1.0
         lt = self.scene.lighting
-        xy = np.asarray(p_w[:2], np.float64) + float(p_w[2]) * np.asarray(lt.sun_dir[:2]) / max(lt.sun_dir[2], 1e-3)
+        # the ground point on the camera's line to the sun: shadowed there <=> the camera is
+        xy = np.asarray(p_w[:2], np.float64) - float(p_w[2]) * np.asarray(lt.sun_dir[:2]) / max(lt.sun_dir[2], 1e-3)
         f = float(self._cloud_at(np.array([xy[0]], np.float32), np.array([xy[1]], np.float32), t_s)[0])
         direct = lt.sun_rgb[1] * max(float(lt.sun_dir[2]), 0.0)
         total = direct + lt.sky_rgb[1]
