@@ -46,3 +46,10 @@ DEFAULT_REFERENCE = "ae50"
 DEFAULT_ALPHA = 0.05
 #: the methods the statistics cover: the paper's (``all``, or a comma-separated list)
 DEFAULT_STATS_METHODS = "paper"
+
+#: batch systems ``bracketry benchmark --cluster`` starts Dask workers on (through dask-jobqueue)
+CLUSTERS: tuple[str, ...] = ("slurm",)
+#: at most this many Slurm jobs at once (``--jobs``)
+DEFAULT_CLUSTER_JOBS = 4
+#: the most ``--jobs`` accepts (beyond it, a typo rather than a cluster)
+MAX_CLUSTER_JOBS = 10000

@@ -13,6 +13,7 @@ from typing import Any
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.ae.runner import LoopConfig
+from bracketry_emulator.benchmark.cluster import SlurmOptions
 from bracketry_emulator.benchmark.emulated_runs import all_methods
 from bracketry_emulator.benchmark.slam import SlamOptions, describe
 from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult, load_cached, make_task, run_task
@@ -28,14 +29,17 @@ class BenchmarkConfig:
     """What :func:`run_benchmark` does: ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
     ``methods``: ``all`` / ``paper`` or a comma-separated list (or a sequence) of method ids. ``scheduler``: a Dask
-    scheduler address (``tcp://HOST:PORT``) or None for local processes (``workers``). Locally, the closed loops of
-    all methods still to run on a trajectory run first in one pass (each bracket sequence decoded once for all
-    methods, ``progress`` shows a bar); with a scheduler each task runs its own closed loop on the cluster.
+    scheduler address (``tcp://HOST:PORT``); ``cluster``: Slurm jobs through dask-jobqueue
+    (:class:`~bracketry_emulator.benchmark.cluster.SlurmOptions`); neither: local processes (``workers``). Locally,
+    the closed loops of all methods still to run on a trajectory run first in one pass (each bracket sequence
+    decoded once for all methods, ``progress`` shows a bar); on a cluster a worker runs such a pass per trajectory
+    (:mod:`~bracketry_emulator.benchmark.cluster`: shared storage checked on every worker, a lost worker's runs
+    done again elsewhere, a lost scheduler one line).
     ``drl_weights``: the DRL actor (``all`` leaves DRL out without it). ``loop``: the closed-loop settings; what
     :meth:`LoopConfig.to_json` holds is part of every cache key, and a setting it cannot hold is refused (the
     cameras written, the images, the DRL weights and ``overwrite`` are the benchmark's own).
     ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
-    Locally (no scheduler, no ``slam_dir``, no ``export_orbslam``) SLAM gets the emulated images in memory
+    Without ``slam_dir`` and ``export_orbslam`` (locally or on a cluster) SLAM gets the emulated images in memory
     (:mod:`~bracketry_emulator.benchmark.stream`: every run of a trajectory is fed by its one closed-loop pass) and
     PNGs are written only with ``write_images``; otherwise the closed loops write PNGs and SLAM reads them.
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; default: the built-in VO);
@@ -58,6 +62,7 @@ class BenchmarkConfig:
     out_dir: Path
     reference: str = DEFAULT_REFERENCE
     scheduler: str | None = None
+    cluster: SlurmOptions | None = None
     workers: int = 1
     windows_m: Sequence[float] = DEFAULT_WINDOWS_M
     max_frames: int | None = None
@@ -178,23 +183,24 @@ def _run_local(tasks: list[BenchmarkTask], workers: int, on_done: OnDone | None)
         return [f.result() for f in futures]
 
 
-def _run_dask(tasks: list[BenchmarkTask], scheduler: str, on_done: OnDone | None) -> list[RunResult]:
-    try:
-        from distributed import Client, as_completed
-    except ImportError as exc:
-        raise BracketryError("--scheduler needs dask.distributed (install the emulator extra)") from exc
-    try:
-        client = Client(scheduler, timeout=30)
-    except OSError as exc:
-        raise BracketryError(f"cannot reach the Dask scheduler {scheduler}: {exc}") from exc
-    try:
-        futures = client.map(run_task, tasks, pure=False)
-        if on_done:
-            for f in as_completed(futures):
-                on_done(f.result())
-        return list(client.gather(futures))
-    finally:
-        client.close()
+def _run_cluster(c: BenchmarkConfig, specs: list[TrajectorySpec], tasks: list[BenchmarkTask], loop: LoopConfig,
+                 slam: SlamOptions, stream: bool, on_done: OnDone | None) -> list[RunResult]:
+    """The tasks on a Dask cluster (``c.scheduler``) or on Slurm jobs (``c.cluster``), in the units of
+    :func:`~bracketry_emulator.benchmark.cluster.make_units`; every worker checked first."""
+    from bracketry_emulator.benchmark import cluster as cl
+
+    cached = [r for r in (load_cached(t) for t in tasks) if r is not None]
+    if len(cached) == len(tasks):  # nothing to run: no cluster to start
+        return _run_local(tasks, 1, on_done)
+    units = cl.make_units(specs, tasks, loop, stream)
+    checks = cl.worker_checks(c.out_dir.resolve(), tasks, slam.vocabulary if slam.backend == "orbslam3" else None,
+                              slam.vocabulary_id)
+    if c.cluster is not None:
+        with cl.slurm_cluster(c.cluster) as (client, address, cores):
+            return cl.run_units(client, units, checks, cores, on_done, address)
+    assert c.scheduler is not None
+    with cl.connect(c.scheduler) as client:
+        return cl.run_units(client, units, checks, 1, on_done, c.scheduler)
 
 
 def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
@@ -208,6 +214,8 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     c = config
     paths = [d for d in c.datasets if not isinstance(d, TrajectorySpec)]
     specs = [d for d in c.datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
+    if c.loop.images == "truth":
+        check_truth_datasets(specs)
     weights = c.drl_weights
     if weights is not None and not Path(weights).is_file():
         raise BracketryError(f"--drl-weights file not found: {weights}")
@@ -250,16 +258,20 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     t_start = time.perf_counter()
     stages = StageTimes()
     slam_workers = c.workers * 2 if slam.paced and c.workers > 1 else c.workers
-    if c.scheduler is None and slam_path is None and not c.export_orbslam:
+    if c.scheduler is not None and c.cluster is not None:
+        raise BracketryError("--scheduler and --cluster exclude each other (a cluster you run, or Slurm jobs)")
+    local = c.scheduler is None and c.cluster is None
+    if local and slam_path is None and not c.export_orbslam:
         streamed = _streamed(specs, tasks, out, loop, c.workers, c.progress, stages, on_done)
         done_keys = {r.key for r in streamed}
         runs = [*streamed, *_run_local([t for t in tasks if t.key not in done_keys], slam_workers, on_done)]
-    elif c.scheduler is None:
+    elif local:
         if slam_path is None:
             _shared_closed_loops(specs, tasks, out, loop, c.workers, c.progress, stages)
         runs = _run_local(tasks, slam_workers, on_done)
     else:
-        runs = _run_dask(tasks, c.scheduler, on_done)
+        stream = slam_path is None and not c.export_orbslam
+        runs = _run_cluster(c, specs, tasks, loop, slam, stream, on_done)
     for r in runs:  # this invocation's SLAM and metrics seconds (cached results did no work now)
         if not r.cached and r.stages:
             stages.merge(r.stages)
@@ -366,3 +378,13 @@ def group_repeats(runs: list[dict]) -> list[dict]:
         out.append(combine_repeats(rs) if len(rs) > 1 else {**rs[0], "repeats": 1,
                                                              "repeats_ok": 0 if rs[0].get("error") else 1})
     return out
+
+
+def check_truth_datasets(datasets: Sequence[str | Path | TrajectorySpec]) -> None:
+    """Refuse (BracketryError, one line) truth images for any trajectory that is not a synthetic one."""
+    from bracketry_emulator.ae.truth import truth_recording
+
+    paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
+    specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
+    for s in specs:
+        truth_recording(s.path)

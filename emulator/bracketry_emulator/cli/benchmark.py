@@ -10,7 +10,9 @@ from bracketry.cli.options import (
     EXIT_OK,
     SEED,
     WORKERS,
+    Duration,
     Integer,
+    MemorySize,
     Number,
     input_dir,
     input_file,
@@ -22,12 +24,15 @@ from bracketry.cli.options import (
 from bracketry.errors import BracketryError
 from bracketry_emulator.defaults import (
     AE_CAMERAS,
+    CLUSTERS,
     DEFAULT_ALPHA,
+    DEFAULT_CLUSTER_JOBS,
     DEFAULT_CRF,
     DEFAULT_INIT_EXPOSURE_US,
     DEFAULT_REFERENCE,
     DEFAULT_SLAM_PACE,
     DEFAULT_STATS_METHODS,
+    MAX_CLUSTER_JOBS,
     MAX_EXPOSURE_OPTION_MS,
     PARITIES,
     SELECTIONS,
@@ -68,7 +73,23 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--reference", default=DEFAULT_REFERENCE, show_default=True, help="Reference method of the statistics.")
 @click.option("--scheduler", default=None, help="Dask scheduler address tcp://HOST:PORT (default: local processes).")
 @click.option("--workers", default=0, show_default=True, type=WORKERS,
-              help="Local worker processes, 0 = one per CPU (1 = in this process; ignored with --scheduler).")
+              help="Local worker processes, 0 = one per CPU (1 = in this process; ignored on a cluster).")
+@click.option("--cluster", type=click.Choice(CLUSTERS), default=None,
+              help="Run on a batch system: Dask workers in at most --jobs jobs (dask-jobqueue), fewer as the work "
+                   "runs out, all released at the end. Data, output and cache on storage every node sees "
+                   "(docs/CLUSTER.md).")
+@click.option("--jobs", default=DEFAULT_CLUSTER_JOBS, show_default=True, type=Integer(1, MAX_CLUSTER_JOBS),
+              help="--cluster: at most this many jobs at once (one Dask worker each).")
+@click.option("--job-cores", type=Integer(1, 1024), default=None,
+              help="--cluster: cores per job (a trajectory's closed loops and SLAM runs share them). Default: "
+                   "jobqueue.slurm.cores of dask-jobqueue's configuration.")
+@click.option("--job-memory", type=MemorySize(), default=None,
+              help="--cluster: memory per job, e.g. 8GB. Default: jobqueue.slurm.memory.")
+@click.option("--job-walltime", type=Duration(), default=None,
+              help="--cluster: walltime per job (e.g. 2h, 90m); a job that hits it has its runs done again by "
+                   "another. Default: jobqueue.slurm.walltime.")
+@click.option("--job-partition", default=None, help="--cluster: Slurm partition. Default: jobqueue.slurm.queue.")
+@click.option("--job-account", default=None, help="--cluster: Slurm account. Default: jobqueue.slurm.account.")
 @click.option("--windows", "windows_text", default="5:50:1", show_default=True,
               help="RTE/RRE windows in metres: START:STOP:STEP or a list.")
 @click.option("--alpha", default=DEFAULT_ALPHA, show_default=True, type=Number(0, 1, min_open=True, max_open=True),
@@ -116,7 +137,9 @@ def _windows(text: str) -> tuple[float, ...]:
 @quiet_option("No progress bar for the closed loops.")
 def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, ...], method_options: Path | None,
             stats_methods: str, out_dir: Path, reference: str,
-            scheduler: str | None, workers: int, windows_text: str, alpha: float, max_frames: int | None,
+            scheduler: str | None, workers: int, cluster: str | None, jobs: int, job_cores: int | None,
+            job_memory: str | None, job_walltime: float | None, job_partition: str | None, job_account: str | None,
+            windows_text: str, alpha: float, max_frames: int | None,
             write_images: bool, export_orbslam: bool, slam_dir: Path | None, drl_weights: Path | None,
             selection: str, crf: str,
             init_exposure_ms: float, seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: Path | None,
@@ -139,10 +162,16 @@ def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, 
     apply_profile("benchmark")  # before numpy loads
     from bracketry_emulator.ae import LoopConfig, parse_method_options
     from bracketry_emulator.benchmark import BenchmarkConfig, RunResult, run_benchmark
+    from bracketry_emulator.benchmark.cluster import SlurmOptions, slurm_walltime
     from bracketry_emulator.benchmark.slam import slam_options
 
     if scheduler is not None and not scheduler.startswith(("tcp://", "tls://", "inproc://", "ucx://")):
         raise BracketryError(f"bad --scheduler {scheduler!r} (expected tcp://HOST:PORT)")
+    if scheduler is not None and cluster is not None:
+        raise BracketryError("--scheduler and --cluster exclude each other (a cluster you run, or batch jobs)")
+    slurm = None if cluster is None else SlurmOptions(
+        jobs, job_cores, job_memory, None if job_walltime is None else slurm_walltime(job_walltime), job_partition,
+        job_account)
     windows_m = _windows(windows_text)
     plugin_options = parse_method_options(method_option, method_options)
     if workers == 0:
@@ -166,7 +195,8 @@ def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, 
                    f"{rte}, coverage {100 * m['coverage_mean']:.1f} %, "
                    f"matches {m['matches_mean']:.0f}")
 
-    config = BenchmarkConfig(datasets, methods, out_dir, reference=reference, scheduler=scheduler, workers=workers,
+    config = BenchmarkConfig(datasets, methods, out_dir, reference=reference, scheduler=scheduler, cluster=slurm,
+                             workers=workers,
                              windows_m=windows_m, max_frames=max_frames, alpha=alpha, export_orbslam=export_orbslam,
                              slam_dir=slam_dir, drl_weights=str(drl_weights) if drl_weights else None,
                              progress=not quiet, loop=loop, slam=slam, stats_methods=stats_methods,

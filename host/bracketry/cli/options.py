@@ -130,6 +130,25 @@ class Duration(click.ParamType):
         return total
 
 
+_MEMORY = re.compile(r"(\d+(?:\.\d*)?)\s*([KMGT]i?B)", re.IGNORECASE)
+
+
+class MemorySize(click.ParamType):
+    """A memory size with its unit: ``500MB``, ``8GB``, ``16GiB`` (K/M/G/T, B or iB) -> the text as given, stripped
+    (the form dask and Slurm read), > 0."""
+
+    name = "size"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str:
+        text = str(value).strip()
+        m = _MEMORY.fullmatch(text)
+        if m is None:
+            self.fail(f"{value!r}: expected a size with its unit, e.g. 500MB, 8GB, 16GiB", param, ctx)
+        if float(m.group(1)) <= 0:
+            self.fail(f"{value!r}: must be more than 0", param, ctx)
+        return text
+
+
 class IPv4(click.ParamType):
     """A dotted IPv4 address (cameras are opened by IP only: a name would be resolved by discovery broadcast)."""
 
