@@ -13,7 +13,8 @@ SUDO=""; if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
 APT_PACKAGES=(libaravis-0.8-0 gir1.2-aravis-0.8 aravis-tools aravis-tools-cli libgirepository1.0-dev
   libcairo2-dev pkg-config gcc make socat gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm
   iproute2 util-linux python3-venv python3-dev chromium libdeflate-dev
-  libgl1 libegl1 libopengl0 libsm6 libice6 libx11-6 libxext6)  # the OpenGL/X11 runtime libraries pyorbslam3 links
+  libgl1 libegl1 libopengl0 libsm6 libice6 libx11-6 libxext6  # the OpenGL/X11 runtime libraries pyorbslam3 links
+  slurm-wlm munge)  # a one-node Slurm the cluster tests start (bracketry benchmark --cluster slurm)
 command -v node >/dev/null 2>&1 || APT_PACKAGES+=(nodejs)
 command -v npm >/dev/null 2>&1 || APT_PACKAGES+=(npm)
 
