@@ -25,6 +25,8 @@ FUSION_BRACKETS: tuple[str, ...] = ("longer", "bounding", "all")
 #: the closed loop's images: emulated from the brackets, or rendered by a synthetic world (truth runs); the default
 #: first (the benchmark also takes "both")
 IMAGES: tuple[str, ...] = ("emulated", "truth")
+#: the benchmark's: one of them, or both (then the report compares the two, benchmark/truth_agreement.py)
+RUN_IMAGES: tuple[str, ...] = (*IMAGES, "both")
 #: the methods as their papers describe them, or as the authors' code runs them; the default first
 PARITIES: tuple[str, ...] = ("default", "upstream")
 #: camera response: the sample's sRGB-encoded codes (or a pcalib.txt path)

@@ -35,6 +35,7 @@ from bracketry_emulator.defaults import (
     MAX_CLUSTER_JOBS,
     MAX_EXPOSURE_OPTION_MS,
     PARITIES,
+    RUN_IMAGES,
     SELECTIONS,
     SLAM_BACKENDS,
 )
@@ -119,6 +120,12 @@ def _windows(text: str) -> tuple[float, ...]:
 @click.option("--parity", type=click.Choice(PARITIES), default=PARITIES[0], show_default=True,
               help="Closed loops: the methods as their papers describe them (default) or as the authors' code runs "
                    "them (upstream: with their emulation arithmetic; needs --crf pcalib_inside1.txt).")
+@click.option("--images", type=click.Choice(RUN_IMAGES), default=RUN_IMAGES[0], show_default=True,
+              help="Closed loops: emulated images, the synthetic world's renders at the chosen exposures (truth; "
+                   "synthetic trajectories only), or both (truth into OUT/truth; OUT/report/truth_agreement.md "
+                   "compares metrics, rankings and verdicts).")
+@click.option("--emulate-blur", is_flag=True,
+              help="Closed loops: emulate the motion blur of an exposure longer than its source bracket.")
 @click.option("--slam", "slam_backend", type=click.Choice(SLAM_BACKENDS), default=SLAM_BACKENDS[0],
               show_default=True, help="Localisation: ORB-SLAM3 stereo, or the built-in VO (fast, deterministic).")
 @click.option("--vocabulary", type=input_file(), default=None,
@@ -143,7 +150,8 @@ def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, 
             write_images: bool, export_orbslam: bool, slam_dir: Path | None, drl_weights: Path | None,
             selection: str, crf: str,
             init_exposure_ms: float, seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: Path | None,
-            slam_pace: str, loop_closing: bool, slam_repeats: int, setup_check: bool, quiet: bool) -> int:
+            slam_pace: str, loop_closing: bool, slam_repeats: int, setup_check: bool, quiet: bool, images: str,
+            emulate_blur: bool) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
@@ -180,7 +188,8 @@ def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, 
     slam = slam_options(slam_backend, vocabulary, slam_pace, loop_closing, slam_repeats, resolve=False)
 
     loop = LoopConfig.from_json({"selection": selection, "crf": crf, "init_exposure_us": init_exposure_ms * 1000.0,
-                                 "seed": seed, "ae_camera": ae_camera, "parity": parity})
+                                 "seed": seed, "ae_camera": ae_camera, "parity": parity, "blur": emulate_blur,
+                                 "images": "truth" if images == "truth" else "emulated"})
 
     def done(r: RunResult) -> None:
         rep = f" (repeat {r.repeat + 1})" if slam_repeats > 1 else ""
@@ -201,6 +210,24 @@ def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, 
                              slam_dir=slam_dir, drl_weights=str(drl_weights) if drl_weights else None,
                              progress=not quiet, loop=loop, slam=slam, stats_methods=stats_methods,
                              write_images=write_images, setup_check=setup_check, method_options=plugin_options)
+    if images == "both":  # truth images first refused (one line) for any non-synthetic trajectory, before any work
+        from dataclasses import replace
+
+        from bracketry_emulator.benchmark.orchestrate import check_truth_datasets
+
+        check_truth_datasets(config.datasets)
     result = run_benchmark(config, on_done=done, slam_echo=click.echo)
     click.echo(f"report: {result.report_files.get('report.html')}")
+    if images == "both":
+        from bracketry_emulator.benchmark.truth_agreement import truth_agreement, write_truth_agreement
+
+        click.echo("truth images:")
+        truth = run_benchmark(replace(config, out_dir=out_dir / "truth", loop=replace(loop, images="truth")),
+                              on_done=done, slam_echo=click.echo)
+        methods_run = list(dict.fromkeys(r["method"] for r in result.results))
+        doc = truth_agreement(result.results, truth.results, methods_run, reference, alpha)
+        _json, md = write_truth_agreement(doc, out_dir / "report")
+        v = doc["verdicts"]
+        click.echo(f"emulated vs truth: Kendall tau {doc['kendall_tau_median']:.2f} (median over metrics), verdicts "
+                   f"agree {v['agree']}/{v['total']}: {md}")
     return EXIT_OK
