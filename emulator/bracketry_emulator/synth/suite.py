@@ -8,8 +8,8 @@ Layout of a rendered suite::
 
 Subsets after the paper's: ``forest``, ``sun-shadow`` (Belair-like), ``glare`` (Campus1-like), ``day-cycle`` (one
 campus loop at six times of day, Campus2-like). Sizes: ``full`` (24 trajectories of 60 s at 640x400) and ``demo``
-(14 of 3 s at 320x200). A suite is cached by (version, size, seed) in ``user_cache_dir()/synth-suites``; the same
-seed gives the same bytes. Bump :data:`SUITE_VERSION` whenever anything changes what a suite renders.
+(14 of 3 s at 320x200). A suite is cached by (version, size, seed, code digest) in ``user_cache_dir()/synth-suites``;
+the same seed gives the same bytes. Bump :data:`SUITE_VERSION` when what a suite holds changes by design.
 """
 
 from __future__ import annotations
@@ -139,14 +139,24 @@ def user_cache_dir() -> Path:
     return Path(base) / "bracketry"
 
 
+def code_digest() -> str:
+    """12 hex digits of the SHA-256 of everything that decides what a suite renders: the synth package's sources
+    (Python and C) and its scenario files. A cached suite of other code is not reused."""
+    root = Path(__file__).parent
+    h = hashlib.sha256()
+    for p in sorted([*root.glob("*.py"), *root.glob("*.c"), *root.glob("scenarios/*.yaml")]):
+        h.update(p.relative_to(root).as_posix().encode() + b"\0" + p.read_bytes() + b"\0")
+    return h.hexdigest()[:12]
+
+
 def suite_id(size: str, seed: int) -> dict:
-    """What identifies a rendered suite (its manifest's ``suite:`` block)."""
-    return {"version": SUITE_VERSION, "size": size, "seed": int(seed)}
+    """What identifies a rendered suite (its manifest's ``suite:`` block): version, size, seed and code digest."""
+    return {"version": SUITE_VERSION, "size": size, "seed": int(seed), "code": code_digest()}
 
 
 def cache_dir(size: str, seed: int) -> Path:
-    """Where the suite of (size, seed) at this version is cached."""
-    return user_cache_dir() / "synth-suites" / f"v{SUITE_VERSION}-{size}-seed{int(seed)}"
+    """Where the suite of (size, seed) at this version and code is cached."""
+    return user_cache_dir() / "synth-suites" / f"v{SUITE_VERSION}-{size}-seed{int(seed)}-{code_digest()}"
 
 
 def read_suite_id(folder: Path) -> dict | None:
@@ -347,7 +357,7 @@ def _figures_main(out_dir: Path) -> None:
         if name == "day-cycle":
             doc = merge(doc, {"sun": {"hour": 9.0}})
         f = scenario_figures(doc)
-        cv2.imwrite(str(out_dir / f"{name}.png"), thumbnail_strip(doc))
+        cv2.imwrite(str(out_dir / f"{name}.jpg"), thumbnail_strip(doc), [cv2.IMWRITE_JPEG_QUALITY, 88])
         print(f"| {name} | {f['subset']} | {f['pace_kmh']:g} | {f['sun_elevation_deg']:.1f} deg | "
               f"{f['view_range_stops_median']:.1f} / {f['view_range_stops_max']:.1f} | {f['change_2s_x']:.1f}x | "
               f"{f['brightness_range_stops']:.1f} stops |", flush=True)

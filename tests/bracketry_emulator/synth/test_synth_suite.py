@@ -120,7 +120,7 @@ def test_a_suite_is_the_same_bytes_for_the_same_seed_and_cached(tmp_path: Path, 
     assert _digest(tmp_path / "a") == _digest(tmp_path / "b")
     # the manifest: subsets, splits, version; read by the benchmark's loader
     doc = yaml.safe_load((tmp_path / "a" / "manifest.yaml").read_text())
-    assert doc["suite"] == {"version": suite.SUITE_VERSION, "size": "demo", "seed": 3}
+    assert doc["suite"] == {"version": suite.SUITE_VERSION, "size": "demo", "seed": 3, "code": suite.code_digest()}
     specs = load_manifest(tmp_path / "a" / "manifest.yaml")
     assert {s.subset for s in specs} == set(SUBSETS)
     assert {s.split for s in specs} == {"train", "test"}
