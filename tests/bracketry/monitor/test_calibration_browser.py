@@ -68,7 +68,7 @@ def test_capture_coverage_on_the_monitor_page(tmp_path: Path) -> None:
         missing_component("chromium not found (apt-get install chromium, or ./setup.sh)")
     board = BoardSpec()
     calib = default_calibration(640, 400)
-    _views, frames = render_session(board, calib, 8, 36)
+    _views, frames = render_session(board, calib, 8, 24)
     pairs = []
     for left, right in frames:
         grays = (to_gray8(left), to_gray8(right))
