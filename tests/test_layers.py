@@ -3,8 +3,9 @@
     base  <  rig, emulator  <  integration
 
 - **base**: what both packages share, on the core dependencies alone (OpenCV only where a PNG is written): errors,
-  progress, paths, output checks, the CLI's option types, the PNG codec (``bracketry.png``) and the recording format
-  with its reader and checker (``bracketry.recording`` but the rig's recorder and session).
+  progress, paths, output checks, the CLI's option types, the PNG codec (``bracketry.png``), the recording format
+  with its reader and checker (``bracketry.recording`` but the rig's recorder and session) and the stereo
+  calibration library (``bracketry.calibration``: board, detection, coverage, solve; numpy and OpenCV only).
 - **rig** (the rest of ``bracketry``) and **emulator** (``bracketry_emulator``) are peers: neither imports the other,
   so a rig runs without the emulator's dependencies and the emulator never reaches into the rig.
 - **integration**: what joins them: the simulated rig (``bracketry.sim``), the demo, the test harnesses and the CLI
