@@ -9,7 +9,8 @@ Sharpness (the blur measure of the capture and the solve): the equivalent Gaussi
 inside the detected corners' bounding box and ``g`` is the smaller of the 99th percentiles of ``|dI/dx|`` and
 ``|dI/dy|`` there (central differences): a step edge blurred by a Gaussian of sigma s has the peak gradient
 ``contrast / (sqrt(2 pi) s)``. The smaller of the two directions catches motion blur, which leaves the edges along
-the motion sharp. A sharp board reads about 0.7-1.2 px; the default limit is :data:`MAX_BLUR_PX`.
+the motion sharp. Sharp rendered boards read 1.1-1.3 px (lens PSF 0.6 px and the Bayer interpolation); the
+default limit is :data:`MAX_BLUR_PX`.
 """
 
 from __future__ import annotations
