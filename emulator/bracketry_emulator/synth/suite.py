@@ -26,7 +26,13 @@ import numpy as np
 import yaml
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.synth.scenario import merge, read_scenario_doc, scenario_from_dict, shipped_scenarios
+from bracketry_emulator.synth.scenario import (
+    merge,
+    read_scenario_doc,
+    scenario_from_dict,
+    shipped_scenarios,
+    sun_position,
+)
 
 #: the suite's version: part of its cache key and of its manifest
 SUITE_VERSION = "1"
@@ -314,8 +320,7 @@ def scenario_figures(doc: dict, resolution: tuple[int, int] = (160, 100), step_s
         bright.append(scene_brightness(rad))
     b = np.array(bright)
     return {"name": sc.name, "subset": sc.subset, "preset": sc.preset, "pace_kmh": sc.route.pace_kmh,
-            "sun_elevation_deg": float(np.degrees(np.arcsin(world.scene.lighting.sun_dir[2])))
-            if sc.sun.elevation_deg is None or sc.sun.elevation_deg > 0.5 else sc.sun.elevation_deg,
+            "sun_elevation_deg": sun_position(sc.sun)[0],
             "view_range_stops_median": float(np.median(stops)), "view_range_stops_max": float(np.max(stops)),
             "change_2s_x": brightness_change(times, b, 2.0),
             "brightness_range_stops": float(np.log2(b.max() / max(b.min(), 1e-12)))}
