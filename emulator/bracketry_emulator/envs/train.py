@@ -65,7 +65,8 @@ class TrainConfig:
     augment: bool = True
     checkpoint_every: int = 5_000
     split: str = "train"
-    extra: dict[str, Any] = field(default_factory=dict)
+    #: further keyword arguments of every ExposureEnv (e.g. init_exposure_us, max_exposure_us)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
 
 
 def _sb3() -> Any:
@@ -102,7 +103,8 @@ def make_train_env(datasets: list[Any], cfg: TrainConfig) -> Any:
 
     def factory(group: list[Any]) -> Any:
         return lambda: uint8_frames(ExposureEnv(group, split=cfg.split, reward=cfg.reward, width=cfg.width,
-                                                episode_steps=cfg.episode_steps, augment=cfg.augment))
+                                                episode_steps=cfg.episode_steps, augment=cfg.augment,
+                                                **cfg.env_kwargs))
 
     venv = DummyVecEnv([factory(g) for g in groups])
     venv.seed(cfg.seed)
