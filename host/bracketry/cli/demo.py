@@ -23,7 +23,7 @@ from bracketry.cli.options import (
               show_default=True, help="Output folder, new or empty (recording, dataset, benchmark report).")
 @overwrite_option("Run again into a non-empty --out (the earlier demo's files are replaced).")
 @option("--duration-s", "seconds", aliases=("--seconds",), type=Number(3.0, 600.0), default=None,
-        help="Seconds to record, 3 to 600 (default 40, or 10 with --quick).")
+        help="Seconds to record, 3 to 600 (default 20, or 10 with --quick).")
 @click.option("--quick", is_flag=True, help="Small and short (320x200, 10 s of recording): the version CI runs.")
 @click.option("--drl-weights", type=input_file(), default=None,
               envvar="BRACKETRY_DRL_WEIGHTS",
@@ -39,9 +39,12 @@ from bracketry.cli.options import (
 @method_options_options()
 @click.option("--stats-methods", default="paper", show_default=True,
               help="Methods in the statistics: 'paper' (plugins are reported, not tested), 'all', or a comma list.")
+@click.option("--suite/--no-suite", "with_suite", default=None,
+              help="Also benchmark the demo-size synthetic suite (bracketry synth suite --size demo --seed 0; rendered "
+                   "once into the user cache) beside the recording. Default: on, off with --quick.")
 def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, drl_weights: Path | None,
             slam: str | None, slam_pace: str, methods: str, method_option: tuple[str, ...],
-            method_options: Path | None, stats_methods: str) -> int:
+            method_options: Path | None, stats_methods: str, with_suite: bool | None) -> int:
     """Run the whole pipeline on the embedded default: simulated rig -> recording -> AE benchmark -> report."""
     from bracketry_emulator.runtime_policy import apply_profile
 
@@ -52,7 +55,7 @@ def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, 
 
     pace = parse_pace(slam_pace)  # a bad value: one line before anything runs
     the_plan = plan(out_dir, seconds, quick, str(drl_weights) if drl_weights else None, slam, pace, methods,
-                    stats_methods, parse_method_options(method_option, method_options))
+                    stats_methods, parse_method_options(method_option, method_options), suite=with_suite)
     check_methods(the_plan)  # unknown methods, bad plugin options, unsafe names: one line before recording
     summary = run(the_plan, echo=lambda s: click.echo(s, err=True))
     click.echo("")
@@ -72,11 +75,16 @@ def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, 
         click.echo(f"  RTE/RRE not computed for any method: {why}")
     if held:
         click.echo(f"  WARNING: {held} frames repeat an earlier rendered cycle: these are not an idle run's figures")
+    if summary.get("suite"):
+        click.echo(f"  benchmarked on {summary['trajectories']} trajectories: the recording and the demo-size suite "
+                   f"({summary['suite']})")
     report = summary["report"].get("report.html") or summary["report"].get("report.md")
     click.echo(f"report: {report}")
     t, c = summary["timing_s"], summary["cpu_s"]
-    click.echo(f"took {t['total']} s (recording {t['record']} s, export {t['export']} s, benchmark {t['benchmark']} s"
-               f"; load average {' / '.join(str(x) for x in summary['load_average'])})")
-    click.echo(f"CPU {c['total']} s (recording {c['record']} s, export {c['export']} s, benchmark {c['benchmark']} s; "
-               "user + system, every process of the demo)")
+    suite_t = f", suite {t['suite']} s" if summary.get("suite") else ""
+    suite_c = f", suite {c['suite']} s" if summary.get("suite") else ""
+    click.echo(f"took {t['total']} s (recording {t['record']} s, export {t['export']} s{suite_t}, benchmark "
+               f"{t['benchmark']} s; load average {' / '.join(str(x) for x in summary['load_average'])})")
+    click.echo(f"CPU {c['total']} s (recording {c['record']} s, export {c['export']} s{suite_c}, benchmark "
+               f"{c['benchmark']} s; user + system, every process of the demo)")
     return EXIT_OK if summary["recording_verified"] else EXIT_PROBLEMS

@@ -7,9 +7,13 @@ Steps (each prints progress, each output kept under ``out_dir``):
    SENSORS/RECORD presses; the recording is verified.
 2. ``dataset/``: the recording exported as a BorealHDR tree (16-bit PNG per camera and exposure, left and right
    sharing their trigger's timestamp) with the world's calibration and ground-truth poses.
-3. ``benchmark/``: every paper AE method (DRL when ``--drl-weights`` / ``BRACKETRY_DRL_WEIGHTS`` names its weights)
-   in closed loop on the emulated images, fed in memory to stereo SLAM (no emulated PNG is written), RTE/RRE,
-   failures, statistics against AE50, report (Markdown, HTML, CSV, plots, and where the time went).
+3. ``suite/`` (default plan): the demo-size synthetic suite (``bracketry synth suite --size demo --seed 0``: short
+   walks in the subsets forest, sun-shadow, glare, day-cycle, where the exposure decides), linked from the user
+   cache when rendered before.
+4. ``benchmark/``: every paper AE method (DRL when ``--drl-weights`` / ``BRACKETRY_DRL_WEIGHTS`` names its weights)
+   in closed loop on the emulated images of the recording (subset ``rig``) and the suite, fed in memory to stereo
+   SLAM (no emulated PNG is written), RTE/RRE, failures, statistics against AE50 over all those trajectories,
+   report (Markdown, HTML, CSV, plots, and where the time went).
 """
 
 from __future__ import annotations
@@ -52,6 +56,10 @@ class DemoPlan:
     slam: str = "orbslam3"
     #: ORB-SLAM3 feed: seconds between frames (0 = as fast as it tracks) or "realtime" (see :data:`DEMO_PACE`)
     slam_pace: str | float = 0.0
+    #: the synthetic suite benchmarked with the recording: a size of ``bracketry synth suite`` ("demo"), or None
+    suite: str | None = None
+    #: the suite's seed
+    suite_seed: int = 0
 
 
 #: The demo feeds ORB-SLAM3 unpaced: every method's run at once, fed by the one closed-loop pass. On this 2-core
@@ -63,22 +71,31 @@ DEMO_PACE = 0.0
 
 #: The demo's dataset PNGs are stored (deflate without compression): 0.34 vs 5.7 ms an image to write at 640x400
 #: (the export took ~9 s of the default demo with OpenCV's encoder) and faster to decode, for ~1.4x the disk
-#: (~0.9 GB for the default 40 s).
+#: (~0.9 GB for 40 s).
 DEMO_PNG_COMPRESSION = "stored"
 
 
-DEFAULT_SECONDS = 40.0
+#: 20 s: with the demo-size suite beside it the demo stays within its 4 minutes here (measured under load: the suite's
+#: 98 ORB-SLAM3 runs 265 CPU-s, the 40 s recording's seven ~250 CPU-s; on 2 cores 40 s + suite did not fit)
+DEFAULT_SECONDS = 20.0
 #: 10 s: the simulated walk (~0.58 m/s) covers ~5.8 m, safely more than the shortest RTE window (5 m, pairs from
 #: 4.5 m); 8 s (~4.7 m) left RTE/RRE to chance.
 QUICK_SECONDS = 10.0
+#: the suite the default plan benchmarks with the recording (with one trajectory the statistics cannot separate any
+#: two methods; the suite's trajectories, paired across methods, can)
+DEMO_SUITE = "demo"
+#: the name and subset of the rig's own recording among the benchmark's trajectories
+RIG_TRAJECTORY, RIG_SUBSET = "simulated_forest", "rig"
 DEFAULT_RESOLUTION = (640, 400)
 QUICK_RESOLUTION = (320, 200)
 
 
 def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | None = None,
          slam: str | None = None, slam_pace: str | float | None = None, methods: str = "all",
-         stats_methods: str = "paper", method_options: dict[str, dict[str, Any]] | None = None) -> DemoPlan:
-    """The default plan (a SLAM run long enough to mean something), or the quick one for CI (< 2 minutes).
+         stats_methods: str = "paper", method_options: dict[str, dict[str, Any]] | None = None,
+         suite: bool | None = None) -> DemoPlan:
+    """The default plan (a SLAM run long enough to mean something, and the demo-size suite beside the recording), or
+    the quick one for CI (< 2 minutes: the recording alone). ``suite``: True/False overrides the plan's choice.
 
     SLAM: ORB-SLAM3 by default; the quick plan uses the built-in VO unless ``slam`` says otherwise (its 320x200
     images leave ORB-SLAM3 a 7-level pyramid, and the first ORB-SLAM3 run on a machine builds the vocabulary,
@@ -89,9 +106,16 @@ def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | N
                               "method_options": dict(method_options or {})}
     if quick:
         return DemoPlan(out_dir, seconds or QUICK_SECONDS, QUICK_RESOLUTION, drl_weights=drl_weights,
-                        slam=slam or "builtin", slam_pace=DEMO_PACE if slam_pace is None else slam_pace, **chosen)
+                        slam=slam or "builtin", slam_pace=DEMO_PACE if slam_pace is None else slam_pace,
+                        suite=DEMO_SUITE if suite else None, **chosen)
     return DemoPlan(out_dir, seconds or DEFAULT_SECONDS, DEFAULT_RESOLUTION, drl_weights=drl_weights,
-                    slam=slam or "orbslam3", slam_pace=DEMO_PACE if slam_pace is None else slam_pace, **chosen)
+                    slam=slam or "orbslam3", slam_pace=DEMO_PACE if slam_pace is None else slam_pace,
+                    suite=None if suite is False else DEMO_SUITE, **chosen)
+
+
+def _steps(p: DemoPlan) -> int:
+    """The demo's steps: record, export, (render the suite,) benchmark."""
+    return 3 if p.suite is None else 4
 
 
 def check_methods(p: DemoPlan) -> list[str]:
@@ -118,7 +142,7 @@ def record(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     prio = ["nice", "-n", "-10"] if os.geteuid() == 0 and shutil.which("nice") else []
     cmd = [*prio, sys.executable, "-m", "bracketry", "simulate", "--duration-s", f"{p.seconds:g}", "--out",
            str(rig_dir), "--overwrite", "--resolution", f"{w}x{h}", "--fps", f"{p.fps:g}"]
-    echo(f"[1/3] recording {p.seconds:g} s on the simulated backpack ({w}x{h}, {p.fps:g} fps): "
+    echo(f"[1/{_steps(p)}] recording {p.seconds:g} s on the simulated backpack ({w}x{h}, {p.fps:g} fps): "
          f"bracketry {' '.join(cmd[len(prio) + 3:])}")
     log_path = p.out_dir / "simulate.log"
     with open(log_path, "wb") as log:
@@ -156,7 +180,7 @@ def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]
     if ds.exists():
         shutil.rmtree(ds)
     ds.mkdir(parents=True)
-    echo(f"[2/3] exporting the recording to a BorealHDR tree: {ds}")
+    echo(f"[2/{_steps(p)}] exporting the recording to a BorealHDR tree: {ds}")
     for seg in sim["recordings"]:
         export_borealhdr(seg, ds, workers=p.workers, progress=False, png_compression=DEMO_PNG_COMPRESSION)
     rig_dir = p.out_dir / "rig"
@@ -167,11 +191,38 @@ def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]
     return ds
 
 
-def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
-    """Step 3: all AE methods in closed loop (one shared-decode pass, with a progress bar), VO, metrics, statistics
-    and the report."""
+def suite(p: DemoPlan, echo: Callable[[str], None]) -> Path | None:
+    """Step 3 of the default plan: the demo-size synthetic suite under ``out_dir/suite`` (linked from the user cache
+    when rendered before); returns its manifest (None without a suite in the plan)."""
+    if p.suite is None:
+        return None
+    from bracketry_emulator.synth.suite import make_suite
+
+    out = p.out_dir / "suite"
+    echo(f"[3/4] synthetic suite ({p.suite}, seed {p.suite_seed}): trajectories where the exposure decides")
+    bar: Any = None
+
+    def progress(done: int, total: int) -> None:
+        nonlocal bar
+        if bar is None:
+            bar = Progress("render suite", total=total, unit="trajectory")
+        bar.update(1)
+
+    try:
+        _id, how = make_suite(out, p.suite, p.suite_seed, overwrite=True, workers=p.workers, progress=progress)
+    finally:
+        if bar is not None:
+            bar.close()
+    echo(f"      suite {how} ({out})")
+    return out / "manifest.yaml"
+
+
+def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None], suite_manifest: Path | None = None) -> Any:
+    """The last step: all AE methods in closed loop (one shared-decode pass per trajectory, with a progress bar), VO,
+    metrics, statistics and the report, on the recording (and the suite's trajectories when given)."""
     from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, parse_methods, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
+    from bracketry_emulator.metrics.manifest import TrajectorySpec, load_manifest
 
     ids = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
     methods = check_methods(p)  # their names
@@ -179,20 +230,25 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None]) -> Any:
     out = p.out_dir / "benchmark"
     if out.exists():  # a new recording: earlier runs and cached results belong to the old one
         shutil.rmtree(out)
-    echo(f"[3/3] benchmarking {len(methods)} AE methods ({', '.join(methods)}): closed loops (each bracket "
-         f"decoded once for all) feeding {'ORB-SLAM3' if p.slam == 'orbslam3' else 'the built-in VO'} in memory "
-         f"(one process per method, no PNG round trip), then metrics per method")
+    datasets = [TrajectorySpec(RIG_TRAJECTORY, dataset.resolve(), RIG_SUBSET if suite_manifest is not None else "all")]
+    if suite_manifest is not None:
+        datasets += load_manifest(suite_manifest)
+    where = f" on the recording and {len(datasets) - 1} suite trajectories" if suite_manifest is not None else ""
+    n = _steps(p)
+    echo(f"[{n}/{n}] benchmarking {len(methods)} AE methods ({', '.join(methods)}){where}: closed loops (each "
+         f"bracket decoded once for all) feeding {'ORB-SLAM3' if p.slam == 'orbslam3' else 'the built-in VO'} in "
+         f"memory (one process per method, no PNG round trip), then metrics per method")
     bar: Any = None
 
     def done(r: Any) -> None:  # a RunResult
         nonlocal bar
         if bar is None:  # after the closed loops' own bar
-            bar = Progress("SLAM + metrics", total=len(methods), unit="method")
+            bar = Progress("SLAM + metrics", total=len(methods) * len(datasets), unit="run")
         bar.set_postfix(r.method)
         bar.update(1)
 
     try:
-        return run_benchmark(BenchmarkConfig([dataset], ids, out, reference="ae50", workers=p.workers,
+        return run_benchmark(BenchmarkConfig(datasets, ids, out, reference="ae50", workers=p.workers,
                                              drl_weights=p.drl_weights, progress=True, slam=slam,
                                              stats_methods=p.stats_methods, method_options=p.method_options),
                              on_done=done)
@@ -259,8 +315,11 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     t_rec, cpu_rec = time.monotonic() - t0, cpu_s() - cpu0
     dataset = export_dataset(p, sim, echo)
     t_export, cpu_export = time.monotonic() - t0 - t_rec, cpu_s() - cpu0 - cpu_rec
-    result = benchmark(p, dataset, echo)
-    t_bench, cpu_bench = time.monotonic() - t0 - t_rec - t_export, cpu_s() - cpu0 - cpu_rec - cpu_export
+    suite_manifest = suite(p, echo)
+    t_suite, cpu_suite = (time.monotonic() - t0 - t_rec - t_export, cpu_s() - cpu0 - cpu_rec - cpu_export)
+    result = benchmark(p, dataset, echo, suite_manifest)
+    t_bench = time.monotonic() - t0 - t_rec - t_export - t_suite
+    cpu_bench = cpu_s() - cpu0 - cpu_rec - cpu_export - cpu_suite
     best = best_per_metric(result.report_files["summary.csv"]) if "summary.csv" in result.report_files else {}
     summary = {"out_dir": str(p.out_dir), "seconds": p.seconds, "resolution": list(p.resolution),
                "frames": frames, "drops": drops, "recording_verified": bool(sim["ok"]),
@@ -269,10 +328,12 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
                "methods": sorted({r["method"] for r in result.results}),
                "best": {k: {"method": v[0], "value": v[1]} for k, v in best.items()},
                "report": {k: str(v) for k, v in result.report_files.items()},
-               "timing_s": {"record": round(t_rec, 1), "export": round(t_export, 1), "benchmark": round(t_bench, 1),
-                            "total": round(time.monotonic() - t0, 1)},
-               "cpu_s": {"record": round(cpu_rec, 1), "export": round(cpu_export, 1), "benchmark": round(cpu_bench, 1),
-                         "total": round(cpu_s() - cpu0, 1)},
+               "suite": str(suite_manifest) if suite_manifest is not None else None,
+               "trajectories": len({r["trajectory"] for r in result.results}),
+               "timing_s": {"record": round(t_rec, 1), "export": round(t_export, 1), "suite": round(t_suite, 1),
+                            "benchmark": round(t_bench, 1), "total": round(time.monotonic() - t0, 1)},
+               "cpu_s": {"record": round(cpu_rec, 1), "export": round(cpu_export, 1), "suite": round(cpu_suite, 1),
+                         "benchmark": round(cpu_bench, 1), "total": round(cpu_s() - cpu0, 1)},
                "load_average": [round(x, 2) for x in os.getloadavg()]}
     (p.out_dir / "demo_summary.json").write_text(json.dumps(summary, indent=2))
     return summary
