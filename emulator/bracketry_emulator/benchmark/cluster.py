@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import contextlib
 import functools
+import logging
 import os
 import socket
 from collections.abc import Callable, Iterator
@@ -215,10 +216,25 @@ def run_units(client: Any, units: list[Unit], checks: WorkerChecks, cores: int,
                 for r in rs:
                     on_done(r)
     except (OSError, CancelledError, TimeoutError) as exc:
-        if isinstance(exc, BracketryError):
-            raise
+        from distributed.comm.core import CommClosedError
+
+        if isinstance(exc, OSError) and not isinstance(exc, CommClosedError) and client.status == "running":
+            raise  # a unit's own error on its worker (e.g. a full disk), not the connection
         raise _lost(address, exc, len(results), len(units)) from exc
     return [r for f in futures for r in results[f.key]]
+
+
+@contextlib.contextmanager
+def _quiet_client() -> Iterator[None]:
+    """Dask's client logs a traceback when it loses its scheduler (while it runs and while it closes): the
+    :class:`ClusterLost` line says it, so its errors are kept out of the terminal for the client's lifetime."""
+    logger = logging.getLogger("distributed.client")
+    level = logger.level
+    logger.setLevel(logging.CRITICAL)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
 
 
 @contextlib.contextmanager
@@ -232,11 +248,12 @@ def connect(address: str) -> Iterator[Any]:
         client = Client(address, timeout=30)
     except OSError as exc:
         raise BracketryError(f"cannot reach the Dask scheduler {address}: {exc}") from exc
-    try:
-        yield client
-    finally:
-        with contextlib.suppress(Exception):
-            client.close()
+    with _quiet_client():
+        try:
+            yield client
+        finally:
+            with contextlib.suppress(Exception):
+                client.close()
 
 
 def slurm_job_settings(opts: SlurmOptions) -> dict[str, Any]:
@@ -278,11 +295,12 @@ def slurm_cluster(opts: SlurmOptions) -> Iterator[tuple[Any, str, int]]:
         cores = int(kw.get("cores") or dask.config.get("jobqueue.slurm.cores"))
         cluster.adapt(minimum_jobs=0, maximum_jobs=opts.jobs)
         client = Client(cluster)
-        try:
-            yield client, cluster.scheduler_address, cores
-        finally:
-            with contextlib.suppress(Exception):
-                client.close()
+        with _quiet_client():
+            try:
+                yield client, cluster.scheduler_address, cores
+            finally:
+                with contextlib.suppress(Exception):
+                    client.close()
     finally:
         with contextlib.suppress(Exception):
             cluster.close()
