@@ -1,10 +1,10 @@
 """The report's HTML page: what a reader wants at a glance first, the long tables folded below.
 
 Order: the verdict table against the reference, coloured (▲ green, ▼ red, ≡ grey); the box plots per metric and
-method; the success table per subset; the per-method summaries; the exposure traces and the qualitative strip; then,
-folded in ``<details>``, the per-trajectory table, the tests, the per-frame figures and where the time went. Nothing is
-wider than the page: the body has a maximum width, every table sits in its own horizontal scroll box and every image
-is at most as wide as its box.
+method; the paired (Wilcoxon) verdict table; the control rows, when any; the success table per subset; the
+per-method summaries; the exposure traces and the qualitative strip; then, folded in ``<details>``, the per-trajectory
+table, the tests, the per-frame figures and where the time went. Nothing is wider than the page: the body has a
+maximum width, every table sits in its own horizontal scroll box and every image is at most as wide as its box.
 """
 
 from __future__ import annotations

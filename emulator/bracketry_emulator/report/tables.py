@@ -151,6 +151,18 @@ def paired_tables(results: list[dict], methods: list[str], reference: str, alpha
     return wil, fri
 
 
+def paired_verdicts_table(wilcoxon_rows: list[list[str]], methods: list[str], reference: str) -> list[list[str]]:
+    """The Wilcoxon signed-rank verdicts of :func:`paired_tables` shaped as the Mann-Whitney verdict table (metrics
+    as rows, compared methods as columns, ▲ ▼ ≡ –): the paired test, which sees a difference that every trajectory
+    shows in the same direction even when it is small against the spread between trajectories."""
+    others = [m for m in methods if m != reference]
+    by_metric: dict[str, dict[str, str]] = {}
+    for label, method, *_rest, verdict in wilcoxon_rows[1:]:
+        by_metric.setdefault(label, {})[method] = SYMBOL[verdict]
+    return [["metric", *others], *[[label, *[v.get(m, SYMBOL["n/a"]) for m in others]]
+                                   for label, v in by_metric.items()]]
+
+
 #: metric key -> (axis label with unit, scale to that unit) of the box plots and the medians table
 METRIC_UNITS: dict[str, tuple[str, float]] = {
     "coverage_mean": ("coverage (%)", 100.0),

@@ -2,7 +2,8 @@
 
 Files in ``<out>/report/``: ``results.csv`` (per trajectory and method), ``windows.csv`` (RTE/RRE per window),
 ``summary.csv``, ``medians.csv`` (per method: medians and spread over repeats), ``success.csv`` (per subset),
-``stats.csv`` (p-values and verdicts), ``verdicts.csv``, ``report.md``, ``report.html``, the PNG figures (box plots
+``stats.csv`` (p-values and verdicts), ``verdicts.csv``, ``verdicts_paired.csv`` (the Wilcoxon signed-rank verdicts
+as the same table), ``controls.csv`` (with control rows), ``report.md``, ``report.html``, the PNG figures (box plots
 per metric and method over trajectories and repeats ``box_<metric>.png``, per-frame coverage and matches box plots,
 time before failure, exposure traces, qualitative grid) and ``latex/`` (the verdict, success and medians tables as
 LaTeX, :mod:`~bracketry_emulator.report.latex`).
@@ -27,6 +28,7 @@ from bracketry_emulator.report.tables import (
     medians_table,
     method_labels,
     paired_tables,
+    paired_verdicts_table,
     relabel,
     results_table,
     run_values,
@@ -102,6 +104,8 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     files["verdicts.csv"] = _write_csv(rep / "verdicts.csv", verdicts)
     files["stats.csv"] = _write_csv(rep / "stats.csv", pvalues)
     files["wilcoxon.csv"] = _write_csv(rep / "wilcoxon.csv", wilcoxon_rows)
+    paired_verdicts = paired_verdicts_table(wilcoxon_rows, tested, reference)
+    files["verdicts_paired.csv"] = _write_csv(rep / "verdicts_paired.csv", paired_verdicts)
     files["friedman.csv"] = _write_csv(rep / "friedman.csv", friedman_rows)
     failed_rows = failed_runs_table(results)
     files["failed_runs.csv"] = _write_csv(rep / "failed_runs.csv", failed_rows)
@@ -167,11 +171,13 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     if no_ref:
         intro += " RTE/RRE: " + "; ".join(no_ref) + "."
     verdict_title = "Statistical difference with " + reference
+    paired_title = f"Paired difference with {reference} (Wilcoxon signed-rank, Bonferroni)"
     failed_title = "Failed SLAM runs (left out of the statistics)"
     # at a glance (in this order), then the long tables (folded in the HTML page)
     suc_shown, sum_shown, med_shown = (relabel(suc_rows, labels, header=True), relabel(sum_rows, labels),
                                        relabel(med_rows, labels))
     glance = [(verdict_title, relabel(verdicts, labels, header=True)),
+              (paired_title, relabel(paired_verdicts, labels, header=True)),
               *([("Control rows", ctl_rows)] if len(ctl_rows) > 1 else []),
               *([(failed_title, failed_rows)] if len(failed_rows) > 1 else []),
               ("Successful trajectories per subset", suc_shown), ("Summary", sum_shown),
@@ -181,8 +187,9 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
               ("Paired: Friedman across methods", friedman_rows)]
     sections = [*glance, *folded]
     md = ["# Auto-exposure benchmark", "", intro, "", f"## {verdict_title}", "", _markdown(glance[0][1]), "",
+          f"## {paired_title}", "", _markdown(glance[1][1]), "",
           "## Metrics per method", ""] + [f"![{cap}]({name})\n" for name, cap in box_figs]
-    for title, rows in sections[1:]:
+    for title, rows in sections[2:]:
         md += [f"## {title}", "", _markdown(rows), ""]
     md += ["## Figures", ""] + [f"![{cap}]({name})\n" for name, cap in [*look_figs, *figs]]
     stage_rows, stage_text = _stage_section(stages)
@@ -194,9 +201,10 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     hp = html_page
     body = [hp.section(verdict_title, hp.verdict_legend(reference)
                        + hp.table(hp.by_method(glance[0][1]), verdict_cells=True)),
-            hp.section("Metrics per method", hp.figures(box_figs))]
+            hp.section("Metrics per method", hp.figures(box_figs)),
+            hp.section(paired_title, hp.table(hp.by_method(glance[1][1]), verdict_cells=True))]
     body += [hp.section(title, hp.table(hp.by_method(rows) if rows is suc_shown else rows))
-             for title, rows in glance[1:]]
+             for title, rows in glance[2:]]
     if look_figs:
         body.append(hp.section("Exposure and images", hp.figures(look_figs)))
     body.append("<h2>Details</h2>")
