@@ -188,8 +188,11 @@ class BoardRenderer:
         hi = np.where(hi < 0, bg, hi)
         return cv2.resize(hi, (cam.width, cam.height), interpolation=cv2.INTER_AREA)
 
-    def render(self, side: str, view: ViewSpec, background: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """One raw frame of ``side``: uint16 (H, W) RGGB 12-bit codes."""
+    def render(self, side: str, view: ViewSpec, background: np.ndarray, rng: np.random.Generator,
+               exposure_us: float | None = None) -> np.ndarray:
+        """One raw frame of ``side``: uint16 (H, W) RGGB 12-bit codes. The scene's light puts the white squares at
+        60 % of full well at :attr:`exposure_us`; ``exposure_us`` (default that one) is the exposure the camera
+        takes (a simulated camera set to another exposure reads proportionally more or less)."""
         refl = self.reflectance(side, view, background)
         refl = cv2.GaussianBlur(refl, (0, 0), LENS_SIGMA_PX)
         if view.blur_len_px > 0:
@@ -197,7 +200,7 @@ class BoardRenderer:
                                 borderType=cv2.BORDER_REFLECT)
         white_e_per_us = 0.6 * self.camera.full_well_e / self.exposure_us / WHITE
         rate = (refl * np.float32(white_e_per_us * view.light) * self._gain[side]).astype(np.float32)
-        return self.camera.expose(rate, self.exposure_us, rng)
+        return self.camera.expose(rate, self.exposure_us if exposure_us is None else float(exposure_us), rng)
 
 
 def background_field(width: int, height: int, rng: np.random.Generator) -> np.ndarray:

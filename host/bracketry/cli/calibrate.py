@@ -279,35 +279,92 @@ class _FolderBackend:
         return (), 1, 1
 
 
+class _Selection:
+    """The capture's bookkeeping shared by both streams: judge a pair, save it when kept, log it, print a line."""
+
+    def __init__(self, feed: Any, board: Any, out: Path, bayer: bool, quiet: bool) -> None:
+        self.feed, self.board, self.out, self.bayer, self.quiet = feed, board, out, bayer, quiet
+        self.log: list[dict[str, Any]] = []
+        for side in ("left", "right"):
+            (out / side).mkdir(exist_ok=True)
+
+    def offer(self, name: str, imgs: tuple[Any, Any], save: Any) -> bool:
+        """Judge the pair ``imgs`` (raw images); ``save(out, name)`` writes it when kept. Returns the set is
+        enough."""
+        from bracketry.calibration.detect import detect, to_gray8
+
+        grays = (to_gray8(imgs[0], bayer=self.bayer), to_gray8(imgs[1], bayer=self.bayer))
+        kept, why = self.feed.offer(grays, (detect(grays[0], self.board), detect(grays[1], self.board)))
+        self.log.append({"pair": name, "kept": kept, "why": why})
+        if kept:
+            save(self.out, name)  # one name for both: solve pairs by name
+        st = self.feed.coverage.status()
+        if not self.quiet:
+            bars = " ".join(f"{k} {v:.0%}" for k, v in st["bars"].items())
+            click.echo(f"{name}: {'kept' if kept else why}; {st['kept']} kept; {bars}", err=True)
+        return bool(st["enough"])
+
+    def finish(self, board_yaml: str, extra: dict[str, Any]) -> dict[str, Any]:
+        self.feed.finish()
+        (self.out / "board.yaml").write_text(board_yaml)
+        status: dict[str, Any] = self.feed.coverage.status()
+        (self.out / "capture.json").write_text(json.dumps({**extra, **status, "pairs": self.log}, indent=1) + "\n")
+        return status
+
+
 @command.command("capture")
-@click.option("--from", "source", type=input_dir(), required=True,
+@click.option("--from", "source", type=input_dir(), default=None,
               help="Session folder to read the stereo pairs from in order, as a live stream (left/, right/).")
+@click.option("--rig", "rig", type=click.Choice(["sim"]), default=None,
+              help="Drive a rig in calibration mode instead: 'sim' is the simulated rig's two fake GigE cameras "
+                   "looking at a board moved by hand (one fixed exposure, zero gain, software-triggered together).")
 @click.option("--out", "out", type=output_dir(), required=True,
               help="Folder for the kept views (new or empty): left/, right/, board.yaml, capture.json.")
 @overwrite_option()
 @click.option("--board", "board_file", type=input_file(), default=None,
-              help="board.yaml of the board (default: the --from folder's board.yaml).")
+              help="board.yaml of the board (default: the --from folder's board.yaml; with --rig sim the default "
+                   "ChArUco board).")
 @click.option("--max-blur-px", type=Number(0.5, 100.0), default=2.5, show_default=True,
               help="Pairs whose board edges are blurred more than this (equivalent Gaussian sigma, px) are skipped.")
 @click.option("--no-bayer", is_flag=True, help="The images are grey, not raw RGGB mosaics.")
 @click.option("--monitor", "monitor_port", type=Integer(0, 65535), default=None,
-              help="Serve the monitor page with the live corners and coverage on 127.0.0.1:PORT (0: any port).")
+              help="Serve the monitor page with the live corners and coverage on 127.0.0.1:PORT (0: any port; "
+                   "with --rig sim a fixed port).")
 @click.option("--rate-hz", type=Number(0.0, 1000.0), default=0.0, show_default=True,
-              help="Pairs per second to replay at (0: as fast as they are read), 0..1000.")
+              help="Pairs per second to replay or trigger at (0: as fast as they come), 0..1000.")
 @click.option("--hold-s", type=Number(0.0, 3600.0), default=0.0, show_default=True,
               help="Keep the monitor page up this long after the last pair, 0..3600 s.")
+@click.option("--exposure-us", type=Integer(20, 100000), default=1000, show_default=True,
+              help="--rig: the one fixed exposure of both cameras, us (short: a board moved by hand stays sharp).")
+@click.option("--max-pairs", type=count(1, 100000), default=120, show_default=True,
+              help="--rig: stop after this many pairs when the set is not enough before.")
+@click.option("--seed", type=SEED, default=0, show_default=True, help="--rig sim: seed of the hand-held views.")
+@click.option("--resolution", default="640x400", show_default=True,
+              help="--rig sim: the cameras' resolution WIDTHxHEIGHT.")
 @quiet_option()
-def capture_cmd(source: Path, out: Path, overwrite: bool, board_file: Path | None, max_blur_px: float,
-                no_bayer: bool, monitor_port: int | None, rate_hz: float, hold_s: float, quiet: bool) -> int:
+def capture_cmd(source: Path | None, rig: str | None, out: Path, overwrite: bool, board_file: Path | None,
+                max_blur_px: float, no_bayer: bool, monitor_port: int | None, rate_hz: float, hold_s: float,
+                exposure_us: int, max_pairs: int, seed: int, resolution: str, quiet: bool) -> int:
     """Select calibration views from a stream of stereo pairs: a pair is kept when the board is found in both
     images, sharp enough and not a near-duplicate of a kept view; the monitor page (--monitor) shows the corners,
     the coverage bars (x, y, size, skew) and when the set is enough. Exit 1 when the kept set is not enough.
 
-    The stream is an image folder (a recorded session); driving the rig itself in a calibration mode is not
-    implemented yet."""
+    The stream is an image folder (--from, a recorded session) or a rig driven in calibration mode (--rig sim:
+    both cameras at one fixed exposure and zero gain, triggered together, until the set is enough or --max-pairs);
+    the real rig's line-triggered cameras are not driven yet."""
+    if (source is None) == (rig is None):
+        raise BracketryError("give the stream: --from SESSION (a recorded board session) or --rig sim")
+    if rig is not None:
+        return _capture_sim(out, board_file, max_blur_px, monitor_port, rate_hz, hold_s, exposure_us, max_pairs,
+                            seed, resolution, quiet)
+    assert source is not None
+    return _capture_folder(source, out, board_file, max_blur_px, no_bayer, monitor_port, rate_hz, hold_s, quiet)
+
+
+def _capture_folder(source: Path, out: Path, board_file: Path | None, max_blur_px: float, no_bayer: bool,
+                    monitor_port: int | None, rate_hz: float, hold_s: float, quiet: bool) -> int:
     import shutil as _shutil
 
-    from bracketry.calibration.detect import detect, to_gray8
     from bracketry.monitor.calibration_feed import CaptureFeed
 
     if board_file is None:
@@ -329,39 +386,141 @@ def capture_cmd(source: Path, out: Path, overwrite: bool, board_file: Path | Non
                                calibration=feed).start()
         click.echo(f"monitor: {server.url}", err=True)
     out.mkdir(exist_ok=True)
-    for side in ("left", "right"):
-        (out / side).mkdir(exist_ok=True)
-    log = []
+    sel = _Selection(feed, board, out, not no_bayer, quiet)
     try:
         t_next = time.monotonic()
         for pair in pairs:
-            imgs = [_read(p) for p in pair]
+            imgs = (_read(pair[0]), _read(pair[1]))
             for p, img in zip(pair, imgs, strict=True):
                 if (int(img.shape[1]), int(img.shape[0])) != size:
                     raise BracketryError(f"{p} is {img.shape[1]}x{img.shape[0]} but the stream is "
                                          f"{size[0]}x{size[1]}: a session's images must all have one size")
-            grays = (to_gray8(imgs[0], bayer=not no_bayer), to_gray8(imgs[1], bayer=not no_bayer))
-            kept, why = feed.offer(grays, (detect(grays[0], board), detect(grays[1], board)))
-            log.append({"pair": pair[0].name, "kept": kept, "why": why})
-            if kept:
+
+            def save(dest: Path, name: str, pair: tuple[Path, Path] = pair) -> None:
                 for side, p in zip(("left", "right"), pair, strict=True):
-                    _shutil.copyfile(p, out / side / pair[0].name)  # one name for both: solve pairs by name
-            if not quiet:
-                st = feed.coverage.status()
-                bars = " ".join(f"{k} {v:.0%}" for k, v in st["bars"].items())  # type: ignore[attr-defined]
-                click.echo(f"{pair[0].name}: {'kept' if kept else why}; {st['kept']} kept; {bars}", err=True)
+                    _shutil.copyfile(p, dest / side / name)
+
+            sel.offer(pair[0].name, imgs, save)
             if rate_hz > 0:
                 t_next += 1.0 / rate_hz
                 time.sleep(max(0.0, t_next - time.monotonic()))
-        feed.finish()
-        (out / "board.yaml").write_text(board_file.read_text())
-        status = feed.coverage.status()
-        (out / "capture.json").write_text(json.dumps({"source": str(source), **status, "pairs": log}, indent=1)
-                                          + "\n")
+        status = sel.finish(board_file.read_text(), {"source": str(source)})
         if server is not None and hold_s > 0:
             time.sleep(hold_s)
     finally:
         if server is not None:
             server.close()
     click.echo(f"kept {status['kept']} of {len(pairs)} pairs in {out}; {status['advice']}")
+    return EXIT_OK if status["enough"] else EXIT_PROBLEMS
+
+
+def _capture_sim(out: Path, board_file: Path | None, max_blur_px: float, monitor_port: int | None, rate_hz: float,
+                 hold_s: float, exposure_us: int, max_pairs: int, seed: int, resolution: str, quiet: bool) -> int:
+    """``--rig sim``: the simulated rig's fake cameras (in a private network namespace: this command re-runs
+    itself there) serving a board moved by hand, driven in calibration mode."""
+    import subprocess
+    import sys
+
+    from bracketry.cli.simulate import parse_resolution
+    from bracketry.sim.rig import in_private_netns, monitor_bridge_outside, monitor_socket, reexec_in_netns
+
+    size = parse_resolution(resolution)
+    if board_file is not None:
+        load_board(board_file)  # a bad board: one line before anything starts
+    if monitor_port == 0:
+        raise BracketryError("--monitor 0 with --rig sim: give a fixed port (the page is served from the rig's "
+                             "network namespace)")
+    if not in_private_netns():
+        out.mkdir(exist_ok=True)
+        bridge = monitor_bridge_outside(out, monitor_port) if monitor_port is not None else None
+        try:
+            # --out was checked here (before the bridge wrote into it): the re-run does not refuse it
+            argv = sys.argv[1:]
+            return reexec_in_netns([*argv, "--overwrite"] if argv[:2] == ["calibrate", "capture"] else
+                                   ["calibrate", "capture", "--rig", "sim", "--out", str(out), "--overwrite",
+                                    "--max-blur-px", str(max_blur_px), "--rate-hz", str(rate_hz),
+                                    "--hold-s", str(hold_s), "--exposure-us", str(exposure_us),
+                                    "--max-pairs", str(max_pairs), "--seed", str(seed), "--resolution", resolution,
+                                    *(["--board", str(board_file)] if board_file is not None else []),
+                                    *(["--monitor", str(monitor_port)] if monitor_port is not None else []),
+                                    *(["--quiet"] if quiet else [])])
+        finally:
+            if bridge is not None:
+                bridge.terminate()
+                bridge.wait(timeout=10)
+    from bracketry.calibration.board import BoardSpec
+    from bracketry.cameras.lockstep import LockstepPair
+    from bracketry.cameras.profiles import CameraSettings
+    from bracketry.monitor.calibration_feed import CaptureFeed
+    from bracketry.png import write_png
+    from bracketry.sim.board_rig import BoardSource, start_board_cameras
+    from bracketry.sim.frames import read_frame_id
+    from bracketry.sim.rig import CAMERA_ADDRESSES
+
+    board = load_board(board_file) if board_file is not None else BoardSpec()
+    import yaml
+
+    board_yaml = board_file.read_text() if board_file is not None else yaml.safe_dump(board.to_dict(),
+                                                                                     sort_keys=False)
+    out.mkdir(exist_ok=True)
+    feed = CaptureFeed(board, size, max_blur_px)
+    source = BoardSource(board, size, seed)
+    servers = start_board_cameras(source)
+    server = bridge_in = None
+    pairs = mismatched = 0
+    try:
+        if monitor_port is not None:
+            from bracketry.monitor.hub import PreviewHub
+            from bracketry.monitor.server import MonitorServer
+
+            server = MonitorServer(_FolderBackend(out), PreviewHub(), "127.0.0.1", monitor_port,
+                                   calibration=feed).start()
+            sock = monitor_socket(out)
+            bridge_in = subprocess.Popen(["socat", f"UNIX-LISTEN:{sock},fork,mode=600",
+                                          f"TCP:127.0.0.1:{monitor_port}"], stdin=subprocess.DEVNULL,
+                                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            click.echo(f"monitor: http://127.0.0.1:{monitor_port}/", err=True)
+        sel = _Selection(feed, board, out, True, quiet)
+        settings = CameraSettings(profile="aravis_fake", pixel_format="Mono16", width=size[0], height=size[1],
+                                  trigger_source="Software", exposure_us=float(exposure_us))
+        with LockstepPair(CAMERA_ADDRESSES, settings) as cams:
+            t_next = time.monotonic()
+            while pairs < max_pairs:
+                left, right = cams.grab()
+                pairs += 1
+                name = f"{pairs - 1:06d}.png"
+                if left.image is None or right.image is None:
+                    sel.log.append({"pair": name, "kept": False, "why": "incomplete frame"})
+                    continue
+                ids = (read_frame_id(left.image), read_frame_id(right.image))
+                if ids[0] is None or ids[0] != ids[1]:  # the two images are not one instant's
+                    mismatched += 1
+                    sel.log.append({"pair": name, "kept": False, "why": f"not a pair (views {ids[0]}, {ids[1]})"})
+                    continue
+                imgs = (left.image, right.image)
+
+                def save(dest: Path, name: str, imgs: tuple[Any, Any] = imgs) -> None:
+                    for side, img in zip(("left", "right"), imgs, strict=True):
+                        write_png(dest / side / name, img)
+
+                if sel.offer(name, imgs, save):
+                    break
+                if rate_hz > 0:
+                    t_next += 1.0 / rate_hz
+                    time.sleep(max(0.0, t_next - time.monotonic()))
+        source.write_truth(out / "truth")
+        status = sel.finish(board_yaml, {"source": "rig sim", "seed": seed, "exposure_us": exposure_us,
+                                         "gain": 0, "served_exposures_us": source.exposures_us,
+                                         "pairs_not_matched": mismatched})
+        if server is not None and hold_s > 0:
+            time.sleep(hold_s)
+    finally:
+        if bridge_in is not None:
+            bridge_in.terminate()
+            bridge_in.wait(timeout=10)
+        if server is not None:
+            server.close()
+        for cam in servers.values():
+            cam.stop()
+    click.echo(f"kept {status['kept']} of {pairs} pairs in {out}; {status['advice']}")
     return EXIT_OK if status["enough"] else EXIT_PROBLEMS
