@@ -65,7 +65,11 @@ def test_the_capture_keeps_new_sharp_views_seen_by_both_and_says_when_enough() -
     assert all(b == 1.0 for b in bars.values()), bars
     assert len(cov.kept) >= MIN_VIEWS_ENOUGH
     assert cov.enough and cov.status()["advice"].startswith("enough")
-    few = Coverage(board, SIZE, kept=cov.kept[:MIN_VIEWS_ENOUGH - 1])
+    # full bars from fewer views than the minimum (picked greedily, each adding the most coverage): keep going
+    few = Coverage(board, SIZE, kept=[])
+    while not all(b == 1.0 for b in few.bars().values()):
+        few.kept.append(max(cov.kept, key=lambda v: sum(Coverage(board, SIZE, kept=[*few.kept, v]).bars().values())))
+    assert len(few.kept) < MIN_VIEWS_ENOUGH
     assert not few.enough and few.status()["advice"].startswith("keep going")
     many = Coverage(board, SIZE)
     many.kept = [(0.5, 0.5, 0.1, 0.0)] * MAX_VIEWS_ENOUGH
