@@ -20,7 +20,7 @@ def command() -> None:
 @click.argument("datasets", nargs=-1, required=True, type=input_path())
 @click.option("--steps", type=count(1, 100_000_000), required=True,
               help="Environment steps in all (a resumed run counts the checkpoint's steps).")
-@click.option("--out", "out", type=output_file(existing="refuse", suffixes=(".pth",)), required=True,
+@click.option("--out", "out", type=output_file(existing="replace", suffixes=(".pth",)), required=True,
               help="The actor's weights (.pth, a state_dict that --drl-weights loads); checkpoints go to "
                    "<out>.ckpt/.")
 @overwrite_option()
@@ -52,8 +52,10 @@ def drl(datasets: tuple[Path, ...], steps: int, out: Path, overwrite: bool, resu
 
     if resume and not (checkpoint_dir(out) / "model.zip").is_file():
         raise BracketryError(f"--resume: no checkpoint {checkpoint_dir(out)}/model.zip")
-    if not resume and checkpoint_dir(out).exists() and not overwrite:
-        raise BracketryError(f"{checkpoint_dir(out)} exists (add --resume to continue it or --overwrite)")
+    if not resume and not overwrite:  # --resume rewrites the weights it goes on from
+        for existing in (out, checkpoint_dir(out)):
+            if existing.exists():
+                raise BracketryError(f"--out {existing} exists (add --resume to continue it or --overwrite)")
     cfg = TrainConfig(steps=steps, seed=seed, reward=reward, n_envs=n_envs, episode_steps=episode_steps,
                       batch_size=batch_size, buffer_size=buffer_size, learning_starts=learning_starts,
                       augment=not no_augment, checkpoint_every=checkpoint_every, split=split)

@@ -183,6 +183,7 @@ ROWS = [
     Row("path", "slam vocabulary {random} --out {tmp}/keep.txt", words="--overwrite"),
     Row("path", "train drl {good} --steps 10 --out {tmp}/keep.txt", words=".pth file"),
     Row("path", "train drl {good} --steps 10 --out {tmp}/w.pth --resume", words="no checkpoint"),
+    Row("path", "train drl {good} --steps 10 --out {weights}", words="--resume"),
     Row("path", "slam vocabulary {random} --out /nonexistent/dir/voc.txt", words="does not exist"),
     Row("path", "daemon --check --config {rig_proc}", words="output_dir"),
     # ---- input files: missing, wrong content
