@@ -36,7 +36,9 @@ if TYPE_CHECKING:
     from bracketry_emulator.ae.registry import MethodSpec
     from bracketry_emulator.ae.runner import LoopConfig
 
-CACHE_VERSION = 3
+#: bumped when the code's results change under the same settings (4: Kim's default mode, fusion's default
+#: bracket set 'longer', targets beyond the longest bracket recorded as gain), so no older result is reused
+CACHE_VERSION = 4
 
 
 def _default_loop() -> LoopConfig:
