@@ -37,7 +37,8 @@ if TYPE_CHECKING:
     from bracketry_emulator.ae.runner import LoopConfig
 
 #: bumped when the code's results change under the same settings (4: Kim's default mode, fusion's default
-#: bracket set 'longer', targets beyond the longest bracket recorded as gain), so no older result is reused
+#: bracket set 'longer', targets beyond the longest bracket recorded as gain, time before failure counted in steps),
+#: so no older result is reused
 CACHE_VERSION = 4
 
 

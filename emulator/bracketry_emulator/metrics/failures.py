@@ -1,13 +1,19 @@
 """Robustness metrics from a VO per-frame log: time before first failure, success, tracked fraction.
 
 A frame fails when it is not tracked: LOST (tracking failed) or NO_INIT (the VO could not (re)initialise on it).
-Time before failure = t(first failed frame) - t(first frame) in seconds; a run with no failed frame is successful and
-its time before failure is its whole duration (t(last) - t(first)). This is the paper's "duration of each trajectory
+Time before failure = the time of the first failed frame since the first frame, in seconds; a run with no failed frame
+is successful and its time before failure is its whole duration. This is the paper's "duration of each trajectory
 before failure"; a successful trajectory "maintains localization without becoming lost for the whole trajectory".
+
+Times are counted in steps of the closed loop (one per bracket sequence): step k is at k x the run's median step
+period (rounded to 0.1 ms). A frame's own stamp is the instant of the bracket its image was emulated from (brackets
+of one sequence are ~45 ms apart), so two methods that both never fail would otherwise get durations that differ by
+which bracket each used first and last, and a paired test would call that a difference in robustness.
 """
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
 
 TRACKED = ("OK", "INIT")
@@ -26,14 +32,26 @@ class Robustness:
     n_segments: int
 
 
+def step_period_s(times_ns: list[int]) -> float:
+    """The median spacing of consecutive frame stamps ``times_ns`` (ns), in seconds rounded to 0.1 ms; 0 for fewer
+    than two frames."""
+    if len(times_ns) < 2:
+        return 0.0
+    gaps = sorted(b - a for a, b in itertools.pairwise(times_ns))
+    mid = len(gaps) // 2
+    median_ns = gaps[mid] if len(gaps) % 2 else (gaps[mid - 1] + gaps[mid]) / 2
+    return round(median_ns * 1e-5) * 1e-4
+
+
 def robustness(frames: list[dict]) -> Robustness:
     """Robustness of one run from ``frames.csv`` rows (dicts with ``t_ns``, ``state``, ``segment``)."""
     if not frames:
         return Robustness(False, 0.0, 0.0, 0.0, 0, 0)
-    t0 = frames[0]["t_ns"]
-    duration = (frames[-1]["t_ns"] - t0) * 1e-9
+    step_s = step_period_s([f["t_ns"] for f in frames])
+    duration = (len(frames) - 1) * step_s
+    first_failed = next((k for k, f in enumerate(frames) if f["state"] not in TRACKED), None)
     failed = [f for f in frames if f["state"] not in TRACKED]
-    tbf = (failed[0]["t_ns"] - t0) * 1e-9 if failed else duration
+    tbf = duration if first_failed is None else first_failed * step_s
     segments = {f["segment"] for f in frames if f["state"] in TRACKED}
     return Robustness(not failed, tbf, duration, 1.0 - len(failed) / len(frames), len(failed), len(segments))
 

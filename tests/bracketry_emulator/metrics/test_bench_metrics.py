@@ -93,6 +93,21 @@ def test_bench_robustness() -> None:
     assert ok.success and ok.time_before_failure_s == pytest.approx(1.25) and ok.tracked_fraction == 1.0
 
 
+def test_bench_robustness_counts_steps_not_the_stamps_of_the_brackets_used() -> None:
+    """Two methods that never fail have the same duration whichever bracket of a sequence (45.5 ms apart) each
+    emulated its first and last images from; a failure at step k is at k sequence periods."""
+    cycle_ns, bracket_ns = 273_000_000, 45_500_000
+    brackets_a = [0, 0, 1, 1, 1, 1, 1, 0]
+    brackets_b = [5, 4, 4, 4, 3, 3, 3, 5]
+    frames_a = [{"t_ns": k * cycle_ns + j * bracket_ns, "state": "OK", "segment": 0} for k, j in enumerate(brackets_a)]
+    frames_b = [{"t_ns": k * cycle_ns + j * bracket_ns, "state": "OK", "segment": 0} for k, j in enumerate(brackets_b)]
+    a, b = robustness(frames_a), robustness(frames_b)
+    assert a.success and b.success
+    assert a.time_before_failure_s == b.time_before_failure_s == pytest.approx(7 * 0.273)
+    frames_b[5]["state"] = "LOST"
+    assert robustness(frames_b).time_before_failure_s == pytest.approx(5 * 0.273)
+
+
 def test_bench_manifest_and_success_counts(tmp_path: Path) -> None:
     for name in ("f1", "f2", "c1"):
         (tmp_path / name).mkdir()
