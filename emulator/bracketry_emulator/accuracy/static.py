@@ -38,6 +38,10 @@ Progress = Callable[[int, int], None]
 FUSION_MEDIAN_REDUCTION = 0.35
 #: Relative tolerance of the "fusion not worse than HigherNoSat at any target" check.
 NOT_WORSE_REL_TOL = 1e-3
+#: ... and absolute tolerance (DN): half a code. Images are whole codes, so an RMSE difference below half a code is
+#: the rounding of two images that agree (e.g. fusion's nearly noise-free image of a flat dark target rounds to a code
+#: where HigherNoSat's noisy one averages around it)
+NOT_WORSE_ABS_TOL_DN = 0.5
 
 
 @dataclass(frozen=True)
@@ -153,7 +157,7 @@ def goals(rows: list[dict], summary: dict, modes: Sequence[str], lo: int, hi: in
             fm = summary["fusion"][metric]["in_bracket_range"]["median"]
             gain = 1.0 - fm / hm if hm > 0 else float("nan")
             diffs = [r["modes"]["fusion"][metric] - r["modes"]["highernosat"][metric] for r in rows]
-            tol = [NOT_WORSE_REL_TOL * r["modes"]["highernosat"][metric] + 1e-9 for r in rows]
+            tol = [max(NOT_WORSE_REL_TOL * r["modes"]["highernosat"][metric], NOT_WORSE_ABS_TOL_DN) for r in rows]
             worst = max(diffs) if diffs else float("nan")
             n_worse = int(sum(d > t for d, t in zip(diffs, tol, strict=True)))
             out[f"fusion_median_reduction_{metric}"] = {"value": gain, "met": bool(gain >= FUSION_MEDIAN_REDUCTION)}

@@ -30,8 +30,6 @@ from __future__ import annotations
 
 import csv
 import math
-import subprocess
-import sys
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
@@ -145,9 +143,19 @@ def test_first_step_equals_the_authors_on_the_sample(borealhdr_sample: Path, bor
 def synth_short(tmp_path_factory: pytest.TempPathFactory) -> Path:
     """The first 4 bracket cycles of the synthetic trajectory of the vectors (rendering is per frame time, so they
     are the same frames as the 3 s run's)."""
+    from bracketry_emulator.synth import World, write_trajectory
+
+    class TriggerInstantWorld(World):
+        """The world the vectors' dataset was rendered from: each frame at its trigger instant, no motion blur (how
+        ``synth trajectory`` rendered before each frame was integrated over its own exposure interval; the
+        authors' code ran on that dataset, see data/upstream_traces/README.md)."""
+
+        @staticmethod
+        def mid_exposure_s(t_s: float, exposure_us: float) -> float:
+            return float(t_s)
+
     out = tmp_path_factory.mktemp("synth18") / "w"
-    subprocess.run([sys.executable, "-m", "bracketry", "synth", "trajectory", "--out", str(out), "--seconds", "1.1",
-                    "--resolution", "1920x1200", "--seed", "18", "-q"], check=True, capture_output=True, timeout=600)
+    write_trajectory(TriggerInstantWorld("forest-winter", 18, (1920, 1200), motion_blur=False), out, seconds=1.1)
     return out
 
 
