@@ -1,4 +1,4 @@
-"""Well-known locations: the repository, the real sample data, the MicroPython WebAssembly runtime."""
+"""Well-known locations: the repository, the real sample data, the MicroPython WebAssembly runtime, the user cache."""
 
 from __future__ import annotations
 
@@ -60,3 +60,13 @@ def micropython_runtime_dir() -> Path:
 def micropython_module_path() -> Path:
     """Path of ``micropython.mjs`` inside the runtime folder (it may not exist)."""
     return micropython_runtime_dir() / "node_modules" / MPY_NPM_PACKAGE / "micropython.mjs"
+
+
+def user_cache_dir() -> Path:
+    """The user's cache of bracketry (ORB-SLAM3 vocabularies, rendered synthetic suites): ``$BRACKETRY_CACHE``, else
+    ``$XDG_CACHE_HOME/bracketry``, else ``~/.cache/bracketry``."""
+    env = os.environ.get("BRACKETRY_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "bracketry"

@@ -22,21 +22,13 @@ from pathlib import Path
 import numpy as np
 
 from bracketry.errors import BracketryError
+from bracketry.paths import user_cache_dir
 from bracketry_emulator.slam.vocabulary import build_vocabulary, vocabulary_text
 
 #: the default vocabulary's recipe (part of its file name through a hash)
 DEFAULT_TRAINING: dict = {"presets": ["forest-winter", "campus-summer"], "world_seed": 9001, "resolution": [960, 600],
                           "times_s": [3.0 * i for i in range(1, 41)], "exposure_us": 8000.0, "k": 10, "levels": 5,
                           "seed": 0, "max_iter": 10, "format": 1}
-
-
-def user_cache_dir() -> Path:
-    """``$BRACKETRY_CACHE`` or ``$XDG_CACHE_HOME/bracketry`` or ``~/.cache/bracketry``."""
-    env = os.environ.get("BRACKETRY_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "bracketry"
 
 
 def image_descriptors(gray8: np.ndarray) -> np.ndarray:

@@ -26,6 +26,7 @@ import numpy as np
 import yaml
 
 from bracketry.errors import BracketryError
+from bracketry.paths import user_cache_dir
 from bracketry_emulator.synth.scenario import (
     merge,
     read_scenario_doc,
@@ -134,15 +135,6 @@ def entry_scenario_doc(entry: Entry, size: str, suite_seed: int) -> dict:
             last = float(ev["times_s"][-1]) or 1.0
             ev["times_s"] = [float(t) / last * spec.duration_s for t in ev["times_s"]]
     return doc
-
-
-def user_cache_dir() -> Path:
-    """``$BRACKETRY_CACHE`` or ``$XDG_CACHE_HOME/bracketry`` or ``~/.cache/bracketry``."""
-    env = os.environ.get("BRACKETRY_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "bracketry"
 
 
 def code_digest() -> str:
