@@ -14,6 +14,7 @@ from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
 from bracketry_emulator.dataset import open_dataset
 from bracketry_emulator.emulation import Emulator, EmulatorConfig, RunWriter
 from bracketry_emulator.metrics import evaluate_run
+from bracketry_emulator.metrics.failures import step_period_s
 from bracketry_emulator.vo import run_vo
 
 WINDOWS = (1.0, 2.0)
@@ -62,8 +63,10 @@ def test_bench_synth_vo_reports_loss_when_saturated(world: Path, runs: Path, tmp
     assert states[6] == "LOST" and run.frames[6].reason  # the first saturated frame, with the reason
     assert run.n_segments >= 2
     m = evaluate_run(tmp_path / "vo", world / "groundtruth.txt", WINDOWS)
-    assert not m["success"] and m["time_before_failure_s"] == pytest.approx(
-        (run.frames[6].t_ns - run.frames[0].t_ns) * 1e-9)
+    # time before failure is counted in closed-loop steps (metrics/failures.py): 6 steps of the run's step period
+    step_s = step_period_s([f.t_ns for f in run.frames])
+    assert step_s == pytest.approx(6 / 22.0, abs=1e-4)
+    assert not m["success"] and m["time_before_failure_s"] == pytest.approx(6 * step_s)
 
 
 def test_bench_synth_closed_loop_benchmark(world: Path, tmp_path: Path) -> None:
