@@ -17,6 +17,7 @@ import cv2
 import numpy as np
 import yaml
 
+from bracketry.calibration.camera_info import camera_info_fields
 from bracketry.errors import BracketryError
 
 #: Full resolution of the real cameras (width, height) in pixels.
@@ -180,26 +181,12 @@ def load_calibration(calibration_dir: Path, width: int, height: int,
     return StereoCalibration(left.scaled(width, height), right.scaled(width, height), baseline_m)
 
 
-def _fmt_matrix(values: np.ndarray) -> list[float]:
-    return [round(float(x), 6) for x in np.asarray(values).ravel()]
-
-
 def camera_info_dict(calib: StereoCalibration, side: str) -> dict:
     """ROS camera_info (the sample's YAML layout) of one side, with the rectification of the pair."""
     cam = calib.side(side)
     rect = calib.rectification()
-    R = rect["R1"] if side == "left" else rect["R2"]
-    P = rect["P1"] if side == "left" else rect["P2"]
-    return {
-        "image_width": cam.width,
-        "image_height": cam.height,
-        "camera_name": f"bracketry_synth/{side}",
-        "camera_matrix": {"rows": 3, "cols": 3, "data": _fmt_matrix(cam.K)},
-        "distortion_model": "plumb_bob",
-        "distortion_coefficients": {"rows": 1, "cols": 5, "data": _fmt_matrix(cam.D)},
-        "rectification_matrix": {"rows": 3, "cols": 3, "data": _fmt_matrix(R)},
-        "projection_matrix": {"rows": 3, "cols": 4, "data": _fmt_matrix(P)},
-    }
+    R, P = (rect["R1"], rect["P1"]) if side == "left" else (rect["R2"], rect["P2"])
+    return camera_info_fields((cam.width, cam.height), f"bracketry_synth/{side}", cam.K, cam.D, R, P, decimals=6)
 
 
 def write_calibration(calib: StereoCalibration, out_dir: Path) -> list[Path]:

@@ -19,8 +19,24 @@ from bracketry.calibration.solve import StereoSolution
 SIDES = ("left", "right")
 
 
-def _data(m: np.ndarray) -> list[float]:
-    return [round(float(x), 8) for x in np.asarray(m, np.float64).ravel()]
+def _data(m: np.ndarray, decimals: int = 8) -> list[float]:
+    return [round(float(x), decimals) for x in np.asarray(m, np.float64).ravel()]
+
+
+def camera_info_fields(size: tuple[int, int], name: str, K: np.ndarray, D: np.ndarray, R: np.ndarray, P: np.ndarray,
+                       decimals: int = 8) -> dict[str, Any]:
+    """A ROS camera_info in BorealHDR's layout: ``size`` (width, height) px, ``camera_name``, K (3, 3), D (5,)
+    plumb_bob, R (3, 3) rectification rotation, P (3, 4) rectified projection, numbers rounded to ``decimals``."""
+    return {
+        "image_width": int(size[0]),
+        "image_height": int(size[1]),
+        "camera_name": name,
+        "camera_matrix": {"rows": 3, "cols": 3, "data": _data(K, decimals)},
+        "distortion_model": "plumb_bob",
+        "distortion_coefficients": {"rows": 1, "cols": 5, "data": _data(D, decimals)},
+        "rectification_matrix": {"rows": 3, "cols": 3, "data": _data(R, decimals)},
+        "projection_matrix": {"rows": 3, "cols": 4, "data": _data(P, decimals)},
+    }
 
 
 def camera_info(sol: StereoSolution, side: str, name_prefix: str = "narrow_stereo") -> dict[str, Any]:
@@ -28,17 +44,7 @@ def camera_info(sol: StereoSolution, side: str, name_prefix: str = "narrow_stere
     cam = sol.side(side)
     rect = sol.rectification
     R, P = (rect["R1"], rect["P1"]) if side == "left" else (rect["R2"], rect["P2"])
-    w, h = sol.size
-    return {
-        "image_width": int(w),
-        "image_height": int(h),
-        "camera_name": f"{name_prefix}/{side}",
-        "camera_matrix": {"rows": 3, "cols": 3, "data": _data(cam.K)},
-        "distortion_model": "plumb_bob",
-        "distortion_coefficients": {"rows": 1, "cols": 5, "data": _data(cam.D)},
-        "rectification_matrix": {"rows": 3, "cols": 3, "data": _data(R)},
-        "projection_matrix": {"rows": 3, "cols": 4, "data": _data(P)},
-    }
+    return camera_info_fields(sol.size, f"{name_prefix}/{side}", cam.K, cam.D, R, P)
 
 
 def camera_info_yaml(sol: StereoSolution, side: str) -> str:
