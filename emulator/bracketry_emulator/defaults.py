@@ -24,6 +24,8 @@ SELECTIONS: tuple[str, ...] = ("highernosat", "upstream", "fusion")
 FUSION_BRACKETS: tuple[str, ...] = ("longer", "bounding", "all")
 #: the closed loop's images: emulated from the brackets, or rendered by a synthetic world (truth runs); the default
 #: first (the benchmark also takes "both")
+#: the longest warm-up a closed loop may take (steps on a trajectory's first view before it; see ae/loop.py)
+MAX_WARMUP_STEPS = 100
 IMAGES: tuple[str, ...] = ("emulated", "truth")
 #: the benchmark's: one of them, or both (then the report compares the two, benchmark/truth_agreement.py)
 RUN_IMAGES: tuple[str, ...] = (*IMAGES, "both")

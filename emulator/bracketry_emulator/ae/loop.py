@@ -8,9 +8,13 @@ Python API::
 At step k the method's current target exposure is emulated from ``sequences[k]`` (``emulate``), the method sees
 that image and returns the next target, which is clamped to ``[min_exposure_us, max_exposure_us]``. The first
 target is ``init_exposure_us``, or the method's own ``init_exposure_us`` attribute when it declares one
-(``constant-<ms>``). How images are decoded, cached, shared between methods or written is the caller's business
-(:mod:`.scheduler`, :mod:`.writers`); :func:`iter_loop` yields each step as soon as it is taken, so a caller can
-interleave many methods over the same sequence.
+(``constant-<ms>``). With ``warmup_steps`` = n > 0 the method first takes n steps on the first sequence's view
+(``warmup(target_us) -> Frame``, images not recorded, no :class:`Step` yielded): the walk then begins with a camera
+that was already running, as a rig recording before the stretch being benchmarked (a short walk measures how a
+method follows the light along it, not how fast it converges from the first target). How images are decoded,
+cached, shared between methods or written is the caller's business (:mod:`.scheduler`, :mod:`.writers`);
+:func:`iter_loop` yields each step as soon as it is taken, so a caller can interleave many methods over the same
+sequence.
 """
 
 from __future__ import annotations
@@ -87,14 +91,16 @@ def initial_exposure_us(method: AEMethod, default_us: float = DEFAULT_INIT_EXPOS
 def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, float], Frame], *,
               init_exposure_us: float = DEFAULT_INIT_EXPOSURE_US,
               min_exposure_us: float = DEFAULT_MIN_EXPOSURE_US, max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US,
-              name: str | None = None, start: int = 0) -> Iterator[Step]:
+              name: str | None = None, start: int = 0, warmup_steps: int = 0,
+              warmup: Callable[[float], Frame] | None = None) -> Iterator[Step]:
     """The closed loop of ``method`` over ``sequences``, one :class:`Step` per sequence, lazily.
 
     ``emulate(sequence, target_us) -> Frame`` gives the image the camera would deliver at ``target_us``; it is
     called once per step, before the method. The method is ``reset`` to its first target (see
     :func:`initial_exposure_us`). Its ``meta`` holds ``step``, ``timestamp_ns``, ``sequence_index``,
     ``source_exposure_us``, ``bounds_us`` and the frame's own ``meta`` entries. ``name`` (default: the method's
-    ``name``) is used in error messages; ``start`` numbers the first step.
+    ``name``) is used in error messages; ``start`` numbers the first step. ``warmup_steps`` > 0 needs ``warmup``:
+    the first sequence's image at a target (those calls' ``meta`` have ``warmup`` True and negative ``step``).
 
     Raises BracketryError (one line) when the method raises or returns a non-finite exposure.
     """
@@ -102,13 +108,15 @@ def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, fl
     target = initial_exposure_us(method, init_exposure_us)
     method.reset(target)
     bounds = (min_exposure_us, max_exposure_us)
-    for k, seq in enumerate(sequences, start):
-        frame = emulate(seq, target)
+    if warmup_steps > 0 and warmup is None:
+        raise ValueError("warmup_steps > 0 needs a warmup function (the first view at a target)")
+
+    def answer(frame: Frame, target_us: float, k: int, extra: dict[str, Any]) -> tuple[float, float]:
         meta = {"step": k, "timestamp_ns": frame.timestamp_ns, "sequence_index": frame.sequence_index,
-                "source_exposure_us": frame.source_exposure_us, "bounds_us": bounds, **frame.meta}
+                "source_exposure_us": frame.source_exposure_us, "bounds_us": bounds, **frame.meta, **extra}
         t0 = time.perf_counter()
         try:
-            nxt = float(method.next_exposure_us(frame.image, target, meta))
+            nxt = float(method.next_exposure_us(frame.image, target_us, meta))
         except BracketryError:
             raise
         except Exception as exc:
@@ -116,7 +124,16 @@ def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, fl
         ae_s = time.perf_counter() - t0
         if not np.isfinite(nxt):
             raise BracketryError(f"AE method {label} returned a non-finite exposure at step {k}")
-        nxt = float(np.clip(nxt, min_exposure_us, max_exposure_us))
+        return float(np.clip(nxt, min_exposure_us, max_exposure_us)), ae_s
+
+    it = iter(sequences)
+    if warmup_steps > 0:
+        assert warmup is not None
+        for w in range(warmup_steps):  # on the first view, before the walk: nothing recorded
+            target, _ = answer(warmup(target), target, start - warmup_steps + w, {"warmup": True})
+    for k, seq in enumerate(it, start):
+        frame = emulate(seq, target)
+        nxt, ae_s = answer(frame, target, k, {})
         yield Step(k, frame.sequence_index, frame.timestamp_ns, target, nxt, frame.source_exposure_us, ae_s,
                    frame.gain_db)
         target = nxt
@@ -124,10 +141,18 @@ def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, fl
 
 def run_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, float], Frame], *,
              init_exposure_us: float = DEFAULT_INIT_EXPOSURE_US, min_exposure_us: float = DEFAULT_MIN_EXPOSURE_US,
-             max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US, name: str | None = None) -> list[Step]:
-    """Every :class:`Step` of ``method`` over ``sequences`` (see :func:`iter_loop`)."""
-    return list(iter_loop(method, sequences, emulate, init_exposure_us=init_exposure_us,
-                          min_exposure_us=min_exposure_us, max_exposure_us=max_exposure_us, name=name))
+             max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US, name: str | None = None,
+             warmup_steps: int = 0) -> list[Step]:
+    """Every :class:`Step` of ``method`` over ``sequences`` (see :func:`iter_loop`; the warm-up, if any, on the
+    first sequence through ``emulate``)."""
+    seqs = list(sequences)
+
+    def first_view(target_us: float) -> Frame:
+        return emulate(seqs[0], target_us)
+
+    return list(iter_loop(method, seqs, emulate, init_exposure_us=init_exposure_us,
+                          min_exposure_us=min_exposure_us, max_exposure_us=max_exposure_us, name=name,
+                          warmup_steps=warmup_steps if seqs else 0, warmup=first_view))
 
 
 @dataclass

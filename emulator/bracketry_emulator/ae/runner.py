@@ -32,7 +32,16 @@ from typing import Any
 from bracketry.errors import BracketryError
 
 from ..dataset import open_dataset
-from ..defaults import AE_CAMERAS, CAMERAS, DEFAULT_CRF, IMAGES, PARITIES, PNG_COMPRESSIONS, SELECTIONS
+from ..defaults import (
+    AE_CAMERAS,
+    CAMERAS,
+    DEFAULT_CRF,
+    IMAGES,
+    MAX_WARMUP_STEPS,
+    PARITIES,
+    PNG_COMPRESSIONS,
+    SELECTIONS,
+)
 from ..emulation import EmulatorConfig
 from ..stages import StageTimes, ae_stage
 from .loop import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US, MethodRun
@@ -61,6 +70,8 @@ class LoopConfig:
     max_sequences: int | None = None
     memory_budget_bytes: int = 1 << 30
     images: str = IMAGES[0]
+    #: steps each method takes on the first sequence's view before the run, not recorded (:func:`.loop.iter_loop`)
+    warmup_steps: int = 0
 
     def validate(self) -> None:
         """Raise BracketryError (one line, naming the ``bracketry emulate`` option) on a bad setting: the one
@@ -75,6 +86,8 @@ class LoopConfig:
         if not lo_ms <= init_ms <= hi_ms:
             raise BracketryError(f"--init-exposure-ms {init_ms:g} is outside the bounds [--min-exposure-ms "
                                  f"{lo_ms:g}, --max-exposure-ms {hi_ms:g}]")
+        if not 0 <= self.warmup_steps <= MAX_WARMUP_STEPS:
+            raise BracketryError(f"--warmup-steps must be between 0 and {MAX_WARMUP_STEPS}, got {self.warmup_steps}")
         if self.images not in IMAGES:
             raise BracketryError(f"--images must be one of {', '.join(IMAGES)}, got {self.images}")
         if self.png_compression not in PNG_COMPRESSIONS:
@@ -85,8 +98,8 @@ class LoopConfig:
     def to_json(self) -> dict[str, Any]:
         """The settings that decide the closed loops' results, as a JSON object (the benchmark's cache keys and
         ``closedloop_options.json``): selection, crf, parity, ``init_exposure_us``, seed, ``ae_camera``; the
-        exposure bounds only where they are not the defaults, ``blur`` (motion-blur emulation) and ``images``
-        (truth runs) only when not their defaults.
+        exposure bounds only where they are not the defaults, ``blur`` (motion-blur emulation), ``images``
+        (truth runs) and ``warmup_steps`` only when not their defaults.
         Which files are written and how (cameras, images, PNG encoding, overwrite, memory) and the DRL weights
         (a method's own input) are not in it; nor the emulator's other settings (:meth:`from_json` gives their
         defaults, see :meth:`round_trips`)."""
@@ -97,6 +110,8 @@ class LoopConfig:
             doc["blur"] = True
         if self.images != IMAGES[0]:  # likewise
             doc["images"] = self.images
+        if self.warmup_steps:  # likewise
+            doc["warmup_steps"] = self.warmup_steps
         for name in ("min_exposure_us", "max_exposure_us"):
             if getattr(self, name) != _DEFAULTS[name]:
                 doc[name] = getattr(self, name)
@@ -115,7 +130,7 @@ class LoopConfig:
         cfg = cls(emulator=emulator_config(o["selection"], str(o["crf"]), str(o["parity"]), blur=bool(o["blur"])),
                   ae_camera=o["ae_camera"], init_exposure_us=float(o["init_exposure_us"]), seed=int(o["seed"]),
                   min_exposure_us=float(o["min_exposure_us"]), max_exposure_us=float(o["max_exposure_us"]),
-                  images=str(o["images"]), **given)
+                  images=str(o["images"]), warmup_steps=int(o["warmup_steps"]), **given)
         cfg.validate()
         return cfg
 
@@ -133,7 +148,7 @@ _JSON_DEFAULTS: dict[str, Any] = {"selection": SELECTIONS[0], "crf": DEFAULT_CRF
                                   "init_exposure_us": _DEFAULTS["init_exposure_us"], "seed": _DEFAULTS["seed"],
                                   "ae_camera": _DEFAULTS["ae_camera"], "min_exposure_us": _DEFAULTS["min_exposure_us"],
                                   "max_exposure_us": _DEFAULTS["max_exposure_us"], "blur": False,
-                                  "images": IMAGES[0]}
+                                  "images": IMAGES[0], "warmup_steps": 0}
 
 
 @dataclass
@@ -209,7 +224,7 @@ def _run_methods(dataset_path: str | Path, method_specs: list[MethodSpec], out_d
     settings = LoopSettings(cfg.emulator, cfg.ae_camera, write_sides, tuple(dict.fromkeys([*write_sides,
                             cfg.ae_camera])), cfg.init_exposure_us, cfg.min_exposure_us, cfg.max_exposure_us,
                             cfg.seed, cfg.drl_weights, cfg.write_images, cfg.png_compression, cfg.overwrite,
-                            truth_dir)
+                            truth_dir, cfg.warmup_steps)
     bar = _progress_bar(progress, len(specs) * len(sequences))
     stages = StageTimes()
     try:

@@ -77,6 +77,8 @@ class LoopSettings:
     overwrite: bool
     #: a synthetic trajectory whose world renders the images (truth runs, :mod:`.truth`); None: emulated
     truth_dir: str | None = None
+    #: steps each method takes on the first sequence's view before the run (:func:`~.loop.iter_loop`)
+    warmup_steps: int = 0
 
 
 def partition(traits: dict[str, MethodTraits], n: int) -> list[list[str]]:
@@ -161,7 +163,8 @@ class Worker:
             self.runs[spec] = MethodRun(spec)
             self._loops[spec] = iter_loop(method, itertools.count(), functools.partial(self._emulate, spec), name=spec,
                                           init_exposure_us=s.init_exposure_us, min_exposure_us=s.min_exposure_us,
-                                          max_exposure_us=s.max_exposure_us)
+                                          max_exposure_us=s.max_exposure_us, warmup_steps=s.warmup_steps,
+                                          warmup=functools.partial(self._first_view, spec))
             self.writers[spec] = LinkingRunWriter(out_dir, method_folder(spec), s.write_sides, s.emulator.depth,
                                                   s.overwrite, self.sink, s.png_compression,
                                                   s.emulator.parity, images=s.write_images)
@@ -179,6 +182,8 @@ class Worker:
                 self._ahead = None
                 self._ahead_emu.clear()
                 self._brackets = self.source.load(pos, seq_i, self.targets.values())
+                if pos == 0 and self.settings.warmup_steps > 0:  # the warm-up's targets may need any bracket
+                    self._brackets = self.source.peek(pos, seq_i)
                 self._seq_i = seq_i
                 nxt = seq_indices[pos + 1] if pos + 1 < len(seq_indices) else None
                 if nxt is not None and self._looking_ahead:  # every bracket of the next sequence, kept in its slot
@@ -197,19 +202,20 @@ class Worker:
         self.emu.clear()
         self._ahead_emu.clear()
 
-    def _emulate(self, spec: str, seq_i: int, target_us: float) -> Frame:
+    def _emulate(self, spec: str, seq_i: int, target_us: float, record: bool = True) -> Frame:
         """The ``emulate`` of method ``spec``'s loop: the AE camera's image of the current sequence at ``target_us``.
         Every side is emulated and, before the method sees the image, written to the method's run (one step =
-        one stereo capture)."""
+        one stereo capture; not with ``record`` False: a warm-up step)."""
         if seq_i != self._seq_i:
             raise RuntimeError(f"a method's loop asked for sequence {seq_i} while {self._seq_i} is loaded")
         s = self.settings
         seq = self.sequences[seq_i]
         with self.stages.time("emulation"):
             images = self.emu.stereo(seq_i, self._brackets, target_us, s.ae_camera, seq.timestamps_ns)
-        self.writers[spec].write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
-        for feed in self.feeds.get(spec, ()):
-            feed.write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
+        if record:
+            self.writers[spec].write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
+            for feed in self.feeds.get(spec, ()):
+                feed.write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
         ae_img = images[s.ae_camera]
         meta: dict[str, Any] = {"side": s.ae_camera, "response": self.emu.emulator.response,
                                 "shared_gray": self.emu.shared_gray(seq_i, s.ae_camera, target_us)}
@@ -217,6 +223,10 @@ class Worker:
             meta["look_ahead"] = self._look_ahead
         return Frame(ae_img.image, seq.timestamps_ns[s.ae_camera][ae_img.source_exposure_us],
                      ae_img.source_exposure_us, seq.index, meta, ae_img.gain_db)
+
+    def _first_view(self, spec: str, target_us: float) -> Frame:
+        """A warm-up step's image: the first sequence (loaded) at ``target_us``, not written."""
+        return self._emulate(spec, self._seq_i, target_us, record=False)
 
     def _look_ahead(self, target_us: float, offset: int) -> np.ndarray | None:
         """The AE camera's image (uint16 HxW, read-only) at ``target_us`` of the current sequence (``offset`` 0) or

@@ -99,8 +99,8 @@ def make_units(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], loop: Lo
     if stream:
         for spec in specs:
             mine = tuple(t for t in tasks if t.trajectory == spec.name and not t.existing_run)
-            if mine:
-                units.append(Unit(mine, spec, loop))
+            if mine:  # the trajectory's own warm-up (its tasks share it)
+                units.append(Unit(mine, spec, replace(loop, warmup_steps=mine[0].loop.warmup_steps)))
         grouped = {t.key for u in units for t in u.tasks}
         rest = [t for t in tasks if t.key not in grouped]
     return units + [Unit((t,)) for t in rest]

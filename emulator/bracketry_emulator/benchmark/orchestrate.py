@@ -78,6 +78,9 @@ class BenchmarkConfig:
     write_images: bool = False
     setup_check: bool = True
     method_options: Mapping[str, Mapping[str, Any]] = field(default_factory=dict)
+    #: steps each method takes on a trajectory's first view before it (:func:`~bracketry_emulator.ae.loop.iter_loop`);
+    #: None: what its manifest declares (``warmup_steps:``), else ``loop.warmup_steps``
+    warmup_steps: int | None = None
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
@@ -131,6 +134,18 @@ def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> lis
     return out
 
 
+def spec_loop(spec: TrajectorySpec, loop: LoopConfig, warmup_steps: int | None = None) -> LoopConfig:
+    """The closed-loop settings of trajectory ``spec``: ``loop`` with its warm-up (``warmup_steps`` when given, else
+    the spec's manifest value when it declares one, else ``loop``'s own)."""
+    steps = warmup_steps if warmup_steps is not None else spec.warmup_steps
+    return loop if steps is None or steps == loop.warmup_steps else replace(loop, warmup_steps=int(steps))
+
+
+def _spec_loop(tasks: list[BenchmarkTask], loop: LoopConfig) -> LoopConfig:
+    """``loop`` with the warm-up of ``tasks`` (one trajectory's: they share it; see :func:`spec_loop`)."""
+    return replace(loop, warmup_steps=tasks[0].loop.warmup_steps) if tasks else loop
+
+
 def _todo(tasks: list[BenchmarkTask], trajectory: str) -> list[BenchmarkTask]:
     """The tasks of ``trajectory`` whose closed loop is still to run (no existing run, not cached)."""
     return [t for t in tasks if t.trajectory == trajectory and not t.existing_run and load_cached(t) is None]
@@ -142,9 +157,10 @@ def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[BenchmarkTask]
     from bracketry_emulator.benchmark.emulated_runs import emulate_runs
 
     for spec in specs:
-        todo = list(dict.fromkeys(t.method_spec for t in _todo(tasks, spec.name)))
+        mine = _todo(tasks, spec.name)
+        todo = list(dict.fromkeys(t.method_spec for t in mine))
         if todo:
-            emulate_runs(spec.path, todo, out / "runs" / spec.name, loop, workers=max(0, workers),
+            emulate_runs(spec.path, todo, out / "runs" / spec.name, _spec_loop(mine, loop), workers=max(0, workers),
                          progress=progress, stages=stages)
 
 
@@ -158,7 +174,8 @@ def _streamed(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], out: Path
     for spec in specs:
         todo = _todo(tasks, spec.name)
         if todo:
-            out_results += stream_trajectory(spec, todo, out, loop, workers=workers, progress=progress,
+            out_results += stream_trajectory(spec, todo, out, _spec_loop(todo, loop), workers=workers,
+                                             progress=progress,
                                              stages=stages, on_done=on_done)
     return out_results
 
@@ -249,8 +266,12 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
 
     slam = resolve_options(c.slam, echo=slam_echo)
     references = {s.name: _reference(s, out) for s in specs}
-    tasks = [make_task(s, m, out, tuple(c.windows_m), c.max_frames, c.export_orbslam, slam_path, weights, loop, slam, r,
-                       references[s.name]) for s in specs for m in resolved for r in range(slam.repeats)]
+    if c.warmup_steps is not None:
+        replace(loop, warmup_steps=c.warmup_steps).validate()  # a bad warm-up: one line before anything runs
+    loops = {s.name: spec_loop(s, loop, c.warmup_steps) for s in specs}
+    tasks = [make_task(s, m, out, tuple(c.windows_m), c.max_frames, c.export_orbslam, slam_path, weights,
+                       loops[s.name], slam, r, references[s.name])
+             for s in specs for m in resolved for r in range(slam.repeats)]
     if c.setup_check and slam_path is None and slam.backend == "orbslam3":
         _check_setup(specs, tasks, method_ids, references, slam, out, slam_echo)
     from bracketry_emulator.stages import StageTimes

@@ -19,6 +19,7 @@ the result's is the cache file and what the report reads.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -37,9 +38,9 @@ if TYPE_CHECKING:
     from bracketry_emulator.ae.runner import LoopConfig
 
 #: bumped when the code's results change under the same settings (4: Kim's default mode, fusion's default
-#: bracket set 'longer', targets beyond the longest bracket recorded as gain, time before failure counted in steps),
-#: so no older result is reused
-CACHE_VERSION = 4
+#: bracket set 'longer', targets beyond the longest bracket recorded as gain, time before failure counted in steps;
+#: 5: the step period is the dataset's bracket cycle, the same for every method), so no older result is reused
+CACHE_VERSION = 5
 
 
 def _default_loop() -> LoopConfig:
@@ -318,7 +319,7 @@ def complete_task(task: BenchmarkTask, run_dir: Path, info: dict | None, error: 
         return RunResult(**base, metrics=failed_metrics(), slam=task.slam.backend, s_per_frame=float("nan"),
                          error=error or "the SLAM run failed", stages=stages.as_dict())
     with stages.time("metrics"):
-        metrics = evaluate_run(vo_dir, task.groundtruth, task.windows_m)
+        metrics = evaluate_run(vo_dir, task.groundtruth, task.windows_m, cycle_period_s(task.dataset))
     paced = info.get("pace_s", 0.0) != 0.0 and "max_late_s" in info  # how far a paced run fell behind its clock
     result = RunResult(**base, metrics=metrics, slam=info["backend"],
                        s_per_frame=info.get("s_per_frame", info.get("track_s_median", float("nan"))),  # ORB-SLAM3
@@ -326,6 +327,22 @@ def complete_task(task: BenchmarkTask, run_dir: Path, info: dict | None, error: 
                        slam_late_s=info["max_late_s"] if paced else None)
     _write_atomic(task.cache_path, json.dumps(result.to_json(cached=False)))
     return result
+
+
+@functools.cache
+def cycle_period_s(dataset: str) -> float | None:
+    """The bracket-cycle period of ``dataset`` (s, rounded to 0.1 ms): the median spacing of its sequences' first
+    frames, the closed loop's step period for every method alike; None with fewer than two sequences or when the
+    folder cannot be read as a dataset (runs evaluated from existing files: then the runs' own stamps decide)."""
+    from bracketry.errors import BracketryError
+    from bracketry_emulator.dataset import open_dataset
+    from bracketry_emulator.metrics.failures import step_period_s
+
+    try:
+        starts = [seq.start_ns for seq in open_dataset(Path(dataset)).sequences()]
+    except (BracketryError, OSError, ValueError):
+        return None
+    return step_period_s(starts) if len(starts) >= 2 else None
 
 
 def failed_metrics() -> dict:

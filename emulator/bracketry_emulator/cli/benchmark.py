@@ -34,6 +34,7 @@ from bracketry_emulator.defaults import (
     DEFAULT_STATS_METHODS,
     MAX_CLUSTER_JOBS,
     MAX_EXPOSURE_OPTION_MS,
+    MAX_WARMUP_STEPS,
     PARITIES,
     RUN_IMAGES,
     SELECTIONS,
@@ -126,6 +127,10 @@ def _windows(text: str) -> tuple[float, ...]:
                    "compares metrics, rankings and verdicts).")
 @click.option("--emulate-blur", is_flag=True,
               help="Closed loops: emulate the motion blur of an exposure longer than its source bracket.")
+@click.option("--warmup-steps", type=click.IntRange(0, MAX_WARMUP_STEPS), default=None,
+              help="Closed loops: steps each method takes on a trajectory's first view before it (not recorded: the "
+                   "walk starts with a running camera). Default: the manifest's warmup_steps (a synthetic suite "
+                   "declares one), else 0.")
 @click.option("--slam", "slam_backend", type=click.Choice(SLAM_BACKENDS), default=SLAM_BACKENDS[0],
               show_default=True, help="Localisation: ORB-SLAM3 stereo, or the built-in VO (fast, deterministic).")
 @click.option("--vocabulary", type=input_file(), default=None,
@@ -151,7 +156,7 @@ def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, 
             selection: str, crf: str,
             init_exposure_ms: float, seed: int, ae_camera: str, parity: str, slam_backend: str, vocabulary: Path | None,
             slam_pace: str, loop_closing: bool, slam_repeats: int, setup_check: bool, quiet: bool, images: str,
-            emulate_blur: bool) -> int:
+            emulate_blur: bool, warmup_steps: int | None) -> int:
     """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
 
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
@@ -209,7 +214,8 @@ def command(datasets: tuple[Path, ...], methods: str, method_option: tuple[str, 
                              windows_m=windows_m, max_frames=max_frames, alpha=alpha, export_orbslam=export_orbslam,
                              slam_dir=slam_dir, drl_weights=str(drl_weights) if drl_weights else None,
                              progress=not quiet, loop=loop, slam=slam, stats_methods=stats_methods,
-                             write_images=write_images, setup_check=setup_check, method_options=plugin_options)
+                             write_images=write_images, setup_check=setup_check, method_options=plugin_options,
+                             warmup_steps=warmup_steps)
     if images == "both":  # truth images first refused (one line) for any non-synthetic trajectory, before any work
         from dataclasses import replace
 

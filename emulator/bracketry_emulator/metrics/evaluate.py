@@ -48,7 +48,7 @@ def without_times(segments: list[tuple[np.ndarray, np.ndarray]], times_ns: set[i
 
 
 def evaluate_run(vo_dir: str | Path, groundtruth: str | Path | None,
-                 windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M) -> dict:
+                 windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, step_s: float | None = None) -> dict:
     """Metrics of a VO output folder (``frames.csv`` + ``CameraTrajectory<n>.txt``) against a TUM reference.
 
     Returns a JSON-ready dict: n_frames, success, time_before_failure_s, duration_s, tracked_fraction,
@@ -57,10 +57,11 @@ def evaluate_run(vo_dir: str | Path, groundtruth: str | Path | None,
     ("groundtruth" or "no reference: <why>"), windows: list of {window_m, n_pairs, rte_pct, rre_deg_per_m}, and
     per-frame lists coverage, matches. Frames of the run listed in :data:`UNKNOWN_POSES_FILE` next to the reference
     (``frames_without_pose``) are left out of RTE/RRE; when they are more than :data:`MAX_UNKNOWN_POSE_FRACTION` of
-    the frames, RTE/RRE stay NaN and ``rte_refused`` (and ``reference``) say why.
+    the frames, RTE/RRE stay NaN and ``rte_refused`` (and ``reference``) say why. ``step_s``: the closed loop's
+    step period (s), the dataset's bracket-cycle period (:func:`~bracketry_emulator.metrics.failures.robustness`).
     """
     frames = read_frames_csv(Path(vo_dir) / "frames.csv")
-    rob = robustness(frames)
+    rob = robustness(frames, step_s)
     out: dict = {
         "n_frames": len(frames),
         "success": rob.success,

@@ -5,10 +5,12 @@ Time before failure = the time of the first failed frame since the first frame, 
 is successful and its time before failure is its whole duration. This is the paper's "duration of each trajectory
 before failure"; a successful trajectory "maintains localization without becoming lost for the whole trajectory".
 
-Times are counted in steps of the closed loop (one per bracket sequence): step k is at k x the run's median step
-period (rounded to 0.1 ms). A frame's own stamp is the instant of the bracket its image was emulated from (brackets
-of one sequence are ~45 ms apart), so two methods that both never fail would otherwise get durations that differ by
-which bracket each used first and last, and a paired test would call that a difference in robustness.
+Times are counted in steps of the closed loop (one per bracket sequence): step k is at k x the step period, the
+dataset's bracket-cycle period given by the caller (the same for every method on a trajectory; without it, the
+run's median stamp spacing, rounded to 0.1 ms). A frame's own stamp is the instant of the bracket its image was
+emulated from (brackets of one sequence are ~45 ms apart, and a synthetic frame is stamped at mid-exposure), so two
+methods that both never fail would otherwise get durations that differ by which bracket each used, and a paired
+test would call that a difference in robustness.
 """
 
 from __future__ import annotations
@@ -43,11 +45,13 @@ def step_period_s(times_ns: list[int]) -> float:
     return round(median_ns * 1e-5) * 1e-4
 
 
-def robustness(frames: list[dict]) -> Robustness:
-    """Robustness of one run from ``frames.csv`` rows (dicts with ``t_ns``, ``state``, ``segment``)."""
+def robustness(frames: list[dict], step_s: float | None = None) -> Robustness:
+    """Robustness of one run from ``frames.csv`` rows (dicts with ``t_ns``, ``state``, ``segment``), one per
+    closed-loop step; ``step_s``: the step period (s; None: :func:`step_period_s` of the frames' stamps)."""
     if not frames:
         return Robustness(False, 0.0, 0.0, 0.0, 0, 0)
-    step_s = step_period_s([f["t_ns"] for f in frames])
+    if step_s is None:
+        step_s = step_period_s([f["t_ns"] for f in frames])
     duration = (len(frames) - 1) * step_s
     first_failed = next((k for k, f in enumerate(frames) if f["state"] not in TRACKED), None)
     failed = [f for f in frames if f["state"] not in TRACKED]

@@ -12,6 +12,11 @@ A manifest is a YAML (or JSON) file::
         calibration: campus/calibration               # optional, default: <path>/calibration or ../calibration
         runs: campus/emulated_run2                    # optional: already emulated runs (<runs>/<method>/...)
         split: test                                   # optional: train | test (for learning methods), default test
+        warmup_steps: 12                              # optional: overrides the manifest's own (below)
+    warmup_steps: 12    # optional: closed-loop steps each method takes on a trajectory's first view before it
+
+``warmup_steps`` (top level, or per entry): the walks begin with a camera already running (short walks cut from a
+longer recording); ``bracketry benchmark --warmup-steps N`` overrides it.
 
 A dataset path that is a folder (not a manifest) is one trajectory of subset ``all``. A folder that already holds
 emulated runs (``<folder>/<method>/images_left/``) is used as they are (no closed loop is run for those methods).
@@ -27,6 +32,7 @@ from pathlib import Path
 import yaml
 
 from bracketry.errors import BracketryError
+from bracketry_emulator.defaults import MAX_WARMUP_STEPS
 
 #: The splits a manifest entry may name (``split:``): trajectories to train learning methods on, and held-out ones.
 SPLITS = ("train", "test")
@@ -43,6 +49,8 @@ class TrajectorySpec:
     calibration: Path | None = None
     runs: Path | None = None
     split: str = "test"
+    #: closed-loop steps on the first view before the trajectory (None: not declared)
+    warmup_steps: int | None = None
 
     def groundtruth_path(self) -> Path | None:
         """The TUM reference of this trajectory, or None when it has none."""
@@ -75,6 +83,7 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
             raise BracketryError(f"bad dataset manifest {p}: expected a mapping with a non-empty list "
                                  "'trajectories:' of entries")
         entries = doc["trajectories"]
+        default_warmup = _warmup(doc.get("warmup_steps"), p, "warmup_steps")
         out = []
         for k, e in enumerate(entries):
             if not isinstance(e, dict) or not isinstance(e.get("path"), str):
@@ -86,11 +95,24 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
             if split not in SPLITS:
                 raise BracketryError(f"bad dataset manifest {p}: trajectories[{k}].split is {split!r}; "
                                      f"expected one of {', '.join(SPLITS)}")
+            warmup = _warmup(e.get("warmup_steps"), p, f"trajectories[{k}].warmup_steps")
             out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all")), **extra,
-                                      split=split))
+                                      split=split, warmup_steps=default_warmup if warmup is None else warmup))
     except (OSError, KeyError, TypeError, yaml.YAMLError) as exc:
         raise BracketryError(f"bad dataset manifest {p}: {exc}") from exc
     return out
+
+
+def _warmup(value: object, path: Path, where: str) -> int | None:
+    """A manifest's ``warmup_steps`` value (None when absent); one line on anything but a whole number
+    0..:data:`~bracketry_emulator.defaults.MAX_WARMUP_STEPS`."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value <= MAX_WARMUP_STEPS:
+        raise BracketryError(f"bad dataset manifest {path}: {where} must be a whole number of steps from 0 to "
+                             f"{MAX_WARMUP_STEPS} "
+                             f"(got {value!r:.40})")
+    return value
 
 
 def expand_datasets(paths: list[str | Path]) -> list[TrajectorySpec]:

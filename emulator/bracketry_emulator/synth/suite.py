@@ -2,7 +2,8 @@
 
 Layout of a rendered suite::
 
-    DIR/manifest.yaml                       trajectories (path, subset, name, split) + suite: {version, size, seed}
+    DIR/manifest.yaml                       trajectories (path, subset, name, split) + suite: {version, size, seed},
+                                            warmup_steps (closed-loop steps on each walk's first view)
     DIR/<subset>/<name>/                    one synthetic trajectory (BorealHDR tree, groundtruth.txt,
                                             calibration/, camera_model.json, scenario.yaml: its scenario)
 
@@ -51,6 +52,11 @@ class SizeSpec:
 
 
 SIZES = {"demo": SizeSpec((320, 200), 3.0, 0.25), "full": SizeSpec((640, 400), 60.0, 0.5)}
+
+#: the manifest's ``warmup_steps``: each walk is a stretch of a longer recording, so the benchmark's closed loops first
+#: take this many steps on its first view (~4 s of bracket cycles; AE50 settles from 4 ms to any exposure of the
+#: suite's scenes within it) and the walk measures how a method follows the light, not how fast it starts up
+WARMUP_STEPS = 15
 
 
 @dataclass(frozen=True)
@@ -216,14 +222,23 @@ def render_suite(out: Path, size: str, seed: int = 0, workers: int = 1,
             done += 1
             if progress is not None:
                 progress(done, len(jobs))
-    doc = {"suite": suite_id(size, seed),
-           "description": f"bracketry synthetic suite v{SUITE_VERSION}, size {size}, seed {seed}: "
-                          f"{len(ents)} trajectories of {spec.duration_s:g} s at {spec.resolution[0]}x"
-                          f"{spec.resolution[1]}",
-           "trajectories": [{"path": f"{e.subset}/{e.name}", "subset": e.subset, "name": e.name, "split": e.split,
-                             "scenario": e.scenario} for e in ents]}
+    doc = manifest_doc(size, seed)
     manifest.write_text(yaml.safe_dump(doc, sort_keys=False))
     return doc
+
+
+def manifest_doc(size: str, seed: int) -> dict:
+    """The manifest of the suite of ``size`` and ``seed``: its id, a description, ``warmup_steps`` and its
+    trajectories (path, subset, name, split, scenario)."""
+    ents = entries(size)
+    spec = SIZES[size]
+    return {"suite": suite_id(size, seed),
+            "description": f"bracketry synthetic suite v{SUITE_VERSION}, size {size}, seed {seed}: "
+                           f"{len(ents)} trajectories of {spec.duration_s:g} s at {spec.resolution[0]}x"
+                           f"{spec.resolution[1]}",
+            "warmup_steps": WARMUP_STEPS,
+            "trajectories": [{"path": f"{e.subset}/{e.name}", "subset": e.subset, "name": e.name, "split": e.split,
+                              "scenario": e.scenario} for e in ents]}
 
 
 def _link_tree(src: Path, dst: Path) -> None:

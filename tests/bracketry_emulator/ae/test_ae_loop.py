@@ -122,3 +122,41 @@ def test_scheduler_keeps_methods_sharing_a_start_up_together_where_the_balance_a
     assert partition(without, 2) == [["fix", "ae30", "ae50", "zhang"], ["ae70", "shim", "kim"]]
     # four workers: together they would exceed a share (57.75), so they are split as any other methods
     assert [g for g in partition(traits, 4) if "kim" in g] != [g for g in partition(traits, 4) if "zhang" in g]
+
+
+class _Halving:
+    """Halves the exposure at every call (a method that never settles: each warm-up step shows)."""
+
+    name = "halving"
+
+    def __init__(self) -> None:
+        self.metas: list[dict] = []
+
+    def reset(self, init_exposure_us: float) -> None:
+        self.metas.clear()
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
+        self.metas.append(dict(meta))
+        return exposure_us / 2
+
+
+def test_warmup_steps_run_on_the_first_view_and_are_not_steps() -> None:
+    seqs, emulate, calls = _world([0.5, 0.1, 0.9])
+    method = _Halving()
+    steps = run_loop(method, seqs, emulate, init_exposure_us=8000.0, min_exposure_us=100.0, warmup_steps=3)
+    # three warm-up images of the first sequence (8, 4, 2 ms), then one step per sequence from 1 ms on
+    assert calls == [(0, 8000.0), (0, 4000.0), (0, 2000.0), (0, 1000.0), (1, 500.0), (2, 250.0)]
+    assert [(s.step, s.sequence_index, s.exposure_us) for s in steps] == [(0, 0, 1000.0), (1, 1, 500.0),
+                                                                        (2, 2, 250.0)]
+    assert [m["step"] for m in method.metas] == [-3, -2, -1, 0, 1, 2]
+    assert [m.get("warmup", False) for m in method.metas] == [True, True, True, False, False, False]
+
+
+def test_warmup_brings_a_converging_method_to_the_first_view_exposure() -> None:
+    seqs, emulate, _ = _world([0.05, 0.05, 0.05])
+    cold = run_loop(_HalfScale(), seqs, emulate, init_exposure_us=1000.0, max_exposure_us=100_000.0)
+    warm = run_loop(_HalfScale(), seqs, emulate, init_exposure_us=1000.0, max_exposure_us=100_000.0,
+                    warmup_steps=4)
+    assert cold[0].exposure_us == 1000.0  # the cold start's first image is 20x too dark
+    assert warm[0].exposure_us == pytest.approx(2048 / 0.05, rel=0.01)  # settled before the walk
+    assert len(warm) == len(cold) == 3

@@ -148,3 +148,15 @@ def cv2_rodrigues(rvec: np.ndarray) -> np.ndarray:
     import cv2
 
     return cv2.Rodrigues(np.asarray(rvec, float))[0]
+
+
+def test_bench_robustness_with_the_cycle_period_given_ignores_every_stamp_offset() -> None:
+    """A method whose exposure grows at every step has mid-exposure stamps whose spacing is never the cycle (the
+    median of its own spacing is off): with the dataset's cycle period given, its duration is the cycle's."""
+    cycle_ns = 273_000_000
+    growing = [{"t_ns": k * cycle_ns + k * k * 2_000_000, "state": "OK", "segment": 0} for k in range(11)]
+    steady = [{"t_ns": k * cycle_ns, "state": "OK", "segment": 0} for k in range(11)]
+    assert robustness(growing).duration_s != pytest.approx(10 * 0.273)  # the stamps alone mislead
+    assert robustness(growing, 0.273).duration_s == robustness(steady, 0.273).duration_s == pytest.approx(2.73)
+    growing[4]["state"] = "LOST"
+    assert robustness(growing, 0.273).time_before_failure_s == pytest.approx(4 * 0.273)

@@ -187,3 +187,30 @@ def test_every_shipped_scenario_reads_back_from_its_own_document() -> None:
     for path in files.values():
         sc = load_scenario(path)
         assert scenario_from_dict(sc.to_dict()) == sc
+
+
+def test_the_suite_manifest_declares_a_warmup_the_benchmark_takes(tmp_path: Path) -> None:
+    """The suite's walks start with a running camera: its manifest declares warmup_steps, each trajectory spec
+    carries it (an entry may override it), the benchmark's loop of that trajectory takes it unless
+    --warmup-steps overrides it; a bad value is one line."""
+    from bracketry.errors import BracketryError
+    from bracketry_emulator.ae import LoopConfig
+    from bracketry_emulator.benchmark.orchestrate import spec_loop
+
+    doc = suite.manifest_doc("demo", 0)
+    assert doc["warmup_steps"] == suite.WARMUP_STEPS > 0
+    doc["trajectories"][1]["warmup_steps"] = 2
+    (tmp_path / "manifest.yaml").write_text(yaml.safe_dump(doc))
+    specs = load_manifest(tmp_path / "manifest.yaml")
+    assert [s.warmup_steps for s in specs[:3]] == [suite.WARMUP_STEPS, 2, suite.WARMUP_STEPS]
+    loop = LoopConfig()
+    assert spec_loop(specs[0], loop).warmup_steps == suite.WARMUP_STEPS
+    assert spec_loop(specs[1], loop).warmup_steps == 2
+    assert spec_loop(specs[0], loop, 0).warmup_steps == 0  # --warmup-steps 0
+    assert "warmup_steps" not in loop.to_json()  # keys of runs without a warm-up stay as they were
+    assert spec_loop(specs[0], loop).to_json()["warmup_steps"] == suite.WARMUP_STEPS
+    for bad in (-1, 1000, "ten", 2.5, True):
+        doc["warmup_steps"] = bad
+        (tmp_path / "manifest.yaml").write_text(yaml.safe_dump(doc))
+        with pytest.raises(BracketryError, match="warmup_steps must be a whole number"):
+            load_manifest(tmp_path / "manifest.yaml")
