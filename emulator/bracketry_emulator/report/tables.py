@@ -16,7 +16,7 @@ from bracketry_emulator.stats.controls import (
     control_roles,
 )
 from bracketry_emulator.stats.mannwhitney import METRICS, SYMBOL, Comparison, verdict_table
-from bracketry_emulator.stats.paired import friedman, wilcoxon_to_reference
+from bracketry_emulator.stats.paired import friedman, wilcoxon_to_reference, worst_rank
 
 RESULT_COLUMNS = ("trajectory", "subset", "method", "slam", "repeats", "n_frames", "success", "time_before_failure_s",
                   "duration_s", "tracked_fraction", "tracked_distance_fraction", "n_segments", "coverage_mean",
@@ -124,10 +124,26 @@ def stats_tables(results: list[dict], methods: list[str], reference: str, alpha:
     return verdicts, pvalues, table
 
 
-def per_trajectory_values(results: list[dict], methods: list[str], key: str) -> dict[str, dict[str, float]]:
-    """{method: {trajectory: value}} of one metric (failed runs are NaN)."""
-    return {m: {r["trajectory"]: float(r.get(key, float("nan"))) for r in results if r["method"] == m}
-            for m in methods}
+#: error metrics a run that never tracked has no value of: in the paired test it ranks worst (not left out, which
+#: would drop exactly the trajectories where a method failed)
+WORST_RANK_METRICS = ("rte_pct", "rre_deg_per_m")
+
+
+def per_trajectory_values(results: list[dict], methods: list[str], key: str,
+                          impute_failures: bool = False) -> dict[str, dict[str, float]]:
+    """{method: {trajectory: value}} of one metric (failed runs are NaN). With ``impute_failures``, a run without
+    the value because it never tracked (its SLAM ran, the trajectory has a reference, it failed, and its error
+    metric is NaN: no pose pair in any window) gets the worst rank instead (:func:`~..stats.paired.worst_rank`)."""
+    higher = METRICS[key][1] if key in METRICS else True
+
+    def value(r: dict) -> float:
+        v = float(r.get(key, float("nan")))
+        if (impute_failures and key in WORST_RANK_METRICS and np.isnan(v) and not r.get("error")
+                and r.get("reference", "groundtruth") == "groundtruth" and not r.get("success", True)):
+            return worst_rank(higher)
+        return v
+
+    return {m: {r["trajectory"]: value(r) for r in results if r["method"] == m} for m in methods}
 
 
 def paired_tables(results: list[dict], methods: list[str], reference: str, alpha: float
@@ -138,7 +154,7 @@ def paired_tables(results: list[dict], methods: list[str], reference: str, alpha
             "alpha (Bonferroni)", "verdict"]]
     fri = [["metric", "trajectories", "methods", "chi2", "p", "Kendall W", "mean ranks (1 = smallest)"]]
     for key, (label, higher) in METRICS.items():
-        values = per_trajectory_values(results, methods, key)
+        values = per_trajectory_values(results, methods, key, impute_failures=True)
         comps = wilcoxon_to_reference(values, reference, higher, alpha)
         for m in others:
             c = comps[m]

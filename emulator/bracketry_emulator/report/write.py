@@ -166,7 +166,8 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
                   "can run it: an upper reference, not a method); constant exposures frame the results, the grid's "
                   "best and worst ranked by successful trajectories, then time before failure, then RTE.")
     intro += (" Paired tests (every method runs on the same trajectories): Wilcoxon signed-rank against the reference "
-              "with the rank-biserial effect r, and Friedman across methods with Kendall's W.")
+              "with the rank-biserial effect r (a run that never tracked ranks worst on RTE and RRE instead of being "
+              "left out), and Friedman across methods with Kendall's W.")
     no_ref = sorted({r["reference"] for r in results if str(r.get("reference", "")).startswith("no reference")})
     if no_ref:
         intro += " RTE/RRE: " + "; ".join(no_ref) + "."

@@ -11,6 +11,10 @@ Next to the paper's Mann-Whitney U (independent samples, :mod:`~bracketry_emulat
   and the methods' mean ranks (1 = smallest value).
 
 Inputs are ``{method: {trajectory: value}}``; NaN values are dropped (a pair or a block with one is left out).
+An infinite value is a run worse than any measured one (worst-rank imputation: a run that never tracked has no RTE,
+and its localisation is worse than that of any run that has one; see :func:`worst_rank`): in the signed-rank test a
+pair with one infinite value is a difference larger than every finite one, in its direction; two equal infinite
+values are a tie. Friedman takes the trajectories where every method has a finite value.
 """
 
 from __future__ import annotations
@@ -49,8 +53,27 @@ class FriedmanResult:
 
 
 def _pairs(a: dict[str, float], b: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
-    keys = [t for t in a if t in b and np.isfinite(a[t]) and np.isfinite(b[t])]
+    keys = [t for t in a if t in b and not np.isnan(a[t]) and not np.isnan(b[t])]
     return np.array([a[t] for t in keys], float), np.array([b[t] for t in keys], float)
+
+
+def worst_rank(higher_is_better: bool) -> float:
+    """The value standing for a run worse than any measured one: +inf for a metric where lower is better, -inf
+    where higher is better (worst-rank imputation of a value missing because the run failed)."""
+    return float(-np.inf if higher_is_better else np.inf)
+
+
+def _differences(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``x - y`` with infinite differences as finite ones larger in size than every finite difference (their ranks
+    are what the signed-rank test uses) and equal infinite values as a zero difference."""
+    with np.errstate(invalid="ignore"):
+        d = x - y
+    d[np.isnan(d)] = 0.0  # inf - inf: both runs worse than any measured one, a tie
+    big = np.isinf(d)
+    if big.any():
+        top = float(np.max(np.abs(d[~big]), initial=0.0))
+        d[big] = np.sign(d[big]) * (2.0 * top + 1.0)
+    return d
 
 
 def rank_biserial(x: np.ndarray, y: np.ndarray) -> float:
@@ -80,13 +103,15 @@ def wilcoxon_to_reference(values: dict[str, dict[str, float]], reference: str, h
         if len(x) == 0:
             out[m] = PairedComparison(m, 0, float("nan"), float("nan"), float("nan"), alpha_c, NA)
             continue
-        diff = x - y
-        med = float(np.median(diff))
+        with np.errstate(invalid="ignore"):
+            raw = x - y
+        med = float(np.median(np.where(np.isnan(raw), 0.0, raw)))
+        diff = _differences(x, y)
         if not np.any(diff != 0):
             out[m] = PairedComparison(m, len(x), med, 1.0, float("nan"), alpha_c, EQUAL)
             continue
-        p = float(wilcoxon(x, y, alternative="two-sided").pvalue)
-        r = rank_biserial(x, y)
+        p = float(wilcoxon(diff, alternative="two-sided").pvalue)
+        r = rank_biserial(diff, np.zeros_like(diff))
         if p >= alpha_c:
             verdict = EQUAL
         else:
@@ -101,7 +126,7 @@ def friedman(values: dict[str, dict[str, float]], methods: list[str] | None = No
     nan = float("nan")
     if len(ms) < 3:
         return FriedmanResult(0, ms, nan, nan, nan, {m: nan for m in ms})
-    blocks = [t for t in values[ms[0]] if all(t in values[m] and np.isfinite(values[m][t]) for m in ms)]
+    blocks = [t for t in values[ms[0]] if all(t in values[m] and bool(np.isfinite(values[m][t])) for m in ms)]
     if len(blocks) < 2:
         return FriedmanResult(len(blocks), ms, nan, nan, nan, {m: nan for m in ms})
     data = np.array([[values[m][t] for m in ms] for t in blocks], float)  # (n blocks, k methods)

@@ -66,3 +66,34 @@ def test_bench_friedman_known_outcomes() -> None:
     perfect["c"]["t3"] = float("nan")  # the block with a missing value is left out
     assert friedman(perfect).n_blocks == n - 1
     assert math.isnan(friedman({"a": perfect["a"], "b": perfect["b"]}).p_value)  # needs 3 methods
+
+
+def test_a_run_that_never_tracked_ranks_worst_in_the_paired_test() -> None:
+    """RTE is missing where a method never tracked: left out, the four trajectories it failed on would hide its
+    failures; ranked worst (worst-rank imputation), they count against it. Equal infinite values are a tie."""
+    from bracketry_emulator.report.tables import per_trajectory_values
+
+    ref = {f"t{k}": 2.0 + 0.1 * k for k in range(12)}
+    rows = [{"trajectory": t, "method": "ae50", "rte_pct": v, "success": True, "reference": "groundtruth"}
+            for t, v in ref.items()]
+    bad = {t: v + (0.3 if k % 3 else -0.2) for k, (t, v) in enumerate(ref.items())}  # 8 worse, 4 better: unclear
+    for k, (t, v) in enumerate(bad.items()):
+        failed = k % 3 == 0  # the four trajectories it looked better on: it never tracked them
+        rows.append({"trajectory": t, "method": "bad", "rte_pct": float("nan") if failed else v,
+                     "success": not failed, "reference": "groundtruth"})
+    dropped = wilcoxon_to_reference(per_trajectory_values(rows, ["ae50", "bad"], "rte_pct"), "ae50", False)
+    ranked = wilcoxon_to_reference(per_trajectory_values(rows, ["ae50", "bad"], "rte_pct", impute_failures=True),
+                                   "ae50", False)
+    assert dropped["bad"].n_pairs == 8 and ranked["bad"].n_pairs == 12
+    assert ranked["bad"].verdict == WORSE and ranked["bad"].effect_r == 1.0
+    assert ranked["bad"].p_two_sided < dropped["bad"].p_two_sided
+    # a run whose RTE is missing for another reason (no reference, a SLAM error) is still left out
+    for r in rows:
+        if r["method"] == "bad" and not r["success"]:
+            r["error"] = "ORB-SLAM3 crashed"
+    assert wilcoxon_to_reference(per_trajectory_values(rows, ["ae50", "bad"], "rte_pct", impute_failures=True),
+                                 "ae50", False)["bad"].n_pairs == 8
+    # both never tracked: a tie, not a difference
+    both = wilcoxon_to_reference({"a": {"x": math.inf, "y": 1.0, "z": 2.0}, "b": {"x": math.inf, "y": 1.0, "z": 2.0}},
+                                 "b", False)
+    assert both["a"].verdict == EQUAL
