@@ -64,7 +64,8 @@ class BenchmarkConfig:
     scheduler: str | None = None
     cluster: SlurmOptions | None = None
     workers: int = 1
-    windows_m: Sequence[float] = DEFAULT_WINDOWS_M
+    #: RTE/RRE windows (m) of every trajectory; None: a trajectory's manifest ``windows_m``, else the paper's
+    windows_m: Sequence[float] | None = None
     max_frames: int | None = None
     alpha: float = DEFAULT_ALPHA
     report: bool = True
@@ -90,7 +91,8 @@ class BenchmarkConfig:
             if not isinstance(getattr(self, name), str):
                 put(name, tuple(getattr(self, name)))
         put("datasets", tuple(self.datasets))
-        put("windows_m", tuple(float(w) for w in self.windows_m))
+        if self.windows_m is not None:
+            put("windows_m", tuple(float(w) for w in self.windows_m))
         put("out_dir", Path(self.out_dir))
         if self.slam_dir is not None:
             put("slam_dir", Path(self.slam_dir))
@@ -269,7 +271,8 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     if c.warmup_steps is not None:
         replace(loop, warmup_steps=c.warmup_steps).validate()  # a bad warm-up: one line before anything runs
     loops = {s.name: spec_loop(s, loop, c.warmup_steps) for s in specs}
-    tasks = [make_task(s, m, out, tuple(c.windows_m), c.max_frames, c.export_orbslam, slam_path, weights,
+    windows = {s.name: tuple(c.windows_m or s.windows_m or DEFAULT_WINDOWS_M) for s in specs}
+    tasks = [make_task(s, m, out, windows[s.name], c.max_frames, c.export_orbslam, slam_path, weights,
                        loops[s.name], slam, r, references[s.name])
              for s in specs for m in resolved for r in range(slam.repeats)]
     if c.setup_check and slam_path is None and slam.backend == "orbslam3":

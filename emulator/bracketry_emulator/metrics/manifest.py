@@ -13,10 +13,14 @@ A manifest is a YAML (or JSON) file::
         runs: campus/emulated_run2                    # optional: already emulated runs (<runs>/<method>/...)
         split: test                                   # optional: train | test (for learning methods), default test
         warmup_steps: 12                              # optional: overrides the manifest's own (below)
+        windows_m: [1, 2, 3]                          # optional: overrides the manifest's own (below)
     warmup_steps: 12    # optional: closed-loop steps each method takes on a trajectory's first view before it
+    windows_m: [1, 2, 3]  # optional: RTE/RRE windows (m) for walks shorter than the paper's 5-50 m
 
 ``warmup_steps`` (top level, or per entry): the walks begin with a camera already running (short walks cut from a
-longer recording); ``bracketry benchmark --warmup-steps N`` overrides it.
+longer recording); ``bracketry benchmark --warmup-steps N`` overrides it. ``windows_m`` (top level, or per entry):
+the relative-error windows of trajectories too short for the default ones; ``bracketry benchmark --windows``
+overrides it.
 
 A dataset path that is a folder (not a manifest) is one trajectory of subset ``all``. A folder that already holds
 emulated runs (``<folder>/<method>/images_left/``) is used as they are (no closed loop is run for those methods).
@@ -51,6 +55,8 @@ class TrajectorySpec:
     split: str = "test"
     #: closed-loop steps on the first view before the trajectory (None: not declared)
     warmup_steps: int | None = None
+    #: RTE/RRE windows in metres (None: not declared)
+    windows_m: tuple[float, ...] | None = None
 
     def groundtruth_path(self) -> Path | None:
         """The TUM reference of this trajectory, or None when it has none."""
@@ -84,6 +90,7 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
                                  "'trajectories:' of entries")
         entries = doc["trajectories"]
         default_warmup = _warmup(doc.get("warmup_steps"), p, "warmup_steps")
+        default_windows = _windows(doc.get("windows_m"), p, "windows_m")
         out = []
         for k, e in enumerate(entries):
             if not isinstance(e, dict) or not isinstance(e.get("path"), str):
@@ -96,8 +103,10 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
                 raise BracketryError(f"bad dataset manifest {p}: trajectories[{k}].split is {split!r}; "
                                      f"expected one of {', '.join(SPLITS)}")
             warmup = _warmup(e.get("warmup_steps"), p, f"trajectories[{k}].warmup_steps")
+            windows = _windows(e.get("windows_m"), p, f"trajectories[{k}].windows_m")
             out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all")), **extra,
-                                      split=split, warmup_steps=default_warmup if warmup is None else warmup))
+                                      split=split, warmup_steps=default_warmup if warmup is None else warmup,
+                                      windows_m=windows or default_windows))
     except (OSError, KeyError, TypeError, yaml.YAMLError) as exc:
         raise BracketryError(f"bad dataset manifest {p}: {exc}") from exc
     return out
@@ -113,6 +122,18 @@ def _warmup(value: object, path: Path, where: str) -> int | None:
                              f"{MAX_WARMUP_STEPS} "
                              f"(got {value!r:.40})")
     return value
+
+
+def _windows(value: object, path: Path, where: str) -> tuple[float, ...] | None:
+    """A manifest's ``windows_m`` (None when absent); one line on anything but a non-empty list of positive
+    lengths in metres."""
+    if value is None:
+        return None
+    if not isinstance(value, list) or not value or not all(
+            isinstance(w, (int, float)) and not isinstance(w, bool) and 0 < w < 1e6 for w in value):
+        raise BracketryError(f"bad dataset manifest {path}: {where} must be a non-empty list of window lengths in "
+                             f"metres, each > 0 (got {value!r:.40})")
+    return tuple(sorted({float(w) for w in value}))
 
 
 def expand_datasets(paths: list[str | Path]) -> list[TrajectorySpec]:

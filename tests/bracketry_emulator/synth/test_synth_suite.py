@@ -214,3 +214,22 @@ def test_the_suite_manifest_declares_a_warmup_the_benchmark_takes(tmp_path: Path
         (tmp_path / "manifest.yaml").write_text(yaml.safe_dump(doc))
         with pytest.raises(BracketryError, match="warmup_steps must be a whole number"):
             load_manifest(tmp_path / "manifest.yaml")
+
+
+def test_the_demo_suite_declares_rte_windows_its_short_walks_hold(tmp_path: Path) -> None:
+    """The demo walks (3 s, 3-4 m) are shorter than the paper's 5 m window: the manifest declares 1-3 m windows,
+    which every spec carries (an entry may override them); the full suite keeps the paper's; bad ones: one line."""
+    from bracketry.errors import BracketryError
+
+    assert "windows_m" not in suite.manifest_doc("full", 0)
+    doc = suite.manifest_doc("demo", 0)
+    assert doc["windows_m"] == [1.0, 2.0, 3.0]
+    doc["trajectories"][0]["windows_m"] = [2, 1]
+    (tmp_path / "manifest.yaml").write_text(yaml.safe_dump(doc))
+    specs = load_manifest(tmp_path / "manifest.yaml")
+    assert specs[0].windows_m == (1.0, 2.0) and specs[1].windows_m == (1.0, 2.0, 3.0)
+    for bad in ([], [0], [-1, 2], "5", [True]):
+        doc["windows_m"] = bad
+        (tmp_path / "manifest.yaml").write_text(yaml.safe_dump(doc))
+        with pytest.raises(BracketryError, match="windows_m must be a non-empty list"):
+            load_manifest(tmp_path / "manifest.yaml")
