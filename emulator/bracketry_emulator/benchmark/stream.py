@@ -2,7 +2,9 @@
 
 For each trajectory the SLAM runs of every task still to do (method x repeat) start first, one child process each
 (:func:`~bracketry_emulator.slam.orbslam3.start_child`, ORB-SLAM3 or the built-in VO: a crash stays one failed
-run). Each gets a named pipe (``vo/<trajectory>/<run>/frames.fifo``); then one closed-loop pass over the trajectory
+run), forked by this process's SLAM fork server (:mod:`~bracketry_emulator.slam.launcher`: Python and the child's
+imports paid once per benchmark, not once per run) or, without one, started as ``python -m``. Each gets a
+named pipe (``vo/<trajectory>/<run>/frames.fifo``); then one closed-loop pass over the trajectory
 (each bracket frame decoded once for every method) hands every step's stereo images to the method's runs through
 :class:`~bracketry_emulator.slam.frame_stream.FrameFeed`: the same arrays the PNG writer would encode, named by the
 same timestamps, so SLAM sees the same pixels as from PNG files, without the encode/decode round trip. PNGs are
@@ -74,6 +76,7 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Pat
     docstring."""
     from bracketry_emulator.benchmark.tasks import complete_task
     from bracketry_emulator.slam.frame_stream import FrameFeed
+    from bracketry_emulator.slam.launcher import LauncherError, shared_launcher
     from bracketry_emulator.slam.orbslam3 import SlamChild, SlamRunError, start_child, wait_child
 
     if spec.calibration_dir() is None:
@@ -84,13 +87,14 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Pat
     feeds: dict[str, list[FrameFeed]] = {}
     methods = list(dict.fromkeys(t.method_spec for t in tasks))
     ok = False
+    launcher = shared_launcher()  # the children forked by one server that imported their modules once
     try:
         for t in tasks:
             vo_dir = t.vo_path
             vo_dir.mkdir(parents=True, exist_ok=True)
             fifo = FrameFeed.make_fifo(vo_dir / FIFO_NAME)
             try:
-                children[t.key] = start_child(_request(t, fifo, fps, n_steps), vo_dir)
+                children[t.key] = start_child(_request(t, fifo, fps, n_steps), vo_dir, launcher=launcher)
             except SlamRunError as exc:  # e.g. a vocabulary gone missing: this run fails, the others go on
                 errors[t.key] = str(exc)
                 continue
@@ -103,7 +107,7 @@ def stream_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Pat
             for child in children.values():
                 with contextlib.suppress(OSError):
                     child.proc.kill()
-                with contextlib.suppress(ChildProcessError):
+                with contextlib.suppress(ChildProcessError, LauncherError):
                     child.proc.wait()
     results = []
     for t in tasks:
