@@ -8,6 +8,17 @@ stamp is mid-exposure), and :meth:`World.render` renders the target exposure fro
 model and response; the world's own motion blur; noise from the world's per-frame generator, so a run is
 reproducible). Nothing is emulated: the emulator's errors (noise, blur, motion between brackets, gain) are what a
 truth run leaves out.
+
+Effects switched off (cause analysis, ``bracketry accuracy truth-causes``): ``camera_model.json`` may hold
+``"truth_effects"`` (:data:`TRUTH_EFFECTS`: each key False removes that effect of the truth and makes it what the
+emulator gives instead; absent keys are on):
+
+- ``blur``: no motion blur over the exposure (the render at the frame's mid-exposure instant);
+- ``noise``: the noise-free render;
+- ``instant``: the frame centred on the source bracket's mid-exposure stamp (the instant an emulated image shows)
+  rather than exposed from its trigger (centred E/2 after it; the longest exposures up to ~16 ms later);
+- ``exposure``: a target beyond the longest bracket rendered as the emulator's ``beyond="gain"`` does, the longest
+  bracket's exposure with its noise, amplified by the ratio (analog gain) instead of the longer exposure.
 """
 
 from __future__ import annotations
@@ -23,6 +34,22 @@ from bracketry.errors import BracketryError
 
 from ..emulation import EmulatedImage, EmulatorConfig
 from .emulation_cache import EmulationCache
+
+#: the effects of a truth image that ``camera_model.json``'s ``truth_effects`` can switch off (module docstring)
+TRUTH_EFFECTS: tuple[str, ...] = ("blur", "noise", "instant", "exposure")
+
+
+def truth_effects(dataset_dir: str | Path) -> dict[str, bool]:
+    """{effect: on} for every effect of :data:`TRUTH_EFFECTS` (``camera_model.json``'s ``truth_effects``, default
+    on); raises BracketryError (one line) for an unknown effect or a value that is not a boolean."""
+    try:
+        doc = json.loads((Path(dataset_dir) / "camera_model.json").read_text()).get("truth_effects") or {}
+    except (OSError, ValueError, AttributeError):
+        doc = {}
+    if not isinstance(doc, dict) or any(k not in TRUTH_EFFECTS or not isinstance(v, bool) for k, v in doc.items()):
+        raise BracketryError(f"{dataset_dir}/camera_model.json: truth_effects must map some of "
+                             f"{', '.join(TRUTH_EFFECTS)} to true/false (got {doc!r})")
+    return {k: bool(doc.get(k, True)) for k in TRUTH_EFFECTS}
 
 
 def truth_recording(dataset_dir: str | Path) -> dict[str, Any]:
@@ -48,6 +75,7 @@ class TruthCache(EmulationCache):
         self.dataset_dir = Path(dataset_dir)
         rec = truth_recording(dataset_dir)
         self.t0_ns, self.start_s = rec["t0_ns"], rec["start_s"]
+        self.effects = truth_effects(dataset_dir)
         self._world: Any = None
 
     @property
@@ -56,6 +84,8 @@ class TruthCache(EmulationCache):
             from ..synth import world_from_dataset
 
             self._world = world_from_dataset(self.dataset_dir)
+            if not self.effects["blur"]:
+                self._world.motion_blur = False
         return self._world
 
     def trigger_s(self, t_ns: int, exposure_us: float) -> float:
@@ -73,7 +103,20 @@ class TruthCache(EmulationCache):
                 raise BracketryError("a truth image needs the frames' timestamps")
             source = int(source_us) if source_us is not None else self.emulator.select(images, target_us)
             t_s = self.trigger_s(int(times_ns[source]), float(source))
-            image = self.world.render(side, t_s, float(target_us))
+            if not self.effects["instant"]:  # centred on the source's stamp, as the emulated image's content
+                t_s = self.trigger_s(int(times_ns[source]), float(target_us))
+            image = self._render(side, t_s, float(target_us), max(images))
             hit = self._cache[key] = EmulatedImage(image, float(target_us), source, float(target_us) / source,
                                                    "truth", (source,), float(target_us), 0.0)
         return hit
+
+    def _render(self, side: str, t_s: float, target_us: float, longest_us: float) -> np.ndarray:
+        """The world's frame (uint16 codes) triggered at ``t_s`` with the effects of :attr:`effects`."""
+        noise = self.effects["noise"]
+        if self.effects["exposure"] or target_us <= longest_us:
+            return self.world.render(side, t_s, target_us, noise=noise)
+        # the longest bracket's exposure (its noise, its blur) amplified to the target: what beyond="gain" emulates
+        raw = self.world.render(side, t_s, longest_us, rng=self.world.frame_rng(side, t_s, target_us), noise=noise)
+        response = self.emulator.response
+        linear = response.icrf[raw].astype(np.float64) * (target_us / longest_us)
+        return response.encode(linear, self.emulator.rounding)

@@ -1,0 +1,99 @@
+"""Truth images with one effect switched off (``camera_model.json`` ``truth_effects``), for the cause analysis."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.ae.truth import TRUTH_EFFECTS, TruthCache, truth_effects
+from bracketry_emulator.emulation import EmulatorConfig
+
+LONGEST_US = 8000
+SOURCE_US = 2000
+
+
+@pytest.fixture(scope="module")
+def walk(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """One bracket cycle (1/2/4/8 ms) of a synthetic walk at 5 km/h, 160x100."""
+    from bracketry_emulator.synth import LoopTrajectory, World, write_trajectory
+
+    out = tmp_path_factory.mktemp("walk") / "ds"
+    write_trajectory(World("forest-winter", 4, (160, 100), trajectory=LoopTrajectory(speed_kmh=5.0)), out,
+                     seconds=0.15, brackets_ms=(1.0, 2.0, 4.0, 8.0), sides=("left",))
+    return out
+
+
+def _variant(walk: Path, tmp: Path, effects: dict[str, bool]) -> Path:
+    tmp.mkdir(parents=True, exist_ok=True)
+    dst = tmp / f"v{len(list(tmp.iterdir()))}"
+    shutil.copytree(walk, dst)
+    info = json.loads((dst / "camera_model.json").read_text())
+    info["truth_effects"] = effects
+    (dst / "camera_model.json").write_text(json.dumps(info))
+    return dst
+
+
+def _image(ds: Path, target_us: float, stamp_ns: int) -> tuple[np.ndarray, TruthCache]:
+    cache = TruthCache(EmulatorConfig(), ds)
+    images = {e: np.zeros((100, 160), np.uint16) for e in (1000, 2000, 4000, LONGEST_US)}
+    out = cache.emulate(0, "left", images, target_us, source_us=SOURCE_US, times_ns={SOURCE_US: stamp_ns})
+    return out.image, cache
+
+
+def test_each_effect_switched_off_is_what_the_emulator_gives_instead(walk: Path, tmp_path: Path) -> None:
+    stamp = json.loads((walk / "camera_model.json").read_text())["recording"]["t0_ns"] + 60_000_000
+    full, cache = _image(_variant(walk, tmp_path, {}), 16_000.0, stamp)
+    assert cache.effects == dict.fromkeys(TRUTH_EFFECTS, True)
+    world = cache.world
+    t = cache.trigger_s(stamp, SOURCE_US)
+    assert np.array_equal(full, world.render("left", t, 16_000.0))
+
+    quiet, _ = _image(_variant(walk, tmp_path, {"noise": False}), 16_000.0, stamp)
+    assert np.array_equal(quiet, world.render("left", t, 16_000.0, noise=False))
+    assert not np.array_equal(quiet, full)
+
+    # no motion blur: the render at mid-exposure, sharper than the blurred frame
+    sharp, c_blur = _image(_variant(walk, tmp_path, {"blur": False, "noise": False}), 16_000.0, stamp)
+    assert c_blur.world.motion_blur is False
+    assert np.array_equal(sharp, c_blur.world.render("left", t, 16_000.0, noise=False))
+
+    def grad(img: np.ndarray) -> float:
+        return float(np.abs(np.diff(img.astype(np.float64), axis=1)).mean())
+    assert grad(sharp) > 1.02 * grad(quiet)
+
+    # the frame centred on the source's stamp: triggered (16 - 2) / 2 ms earlier than from the source's trigger
+    early, c_inst = _image(_variant(walk, tmp_path, {"instant": False}), 16_000.0, stamp)
+    t_early = c_inst.trigger_s(stamp, 16_000.0)
+    assert t_early == pytest.approx(t - 0.007)
+    assert np.array_equal(early, world.render("left", t_early, 16_000.0))
+
+    # beyond the longest bracket as gain: the 8 ms frame's noise amplified 4x, the same level on average
+    target = 4.0 * LONGEST_US
+    true_long, _ = _image(_variant(walk, tmp_path, {"noise": False, "exposure": True}), target, stamp)
+    noisy_long, _ = _image(_variant(walk, tmp_path, {}), target, stamp)
+    gained, c_gain = _image(_variant(walk, tmp_path, {"exposure": False}), target, stamp)
+    icrf = c_gain.emulator.response.icrf
+    ok = (true_long > 200) & (true_long < 3500)
+
+    def rmse(a: np.ndarray) -> float:
+        return float(np.sqrt(np.mean((a[ok].astype(np.float64) - true_long[ok]) ** 2)))
+    assert rmse(gained) > 1.3 * rmse(noisy_long)
+    # the same linear level on average (an 8 ms frame centred 12 ms before the 32 ms one: not the same pixels)
+    assert abs(float(icrf[gained][ok].mean()) / float(icrf[true_long][ok].mean()) - 1) < 0.05
+
+
+def test_bad_truth_effects_are_one_line_errors(walk: Path, tmp_path: Path) -> None:
+    for bad in ({"motion": False}, {"noise": "no"}):
+        with pytest.raises(BracketryError, match="truth_effects"):
+            truth_effects(_variant(walk, tmp_path, bad))
+
+
+def test_the_command_names_the_same_effects() -> None:
+    from bracketry_emulator.cli.accuracy import TRUTH_EFFECT_NAMES
+
+    assert TRUTH_EFFECT_NAMES == TRUTH_EFFECTS

@@ -1,0 +1,75 @@
+"""The cause analysis of emulated-vs-truth disagreement (``bracketry accuracy truth-causes``)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import yaml
+
+from bracketry.errors import BracketryError
+from bracketry_emulator.benchmark.truth_causes import truth_causes, variant_dataset, write_truth_causes
+from bracketry_emulator.metrics.manifest import load_manifest
+
+
+def _rows(values: dict[str, list[float]]) -> list[dict]:
+    rows = []
+    for method, vals in values.items():
+        for k, v in enumerate(vals):
+            rows.append({"trajectory": f"t{k}", "method": method, "coverage_mean": v, "matches_mean": 100 * v,
+                         "rte_pct": 10 - v, "rre_deg_per_m": 1 - v / 10, "time_before_failure_s": 10 * v})
+    return rows
+
+
+def test_the_effect_whose_removal_brings_the_truth_to_the_emulation_drives_it() -> None:
+    methods = ["ref", "a", "b"]
+    emulated = _rows({"ref": [0.5] * 4, "a": [0.8] * 4, "b": [0.2] * 4})
+    truth = _rows({"ref": [0.5] * 4, "a": [0.3] * 4, "b": [0.6] * 4})
+    half = _rows({"ref": [0.5] * 4, "a": [0.55] * 4, "b": [0.4] * 4})
+    doc = truth_causes(emulated, truth, {"blur": emulated, "noise": truth, "instant": half}, methods)
+    cov = doc["metrics"]["coverage_mean"]
+    assert cov["effects"]["blur"]["gap_closed"] == pytest.approx(1.0)
+    assert cov["effects"]["noise"]["gap_closed"] == pytest.approx(0.0)
+    assert cov["effects"]["instant"]["gap_closed"] == pytest.approx(0.5)
+    assert cov["driver"] == "blur"
+    assert cov["effects"]["blur"]["kendall_tau_emulated"] == pytest.approx(1.0)
+    assert cov["effects"]["noise"]["kendall_tau_truth"] == pytest.approx(1.0)
+    assert cov["kendall_tau_emulated_truth"] < 0
+
+
+def test_truth_causes_files_and_section_of_the_agreement_report(tmp_path: Path) -> None:
+    rows = _rows({"ref": [0.5] * 3, "a": [0.9] * 3})
+    other = _rows({"ref": [0.5] * 3, "a": [0.7] * 3})
+    rep = tmp_path / "report"
+    rep.mkdir()
+    (rep / "truth_agreement.md").write_text("# Emulated vs truth images\n")
+    doc = truth_causes(rows, other, {"noise": rows}, ["ref", "a"])
+    for _ in range(2):  # written twice: one section
+        jpath, mpath = write_truth_causes(doc, rep)
+    assert json.loads(jpath.read_text())["metrics"]["coverage_mean"]["driver"] == "noise"
+    text = (rep / "truth_agreement.md").read_text()
+    assert text.startswith("# Emulated vs truth images") and text.count("## Which effect drives") == 1
+    assert "| noise |" in mpath.read_text()
+
+
+def test_variant_dataset_links_the_data_and_switches_one_effect_off(tmp_path: Path) -> None:
+    suite = tmp_path / "suite"
+    traj = suite / "forest" / "walk_a"
+    (traj / "images").mkdir(parents=True)
+    (traj / "images" / "f.png").write_bytes(b"png")
+    (traj / "groundtruth.txt").write_text("0 0 0 0 0 0 0 1\n")
+    (traj / "camera_model.json").write_text(json.dumps({"world": {"seed": 1}, "recording": {"t0_ns": 0}}))
+    (suite / "manifest.yaml").write_text(yaml.safe_dump(
+        {"warmup_steps": 3, "trajectories": [{"path": "forest/walk_a", "subset": "forest", "name": "walk_a"}]}))
+    man = variant_dataset(suite / "manifest.yaml", "blur", tmp_path / "v")
+    specs = load_manifest(man)
+    assert [s.name for s in specs] == ["walk_a"] and specs[0].path == (tmp_path / "v" / "forest" / "walk_a")
+    assert (specs[0].path / "groundtruth.txt").is_symlink()
+    assert (specs[0].path / "images" / "f.png").read_bytes() == b"png"
+    info = json.loads((specs[0].path / "camera_model.json").read_text())
+    assert info["truth_effects"] == {"blur": False} and info["world"] == {"seed": 1}
+    assert yaml.safe_load(man.read_text())["warmup_steps"] == 3
+    assert "truth_effects" not in json.loads((traj / "camera_model.json").read_text())  # the original untouched
+    with pytest.raises(BracketryError, match="unknown effect"):
+        variant_dataset(suite / "manifest.yaml", "gain", tmp_path / "w")
