@@ -24,6 +24,10 @@ from bracketry.cli.options import (
 )
 from bracketry.errors import BracketryError
 
+#: the effects ``truth-causes`` switches off (bracketry_emulator.ae.truth.TRUTH_EFFECTS; kept here so that the
+#: command's help does not import the emulator)
+TRUTH_EFFECT_NAMES: tuple[str, ...] = ("blur", "noise", "instant", "exposure")
+
 
 def _write(out_dir: Path, name: str, result: dict) -> Path:
     out_dir.mkdir(exist_ok=True)
@@ -122,9 +126,15 @@ def static_cmd(stack_dir: Path, out_dir: Path | None, overwrite: bool, crf: str,
               help="Trigger instants per speed (each row is the median over them).")
 @click.option("--resolution", default="640x400", show_default=True,
               help="WxH (even) of the renders (below 640x400 the walk moves under a pixel per bracket period).")
+@click.option("--reference", type=click.Choice(["exact", "reproject"]), default="exact", show_default=True,
+              help="True frames: the exact integral (a ray cast every pixel of motion) or the world's default warp "
+                   "of one ray cast (the former protocol; its own error is as large as the emulator's).")
+@click.option("--supersample", type=Integer(1, 4), default=2, show_default=True,
+              help="Sub-samples per pixel side (each colour plane area-averaged, as a sensor pixel); 1: point "
+                   "sampled.")
 @click.option("--json", "as_json", is_flag=True, help="Print the summary as JSON.")
 def motion_cmd(out_dir: Path, overwrite: bool, seed: int, preset: str, instants: int, resolution: str,
-               as_json: bool) -> int:
+               reference: str, supersample: int, as_json: bool) -> int:
     """Emulated 16 and 32 ms frames from 1-8 ms sources of a walking synthetic camera (2 and 5 km/h, and held
     still) against the world's true renders, with and without motion-blur emulation; writes OUT/motion.json.
 
@@ -134,8 +144,8 @@ def motion_cmd(out_dir: Path, overwrite: bool, seed: int, preset: str, instants:
     from bracketry_emulator.synth import parse_resolution
 
     size = parse_resolution(resolution)
-    result = run_motion(seed=seed, preset=preset, resolution=size, n_instants=instants,
-                        progress=_progress("speeds x instants"))
+    result = run_motion(seed=seed, preset=preset, resolution=size, n_instants=instants, reference=reference,
+                        supersample=supersample, progress=_progress("speeds x instants"))
     jpath = _write(out_dir, "motion", result)
     if as_json:
         click.echo(json.dumps({"summary": result["summary"], "goals": result["goals"]}, indent=1))
@@ -145,11 +155,84 @@ def motion_cmd(out_dir: Path, overwrite: bool, seed: int, preset: str, instants:
         for r in result["rows"]:
             click.echo(f"{r['speed_kmh']:5g} {r['source_ms']:6g} {r['target_ms']:6g} {r['rmse_dn_plain']:10.1f} "
                        f"{r['rmse_dn_blur']:9.1f} {r['sharpness_error_plain']:15.3f} {r['sharpness_error_blur']:14.3f}")
+        for speed, sm in result["summary"].items():
+            line = (f"{speed:>5s} km/h: median rmse plain {sm['rmse_dn_plain_median']:.1f}, blur "
+                    f"{sm['rmse_dn_blur_median']:.1f}, reduction {100 * sm['rmse_reduction_median']:.1f} %")
+            if "rmse_reduction_reproject_median" in sm:
+                line += (f" (reprojected point-sampled reference: {sm['rmse_dn_plain_reproject_median']:.1f} -> "
+                         f"{sm['rmse_dn_blur_reproject_median']:.1f}, "
+                         f"{100 * sm['rmse_reduction_reproject_median']:.1f} %)")
+            line += (f"; off depth edges {100 * sm['rmse_reduction_off_edges_median']:.1f} % (edges hold "
+                     f"{100 * sm['depth_edge_error_share_blur_median']:.0f} % of the blurred error)")
+            click.echo(line)
         for name, g in result["goals"].items():
             click.echo(f"goal {name}: {'met' if g['met'] else 'NOT met'} "
                        f"({', '.join(f'{k}={v:.3g}' for k, v in g.items() if k != 'met')})")
         click.echo(f"wrote {jpath}")
     return EXIT_OK if all(g["met"] for g in result["goals"].values()) else EXIT_PROBLEMS
+
+
+@command.command("truth-causes")
+@click.argument("manifest", type=input_path())
+@click.option("--out", "out_dir", type=output_dir(existing="resume"), required=True,
+              help="Output folder: OUT/both (the emulated and truth benchmark, --images both), OUT/variants/<effect> "
+                   "(the truth benchmark without that effect); an existing one is resumed.")
+@click.option("--methods", "-m", default="ae50,ae30,ae70,shim,fix", show_default=True,
+              help="AE methods (comma-separated), as bracketry benchmark.")
+@click.option("--effects", default=",".join(TRUTH_EFFECT_NAMES), show_default=True,
+              help="Effects of the truth switched off one at a time (comma-separated).")
+@click.option("--reference", default="ae50", show_default=True, help="Reference method of the statistics.")
+@click.option("--slam", "slam_backend", type=click.Choice(["builtin", "orbslam3"]), default="builtin",
+              show_default=True, help="Localisation (as bracketry benchmark).")
+@click.option("--emulate-blur/--no-emulate-blur", default=True, show_default=True,
+              help="Closed loops of the emulated run: motion-blur emulation.")
+@click.option("--workers", default=1, show_default=True, type=Integer(0, 256),
+              help="Local worker processes of each benchmark (0 = one per CPU).")
+@click.option("--max-frames", default=None, type=Integer(2), help="Only the first N frames of each run.")
+def truth_causes_cmd(manifest: Path, out_dir: Path, methods: str, effects: str, reference: str,
+                     slam_backend: str, emulate_blur: bool, workers: int, max_frames: int | None) -> int:
+    """Which effect (blur, the frame's instant, noise, exposure vs gain) drives the disagreement of emulated and
+    truth benchmarks on a synthetic suite MANIFEST: the truth benchmark again with each effect switched off;
+    writes OUT/both/report/truth_causes.{json,md} (and a section of truth_agreement.md there)."""
+    from bracketry_emulator.benchmark.truth_causes import (
+        causes_markdown,
+        truth_causes,
+        variant_dataset,
+        write_truth_causes,
+    )
+
+    from .benchmark import command as benchmark
+
+    wanted = [e.strip() for e in effects.split(",") if e.strip()]
+    bad = [e for e in wanted if e not in TRUTH_EFFECT_NAMES]
+    if bad or not wanted:
+        raise BracketryError(f"--effects: unknown {', '.join(bad) or 'none given'} (choose from "
+                             f"{', '.join(TRUTH_EFFECT_NAMES)})")
+    common = ["--methods", methods, "--reference", reference, "--slam", slam_backend, "--workers", str(workers),
+              "--quiet"] + (["--emulate-blur"] if emulate_blur else []) + \
+        (["--max-frames", str(max_frames)] if max_frames else [])
+    out_dir.mkdir(parents=True, exist_ok=True)
+
+    def run(args: list[str]) -> list[dict]:
+        out = Path(args[args.index("--out") + 1])
+        benchmark.main(args=args, standalone_mode=False, prog_name="bracketry benchmark")
+        return json.loads((out / "report" / "results.json").read_text())
+
+    click.echo("emulated and truth images:")
+    emulated = run([str(manifest), "--images", "both", "--out", str(out_dir / "both"), *common])
+    truth = json.loads((out_dir / "both" / "truth" / "report" / "results.json").read_text())
+    variants: dict[str, list[dict]] = {}
+    for eff in wanted:
+        click.echo(f"truth without {eff}:")
+        vman = variant_dataset(Path(manifest), eff, out_dir / "variants" / eff / "data")
+        variants[eff] = run([str(vman), "--images", "truth", "--out", str(out_dir / "variants" / eff / "bench"),
+                             *common])
+    method_list = list(dict.fromkeys(r["method"] for r in emulated))
+    doc = truth_causes(emulated, truth, variants, method_list)
+    jpath, mpath = write_truth_causes(doc, out_dir / "both" / "report")
+    click.echo("\n".join(causes_markdown(doc)))
+    click.echo(f"wrote {jpath} and {mpath}")
+    return EXIT_OK
 
 
 @command.command("neighbours")
