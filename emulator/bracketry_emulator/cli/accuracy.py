@@ -189,8 +189,12 @@ def motion_cmd(out_dir: Path, overwrite: bool, seed: int, preset: str, instants:
 @click.option("--workers", default=1, show_default=True, type=Integer(0, 256),
               help="Local worker processes of each benchmark (0 = one per CPU).")
 @click.option("--max-frames", default=None, type=Integer(2), help="Only the first N frames of each run.")
+@click.option("--windows", "windows_text", default="5:50:1", show_default=True,
+              help="RTE/RRE windows in metres (as bracketry benchmark; the demo-size suite's 3 s walks are 1.2-5 m "
+                   "long: 0.5:1.5:0.25 gives every walk an RTE).")
 def truth_causes_cmd(manifest: Path, out_dir: Path, methods: str, effects: str, reference: str,
-                     slam_backend: str, emulate_blur: bool, workers: int, max_frames: int | None) -> int:
+                     slam_backend: str, emulate_blur: bool, workers: int, max_frames: int | None,
+                     windows_text: str) -> int:
     """Which effect (blur, the frame's instant, noise, exposure vs gain) drives the disagreement of emulated and
     truth benchmarks on a synthetic suite MANIFEST: the truth benchmark again with each effect switched off;
     writes OUT/both/report/truth_causes.{json,md} (and a section of truth_agreement.md there)."""
@@ -209,7 +213,7 @@ def truth_causes_cmd(manifest: Path, out_dir: Path, methods: str, effects: str, 
         raise BracketryError(f"--effects: unknown {', '.join(bad) or 'none given'} (choose from "
                              f"{', '.join(TRUTH_EFFECT_NAMES)})")
     common = ["--methods", methods, "--reference", reference, "--slam", slam_backend, "--workers", str(workers),
-              "--quiet"] + (["--emulate-blur"] if emulate_blur else []) + \
+              "--windows", windows_text, "--quiet"] + (["--emulate-blur"] if emulate_blur else []) + \
         (["--max-frames", str(max_frames)] if max_frames else [])
     out_dir.mkdir(parents=True, exist_ok=True)
 
