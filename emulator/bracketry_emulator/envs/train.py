@@ -190,6 +190,11 @@ def train_drl(datasets: list[Any], weights: str | Path, cfg: TrainConfig, *, res
         curve = [(int(s), float(r)) for s, r in state.get("curve", [])]
     else:
         model = new_model(venv, cfg)
+    # a logger with no output: SB3's default makes an empty folder in the system temp dir at every learn() (no
+    # progress of ours goes through it: the bar below reports)
+    from stable_baselines3.common.logger import Logger
+
+    model.set_logger(Logger(folder=None, output_formats=[]))
     done0 = int(model.num_timesteps)
     todo = max(0, cfg.steps - done0)
     returns = np.zeros(venv.num_envs)

@@ -58,7 +58,11 @@ def test_a_short_seeded_run_beats_random_actions(scene, trained) -> None:
 
 
 @pytest.mark.slow  # ~20 CPU-s of training
-def test_same_seed_same_weights_and_resume_goes_on(scene, tmp_path: Path) -> None:
+def test_same_seed_same_weights_and_resume_goes_on(scene, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import tempfile
+
+    (tmp_path / "tmp").mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path / "tmp"))  # where SB3's default logger makes folders
     cfg = TrainConfig(**{**SHORT.__dict__, "steps": 80, "checkpoint_every": 40})  # 16 gradient steps
     a = train_drl([scene], tmp_path / "a.pth", cfg, quiet=True)
     b = train_drl([scene], tmp_path / "b.pth", cfg, quiet=True)
@@ -70,6 +74,7 @@ def test_same_seed_same_weights_and_resume_goes_on(scene, tmp_path: Path) -> Non
                      quiet=True)
     assert more.steps == 96 and more.new_steps == 16 and more.curve[: len(a.curve)] == a.curve
     assert not all(torch.equal(wa[k], torch.load(more.weights)[k]) for k in wa)
+    assert not list((tmp_path / "tmp").glob("SB3-*"))  # no empty SB3 logger folder per learn() in the temp dir
 
 
 @pytest.mark.slow  # ~20 CPU-s of training
