@@ -102,24 +102,42 @@ def make_suite(root: Path, seed: int, use_suite: bool) -> Path:
     return root / "manifest.yaml"
 
 
-def flags(results: list[dict]) -> dict[str, dict[str, dict[str, str]]]:
-    """{test: {method: {metric: verdict}}} of the report's statistics against AE50 (Bonferroni over 3 methods)."""
-    from bracketry_emulator.report.tables import per_metric_values, per_trajectory_values
-    from bracketry_emulator.stats.mannwhitney import METRICS, verdict_table
-    from bracketry_emulator.stats.paired import wilcoxon_to_reference
+def flags(report_dir: Path) -> dict[str, dict[str, dict[str, str]]]:
+    """{test: {method: {metric: verdict}}} as the benchmark's report gives them (``verdicts.csv``: Mann-Whitney,
+    ``verdicts_paired.csv``: Wilcoxon signed-rank; Bonferroni over the compared methods): read, not recomputed, so
+    this counts exactly what a user of the report reads."""
+    import csv
 
-    methods = ["ae50", SHORT, LONG, COPY]
-    mw = verdict_table(per_metric_values(results, methods), "ae50")
-    out: dict[str, dict[str, dict[str, str]]] = {"mann-whitney": {m: {} for m in methods[1:]},
-                                                  "wilcoxon": {m: {} for m in methods[1:]}}
-    for key, comps in mw.items():
-        for m, c in comps.items():
-            out["mann-whitney"][m][key] = c.verdict
-    for key, (_label, higher) in METRICS.items():
-        comps = wilcoxon_to_reference(per_trajectory_values(results, methods, key), "ae50", higher)
-        for m, c in comps.items():
-            out["wilcoxon"][m][key] = c.verdict
+    from bracketry_emulator.stats.mannwhitney import METRICS
+
+    key_of = {label: key for key, (label, _higher) in METRICS.items()}
+    word = {"▲": "better", "▼": "worse", "≡": "equal", "–": "n/a"}
+    out: dict[str, dict[str, dict[str, str]]] = {}
+    for test, name in (("mann-whitney", "verdicts.csv"), ("wilcoxon", "verdicts_paired.csv")):
+        with open(report_dir / name, newline="") as fh:
+            rows = list(csv.reader(fh))
+        methods = rows[0][1:]
+        out[test] = {m: {} for m in methods}
+        for label, *cells in rows[1:]:
+            for m, cell in zip(methods, cells):
+                out[test][m][key_of[label]] = word.get(cell, cell)
     return out
+
+
+def seed_row(seed: int, bench_dir: Path, render_s: float, bench_s: float) -> dict:
+    """One seed's line: its flags per test (short, long: worse on RTE or time before failure; copy: any verdict)."""
+    import csv
+
+    with open(bench_dir / "report" / "results.csv", newline="") as fh:
+        n_traj = len({r["trajectory"] for r in csv.DictReader(fh)})
+    f = flags(bench_dir / "report")
+    row: dict = {"seed": seed, "trajectories": n_traj, "verdicts": f, "render_s": round(render_s, 1),
+                 "benchmark_s": round(bench_s, 1)}
+    for test, v in f.items():
+        row[test] = {"short": any(v[SHORT].get(k) == "worse" for k in POWER_METRICS),
+                     "long": any(v[LONG].get(k) == "worse" for k in POWER_METRICS),
+                     "copy": any(x not in ("equal", "n/a") for x in v[COPY].values())}
+    return row
 
 
 def main() -> None:
@@ -129,13 +147,13 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1, help="SLAM runs per (trajectory, method)")
     ap.add_argument("--out", type=Path, default=None, help="keep the suites, benchmarks and power.json here")
     ap.add_argument("--quick", action="store_true", help="3 seeds")
+    ap.add_argument("--tally", action="store_true",
+                    help="run nothing: tally the reports already in --out (bench<seed>/report) into power.json")
     args = ap.parse_args()
     apply_profile("timing")
     from bracketry_emulator.ae import LoopConfig
     from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
-    from bracketry_emulator.stats.mannwhitney import WORSE
-
     n_seeds = 3 if args.quick else args.seeds
     work = args.out or Path(tempfile.mkdtemp(prefix="bench_power_"))
     work.mkdir(parents=True, exist_ok=True)
@@ -151,24 +169,30 @@ def main() -> None:
           f"{n_seeds} seeds", flush=True)
     per_seed = []
     render_s = bench_s = 0.0
-    for seed in range(n_seeds):
+    if args.tally:
+        if args.out is None:
+            sys.exit("--tally needs --out DIR (the folder of an earlier run)")
+        old = {int(json.loads(line)["seed"]): json.loads(line) for line in
+               (work / "seeds.jsonl").read_text().splitlines()} if (work / "seeds.jsonl").is_file() else {}
+        for seed in range(n_seeds):
+            if (work / f"bench{seed}" / "report" / "verdicts_paired.csv").is_file():
+                t = old.get(seed, {})
+                per_seed.append(seed_row(seed, work / f"bench{seed}", t.get("render_s", 0.0),
+                                         t.get("benchmark_s", 0.0)))
+                render_s += t.get("render_s", 0.0)
+                bench_s += t.get("benchmark_s", 0.0)
+    for seed in range(0 if not args.tally else n_seeds, n_seeds):
         t0 = time.perf_counter()
         manifest = make_suite(work / f"suite{seed}", seed, use_suite)
         t1 = time.perf_counter()
         res = run_benchmark(BenchmarkConfig([manifest], ["ae50", SHORT, LONG, "ae50copy_mod:AE50Copy"],
                                             work / f"bench{seed}", workers=os.cpu_count() or 1,
-                                            windows_m=(1.0, 2.0, 5.0), stats_methods="all", slam=slam,
+                                            stats_methods="all", slam=slam,
                                             setup_check=False, loop=LoopConfig(max_exposure_us=MAX_EXPOSURE_US)))
         t2 = time.perf_counter()
         render_s += t1 - t0
         bench_s += t2 - t1
-        f = flags(res.results)
-        row: dict = {"seed": seed, "trajectories": len({r["trajectory"] for r in res.results}), "verdicts": f,
-                     "render_s": round(t1 - t0, 1), "benchmark_s": round(t2 - t1, 1)}
-        for test, v in f.items():
-            row[test] = {"short": any(v[SHORT].get(k) == WORSE for k in POWER_METRICS),
-                         "long": any(v[LONG].get(k) == WORSE for k in POWER_METRICS),
-                         "copy": any(x not in ("equal", "n/a") for x in v[COPY].values())}
+        row = seed_row(seed, res.out_dir, t1 - t0, t2 - t1)
         per_seed.append(row)
         if args.out is not None:  # kept as it goes: an interrupted run still says what it measured
             with open(work / "seeds.jsonl", "a") as fh:
