@@ -9,7 +9,8 @@ Steps (each prints progress, each output kept under ``out_dir``):
    sharing their trigger's timestamp) with the world's calibration and ground-truth poses.
 3. ``suite/`` (default plan): the demo-size synthetic suite (``bracketry synth suite --size demo --seed 0``: short
    walks in the subsets forest, sun-shadow, glare, day-cycle, where the exposure decides), linked from the user
-   cache when rendered before.
+   cache when rendered before. It renders beside steps 1-2 at the lowest priority (``nice -n 19``, log
+   ``suite.log``): the real-time recording leaves most of a core idle, and the rig keeps its priority.
 4. ``benchmark/``: every paper AE method (DRL when ``--drl-weights`` / ``BRACKETRY_DRL_WEIGHTS`` names its weights)
    in closed loop on the emulated images of the recording (subset ``rig``) and the suite, fed in memory to stereo
    SLAM (no emulated PNG is written), RTE/RRE, failures, statistics against AE50 over all those trajectories,
@@ -191,15 +192,53 @@ def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]
     return ds
 
 
-def suite(p: DemoPlan, echo: Callable[[str], None]) -> Path | None:
+#: the suite's render beside the recording runs at this niceness (the lowest priority: the rig's devices and
+#: renderer, at 0 or -10, keep the cores they need)
+BACKGROUND_NICE = 19
+
+
+def start_suite(p: DemoPlan) -> subprocess.Popen[bytes] | None:
+    """Start rendering the plan's suite in the background (``bracketry synth suite ... --overwrite -q`` under
+    ``nice -n 19``, output in ``out_dir/suite.log``), to run beside the recording and the export; None without a
+    suite in the plan. :func:`suite` waits for it and checks what it made."""
+    if p.suite is None:
+        return None
+    p.out_dir.mkdir(parents=True, exist_ok=True)
+    prio = ["nice", "-n", str(BACKGROUND_NICE)] if shutil.which("nice") else []
+    cmd = [*prio, sys.executable, "-m", "bracketry", "synth", "suite", "--out", str(p.out_dir / "suite"), "--size",
+           p.suite, "--seed", str(p.suite_seed), "--overwrite", "--workers", str(p.workers), "-q"]
+    with open(p.out_dir / "suite.log", "wb") as log:
+        return subprocess.Popen(cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT)
+
+
+def stop_suite(proc: subprocess.Popen[bytes] | None) -> None:
+    """End a background suite render that is still running (the demo failed before step 3)."""
+    if proc is not None and proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(timeout=30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+
+def suite(p: DemoPlan, echo: Callable[[str], None], background: subprocess.Popen[bytes] | None = None
+          ) -> Path | None:
     """Step 3 of the default plan: the demo-size synthetic suite under ``out_dir/suite`` (linked from the user cache
-    when rendered before); returns its manifest (None without a suite in the plan)."""
+    when rendered before); returns its manifest (None without a suite in the plan). ``background``: its render
+    started by :func:`start_suite`, waited for here; whatever it did not make is made here, with a progress bar."""
     if p.suite is None:
         return None
     from bracketry_emulator.synth.suite import make_suite
 
     out = p.out_dir / "suite"
     echo(f"[3/4] synthetic suite ({p.suite}, seed {p.suite_seed}): trajectories where the exposure decides")
+    if background is not None:
+        if background.poll() is None:
+            echo(f"      waiting for its render, started beside the recording ({p.out_dir / 'suite.log'})")
+        rc = background.wait()
+        if rc != 0:
+            echo(f"      the render beside the recording failed (exit {rc}, see {p.out_dir / 'suite.log'}): again here")
     bar: Any = None
 
     def progress(done: int, total: int) -> None:
@@ -213,6 +252,8 @@ def suite(p: DemoPlan, echo: Callable[[str], None]) -> Path | None:
     finally:
         if bar is not None:
             bar.close()
+    if background is not None and background.returncode == 0 and how == "reused":
+        how = "made beside the recording"
     echo(f"      suite {how} ({out})")
     return out / "manifest.yaml"
 
@@ -296,6 +337,15 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     """The whole demo; returns the summary written to ``out_dir/demo_summary.json``."""
     t0, cpu0 = time.monotonic(), cpu_s()
     p.out_dir.mkdir(parents=True, exist_ok=True)
+    background = start_suite(p)  # beside the recording and the export, at the lowest priority
+    try:
+        return _run(p, echo, t0, cpu0, background)
+    finally:
+        stop_suite(background)
+
+
+def _run(p: DemoPlan, echo: Callable[[str], None], t0: float, cpu0: float,
+         background: subprocess.Popen[bytes] | None) -> dict[str, Any]:
     sim = record(p, echo)
     verify = sim.get("verify", [])
     frames = {s: sum(v["sides"].get(s, {}).get("frames", 0) for v in verify) for s in ("left", "right")}
@@ -315,7 +365,7 @@ def run(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     t_rec, cpu_rec = time.monotonic() - t0, cpu_s() - cpu0
     dataset = export_dataset(p, sim, echo)
     t_export, cpu_export = time.monotonic() - t0 - t_rec, cpu_s() - cpu0 - cpu_rec
-    suite_manifest = suite(p, echo)
+    suite_manifest = suite(p, echo, background)
     t_suite, cpu_suite = (time.monotonic() - t0 - t_rec - t_export, cpu_s() - cpu0 - cpu_rec - cpu_export)
     result = benchmark(p, dataset, echo, suite_manifest)
     t_bench = time.monotonic() - t0 - t_rec - t_export - t_suite
