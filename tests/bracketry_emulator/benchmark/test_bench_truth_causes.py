@@ -73,3 +73,28 @@ def test_variant_dataset_links_the_data_and_switches_one_effect_off(tmp_path: Pa
     assert "truth_effects" not in json.loads((traj / "camera_model.json").read_text())  # the original untouched
     with pytest.raises(BracketryError, match="unknown effect"):
         variant_dataset(suite / "manifest.yaml", "gain", tmp_path / "w")
+
+
+@pytest.mark.slow
+def test_truth_causes_command_end_to_end(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Two short synthetic walks, two methods, the noise switched off: the benchmark both ways, then the variant."""
+    from bracketry.cli import main
+    from bracketry_emulator.synth import LoopTrajectory, World, write_trajectory
+
+    suite = tmp_path / "suite"
+    for k in range(2):
+        write_trajectory(World("forest-winter", 10 + k, (320, 200), trajectory=LoopTrajectory(speed_kmh=3.0)),
+                         suite / "walks" / f"w{k}", seconds=1.0)
+    (suite / "manifest.yaml").write_text(yaml.safe_dump({"trajectories": [
+        {"path": f"walks/w{k}", "subset": "walks", "name": f"w{k}"} for k in range(2)]}))
+    out = tmp_path / "out"
+    rc = main(["accuracy", "truth-causes", str(suite / "manifest.yaml"), "--out", str(out), "-m", "ae50,ae30",
+               "--effects", "noise", "--windows", "0.2:0.4:0.1"])
+    assert rc == 0, capsys.readouterr()
+    doc = json.loads((out / "both" / "report" / "truth_causes.json").read_text())
+    assert doc["methods"] == ["ae50", "ae30"] and list(doc["effects"]) == ["noise"]
+    assert set(doc["metrics"]) >= {"coverage_mean", "matches_mean"}
+    assert (out / "variants" / "noise" / "data" / "walks" / "w0" / "camera_model.json").is_file()
+    assert "## Which effect drives" in (out / "both" / "report" / "truth_agreement.md").read_text()
+    assert main(["accuracy", "truth-causes", str(suite / "manifest.yaml"), "--out", str(out), "--effects",
+                 "gain"]) == 2  # an unknown effect: one line, exit 2
