@@ -14,7 +14,8 @@ with the emulated and the full truth results:
   ``kendall_tau_emulated_truth``): the ranking agreement the emulator would reach if the truth lacked the effect;
 - ``kendall_tau_truth``: the variant against the full truth (how much the effect reorders the truth itself).
 
-The effect with the largest ``gap_closed`` of a metric is the one that drives that metric's disagreement.
+The effect with the largest positive ``gap_closed`` of a metric is the one that drives that metric's disagreement
+(``driver``; none when no variant comes closer to the emulation than the truth).
 Written as ``truth_causes.json`` and ``truth_causes.md`` next to ``truth_agreement.*``.
 """
 
@@ -116,7 +117,7 @@ def truth_causes(emulated: list[dict], truth: list[dict], variants: dict[str, li
                 "kendall_tau_emulated": kendall_tau([me[key][m] for m in order], [med[key][m] for m in order]),
                 "kendall_tau_truth": kendall_tau([mt[key][m] for m in order], [med[key][m] for m in order]),
                 "methods": {m: med[key][m] for m in order}}
-        ranked = sorted((e for e in effects if math.isfinite(effects[e]["gap_closed"])),
+        ranked = sorted((e for e in effects if effects[e]["gap_closed"] > 0),  # NaN and <= 0: no driver
                         key=lambda e: -effects[e]["gap_closed"])
         per_metric[key] = {"label": label, "mean_abs_diff_emulated_truth": gap,
                            "kendall_tau_emulated_truth": kendall_tau([me[key][m] for m in order],

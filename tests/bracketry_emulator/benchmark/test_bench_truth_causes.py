@@ -36,6 +36,11 @@ def test_the_effect_whose_removal_brings_the_truth_to_the_emulation_drives_it() 
     assert cov["effects"]["blur"]["kendall_tau_emulated"] == pytest.approx(1.0)
     assert cov["effects"]["noise"]["kendall_tau_truth"] == pytest.approx(1.0)
     assert cov["kendall_tau_emulated_truth"] < 0
+    # a variant farther from the emulation than the truth drives nothing
+    alone = truth_causes(emulated, truth, {"noise": _rows({"ref": [0.5] * 4, "a": [0.1] * 4, "b": [0.9] * 4})},
+                         methods)
+    assert alone["metrics"]["coverage_mean"]["effects"]["noise"]["gap_closed"] < 0
+    assert alone["metrics"]["coverage_mean"]["driver"] is None
 
 
 def test_truth_causes_files_and_section_of_the_agreement_report(tmp_path: Path) -> None:
