@@ -1,7 +1,7 @@
 """Statistical power of the benchmark: how often its statistics flag known-bad controls, and a copy of AE50.
 
 Usage: .venv/bin/python benchmarks/bench_power.py [--seeds 10] [--slam builtin|orbslam3] [--repeats 1]
-                                                  [--out DIR] [--quick]
+                                                  [--controls short,long,copy] [--out DIR] [--quick] [--tally]
 
 For each seed, a suite is rendered and benchmarked with four methods: ``ae50`` (the reference), a far-too-short
 constant (``constant-0.0625``: four stops under the shortest bracket, 1 ms), a far-too-long one (``constant-512``:
@@ -134,9 +134,13 @@ def seed_row(seed: int, bench_dir: Path, render_s: float, bench_s: float) -> dic
     row: dict = {"seed": seed, "trajectories": n_traj, "verdicts": f, "render_s": round(render_s, 1),
                  "benchmark_s": round(bench_s, 1)}
     for test, v in f.items():
-        row[test] = {"short": any(v[SHORT].get(k) == "worse" for k in POWER_METRICS),
-                     "long": any(v[LONG].get(k) == "worse" for k in POWER_METRICS),
-                     "copy": any(x not in ("equal", "n/a") for x in v[COPY].values())}
+        row[test] = {}
+        if SHORT in v:
+            row[test]["short"] = any(v[SHORT].get(k) == "worse" for k in POWER_METRICS)
+        if LONG in v:
+            row[test]["long"] = any(v[LONG].get(k) == "worse" for k in POWER_METRICS)
+        if COPY in v:
+            row[test]["copy"] = any(x not in ("equal", "n/a") for x in v[COPY].values())
     return row
 
 
@@ -147,9 +151,16 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=1, help="SLAM runs per (trajectory, method)")
     ap.add_argument("--out", type=Path, default=None, help="keep the suites, benchmarks and power.json here")
     ap.add_argument("--quick", action="store_true", help="3 seeds")
+    ap.add_argument("--controls", default="short,long,copy",
+                    help="the rows benchmarked beside AE50 (a subset of short,long,copy; e.g. copy alone for the "
+                         "false-positive rate with ORB-SLAM3 repeats); the Bonferroni count follows")
     ap.add_argument("--tally", action="store_true",
                     help="run nothing: tally the reports already in --out (bench<seed>/report) into power.json")
     args = ap.parse_args()
+    ids = {"short": SHORT, "long": LONG, "copy": "ae50copy_mod:AE50Copy"}
+    wanted = [c.strip() for c in args.controls.split(",") if c.strip()]
+    if not wanted or any(c not in ids for c in wanted):
+        sys.exit(f"--controls: a comma-separated subset of {', '.join(ids)}, got {args.controls!r}")
     apply_profile("timing")
     from bracketry_emulator.ae import LoopConfig
     from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
@@ -185,7 +196,7 @@ def main() -> None:
         t0 = time.perf_counter()
         manifest = make_suite(work / f"suite{seed}", seed, use_suite)
         t1 = time.perf_counter()
-        res = run_benchmark(BenchmarkConfig([manifest], ["ae50", SHORT, LONG, "ae50copy_mod:AE50Copy"],
+        res = run_benchmark(BenchmarkConfig([manifest], ["ae50", *(ids[c] for c in wanted)],
                                             work / f"bench{seed}", workers=os.cpu_count() or 1,
                                             stats_methods="all", slam=slam,
                                             setup_check=False, loop=LoopConfig(max_exposure_us=MAX_EXPOSURE_US)))
@@ -197,9 +208,8 @@ def main() -> None:
         if args.out is not None:  # kept as it goes: an interrupted run still says what it measured
             with open(work / "seeds.jsonl", "a") as fh:
                 fh.write(json.dumps(row) + "\n")
-        print(f"seed {seed}: {row['trajectories']} trajectories, flagged (Mann-Whitney / Wilcoxon): short "
-              f"{row['mann-whitney']['short']}/{row['wilcoxon']['short']}, long {row['mann-whitney']['long']}/"
-              f"{row['wilcoxon']['long']}, copy {row['mann-whitney']['copy']}/{row['wilcoxon']['copy']} "
+        said = ", ".join(f"{c} {row['mann-whitney'][c]}/{row['wilcoxon'][c]}" for c in wanted)
+        print(f"seed {seed}: {row['trajectories']} trajectories, flagged (Mann-Whitney / Wilcoxon): {said} "
               f"(render {t1 - t0:.0f} s, benchmark {t2 - t1:.0f} s)", flush=True)
     n = len(per_seed)
     table = []
@@ -207,6 +217,8 @@ def main() -> None:
         for what, key, goal in (("far-too-short constant flagged worse (power)", "short", ">= 0.9"),
                                 ("far-too-long constant flagged worse (power)", "long", ">= 0.9"),
                                 ("AE50 plug-in copy flagged at all (false positive)", "copy", "<= 1 of 10")):
+            if not per_seed or any(key not in r[test] for r in per_seed):
+                continue
             k = sum(bool(r[test][key]) for r in per_seed)
             lo, hi = clopper_pearson(k, n)
             table.append({"test": test, "what": what, "count": k, "seeds": n, "rate": k / n, "ci95": [lo, hi],
@@ -218,7 +230,8 @@ def main() -> None:
               f"[{t['ci95'][0]:.2f}, {t['ci95'][1]:.2f}] | {t['goal']} |")
     print(f"\ntime: render {render_s:.0f} s, benchmark {bench_s:.0f} s (wall, {os.cpu_count()} CPUs, load average "
           f"{os.getloadavg()[0]:.1f})")
-    doc = {"suite": suite_text, "slam": args.slam, "repeats": args.repeats, "table": table, "seeds": per_seed,
+    doc = {"suite": suite_text, "slam": args.slam, "repeats": args.repeats, "controls": wanted, "table": table,
+           "seeds": per_seed,
            "render_s": round(render_s, 1), "benchmark_s": round(bench_s, 1)}
     if args.out is None:
         shutil.rmtree(work, ignore_errors=True)
