@@ -364,5 +364,16 @@ def shared_launcher() -> SlamLauncher | None:
         return _shared
 
 
+def close_shared_launcher() -> None:
+    """Close this process's fork server (:func:`shared_launcher` starts a new one when asked again). Its children's
+    CPU time counts in this process's ``RUSAGE_CHILDREN`` only once the server is reaped: a caller that measures it
+    (the demo's CPU per step) closes the server first."""
+    global _shared
+    with _shared_lock:
+        server, _shared = _shared, None
+    if server is not None:
+        server.close()
+
+
 if __name__ == "__main__":
     sys.exit(main())

@@ -296,6 +296,9 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None], suite_man
     finally:
         if bar is not None:
             bar.close()
+        from bracketry_emulator.slam.launcher import close_shared_launcher
+
+        close_shared_launcher()  # its SLAM runs' CPU time reaches cpu_s() when it is reaped
 
 
 def best_per_metric(summary_csv: Path) -> dict[str, tuple[str, str]]:

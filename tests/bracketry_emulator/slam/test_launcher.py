@@ -7,6 +7,7 @@ ORB-SLAM3 itself is exercised through the server by the benchmark's ORB-SLAM3 te
 from __future__ import annotations
 
 import os
+import resource
 import time
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import pytest
 
 from bracketry_emulator.benchmark.toyworld import ToyWorld
 from bracketry_emulator.slam.frame_stream import FrameFeed
-from bracketry_emulator.slam.launcher import LaunchedProcess, SlamLauncher, shared_launcher
+from bracketry_emulator.slam.launcher import LaunchedProcess, SlamLauncher, close_shared_launcher, shared_launcher
 from bracketry_emulator.slam.orbslam3 import SlamRunError, start_child, wait_child
 
 
@@ -104,10 +105,25 @@ def test_a_gone_server_falls_back_to_a_started_child(toy: Path, tmp_path: Path) 
     assert wait_child(child)["n_frames"] == 6
 
 
-def test_shared_launcher_can_be_turned_off(monkeypatch: pytest.MonkeyPatch) -> None:
+def _children_cpu_s() -> float:
+    u = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return u.ru_utime + u.ru_stime
+
+
+def test_shared_launcher_switch_and_its_runs_cpu_once_closed(toy: Path, tmp_path: Path,
+                                                              monkeypatch: pytest.MonkeyPatch) -> None:
+    """One server per process (off with BRACKETRY_SLAM_LAUNCHER=0); its runs' CPU time reaches this process's
+    RUSAGE_CHILDREN (what the demo's CPU per step reads) when the server is closed and reaped."""
     monkeypatch.setenv("BRACKETRY_SLAM_LAUNCHER", "0")
     assert shared_launcher() is None
     monkeypatch.delenv("BRACKETRY_SLAM_LAUNCHER")
+    close_shared_launcher()
     server = shared_launcher()
     assert server is not None and server.alive() and shared_launcher() is server
     assert os.getpid() != server.proc.pid
+    info = wait_child(start_child(_builtin(toy), tmp_path / "run", launcher=server))
+    before = _children_cpu_s()
+    close_shared_launcher()
+    assert not server.alive() and shared_launcher() is not server
+    assert _children_cpu_s() - before >= info["cpu_s"]
+    close_shared_launcher()
