@@ -10,10 +10,11 @@ its stdout/stderr file descriptors in ``orbslam3.log``: the run computes what a 
 The server is single-threaded when it forks (checked at start: it refuses to serve otherwise, and the caller starts
 children as before). It applies the child's runtime profile (one OpenCV thread) before forking, as the child would.
 
-Protocol (lines of ASCII on the server's stdin / stdout)::
+Protocol (lines of UTF-8 on the server's stdin / stdout)::
 
-    -> run <token> <request.json> <orbslam3.log>      <- started <token> <pid>   (or: failed <token> <why>)
-                                                      <- exit <pid> <exit code, -signal when killed> <cpu s>
+    -> run <token> {"request": "<request.json>", "log": "<orbslam3.log>"}     (the paths as one JSON object)
+    <- started <token> <pid>   (or: failed <token> <why>)
+    <- exit <pid> <exit code, -signal when killed> <cpu s>
 
 ``ready`` is the server's first line. When its stdin closes (the benchmark ended or died), the server kills the
 children still running, reaps them and exits. The parent side is :class:`SlamLauncher`; :func:`shared_launcher`
@@ -24,6 +25,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import json
 import os
 import select
 import signal
@@ -146,11 +148,16 @@ def serve(in_fd: int, out_fd: int) -> int:
         pending += data
         while b"\n" in pending:
             line, pending = pending.split(b"\n", 1)
-            parts = line.decode().split(" ", 3)
-            if len(parts) != 4 or parts[0] != "run":
-                _write(out_fd, f"failed ? bad command {line[:80]!r}")
+            parts = line.decode().split(" ", 2)
+            try:
+                if len(parts) != 3 or parts[0] != "run":
+                    raise ValueError(parts[0])
+                paths = json.loads(parts[2])
+                request, log = str(paths["request"]), str(paths["log"])
+            except (ValueError, TypeError, KeyError):
+                _write(out_fd, f"failed {parts[1] if len(parts) > 1 else '?'} bad command {line[:80]!r}")
                 continue
-            _, token, request, log = parts
+            token = parts[1]
             sys.stdout.flush()
             sys.stderr.flush()
             try:
@@ -250,7 +257,8 @@ class SlamLauncher:
             self._tokens += 1
             token = str(self._tokens)
             try:
-                os.write(self._in, f"run {token} {os.fspath(request)} {os.fspath(log)}\n".encode())
+                paths = json.dumps({"request": os.fspath(request), "log": os.fspath(log)})
+                os.write(self._in, f"run {token} {paths}\n".encode())
             except OSError as exc:
                 raise LauncherError(f"the SLAM fork server is gone ({exc})") from None
             deadline = time.monotonic() + timeout_s

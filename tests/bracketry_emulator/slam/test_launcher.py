@@ -55,11 +55,11 @@ def _gone(pid: int) -> bool:
 
 def test_a_forked_run_gives_the_bytes_of_a_started_one(toy: Path, launcher: SlamLauncher, tmp_path: Path) -> None:
     started = wait_child(start_child(_builtin(toy), tmp_path / "started"))
-    child = start_child(_builtin(toy), tmp_path / "forked", launcher=launcher)
+    child = start_child(_builtin(toy), tmp_path / "forked run é", launcher=launcher)  # any path a user has
     assert isinstance(child.proc, LaunchedProcess) and child.proc.pid != launcher.proc.pid
     forked = wait_child(child)
     assert child.proc.returncode == 0 and forked["cpu_s"] > 0 and forked["n_frames"] == started["n_frames"] == 6
-    a, b = _outputs(tmp_path / "started"), _outputs(tmp_path / "forked")
+    a, b = _outputs(tmp_path / "started"), _outputs(tmp_path / "forked run é")
     assert "frames.csv" in a and "CameraTrajectory0.txt" in a and a == b
     assert _gone(child.proc.pid)  # reaped by the server
 
