@@ -148,6 +148,28 @@ def pseudo_angle(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return q
 
 
+#: brick size of the facades (m): course height, brick length, mortar width
+BRICK_COURSE_M, BRICK_LENGTH_M, MORTAR_M = 0.25, 0.5, 0.03
+
+
+def brick_factor(along_m: np.ndarray, height_m: np.ndarray, obj: np.ndarray) -> np.ndarray:
+    """Albedo factor of a brick facade at wall coordinates ``along_m``, ``height_m`` (float (N,), metres) of box
+    ``obj`` (int (N,)): each brick a hashed shade in [0.7, 1.2], every other course offset by half a brick, mortar
+    joints 0.55. float32 (N,). Integer hashing and exact float ops only: the same bytes on every CPU."""
+    z = np.asarray(height_m, np.float64) / BRICK_COURSE_M
+    course = np.floor(z)
+    x = np.asarray(along_m, np.float64) / BRICK_LENGTH_M + 0.5 * (course % 2)
+    brick = np.floor(x)
+    h = (course.astype(np.int64) * 73856093) ^ (brick.astype(np.int64) * 19349663) \
+        ^ (np.asarray(obj, np.int64) * 83492791)
+    h &= 0xFFFFFFFF
+    h = ((h ^ (h >> 13)) * 1274126177) & 0xFFFFFFFF
+    h ^= h >> 16
+    shade = 0.7 + 0.5 * (h & 1023).astype(np.float64) / 1023.0
+    joint = ((z - course) * BRICK_COURSE_M < MORTAR_M) | ((x - brick) * BRICK_LENGTH_M < MORTAR_M)
+    return np.where(joint, 0.55, shade).astype(np.float32)
+
+
 @dataclass
 class RenderResult:
     """Output of one render: ``radiance`` float32 (H, W) in the channel of each RGGB pixel, ``range_m`` float32
@@ -606,10 +628,17 @@ class SideRenderer:
         along = np.where(axis == 0, hy, hx)
         window = facade & ((along / 3.0) % 1.0 > 0.25) & ((along / 3.0) % 1.0 < 0.75) \
             & ((hz / 3.5) % 1.0 > 0.3) & ((hz / 3.5) % 1.0 < 0.8) & (hz > 1.0)
+        wall = axis != 2
+        if wall.any():  # brick courses: a texture a tracker finds corners in, as on real facades
+            albedo[wall] *= brick_factor(along[wall], hz[wall], ob[wall])
         out = albedo * light
         if window.any():
             hor = np.asarray(self.scene.lighting.horizon_rgb, np.float32)[ch[window]]
             out[window] = 0.04 * light[window] + 0.25 * hor
+            # mullions: a cross of frame bars (5 cm) through each window's middle
+            u, v = (along[window] / 3.0) % 1.0, (hz[window] / 3.5) % 1.0
+            bar = (np.abs(u - 0.5) * 3.0 < 0.05) | (np.abs(v - 0.55) * 3.5 < 0.05)
+            out[window] = np.where(bar, albedo[window] * light[window] * 0.5, out[window])
         return out
 
     # ------------------------------------------------------------------ main
