@@ -179,8 +179,9 @@ def motion_cmd(out_dir: Path, overwrite: bool, seed: int, preset: str, instants:
                    "(the truth benchmark without that effect); an existing one is resumed.")
 @click.option("--methods", "-m", default="ae50,ae30,ae70,shim,fix", show_default=True,
               help="AE methods (comma-separated), as bracketry benchmark.")
-@click.option("--effects", default=",".join(TRUTH_EFFECT_NAMES), show_default=True,
-              help="Effects of the truth switched off one at a time (comma-separated).")
+@click.option("--effects", default="blur,noise,instant", show_default=True,
+              help="Effects of the truth switched off one at a time (comma-separated; also: exposure, a no-op with "
+                   "the benchmark's camera, which takes gain beyond the longest bracket in the truth too).")
 @click.option("--reference", default="ae50", show_default=True, help="Reference method of the statistics.")
 @click.option("--slam", "slam_backend", type=click.Choice(["builtin", "orbslam3"]), default="builtin",
               show_default=True, help="Localisation (as bracketry benchmark).")

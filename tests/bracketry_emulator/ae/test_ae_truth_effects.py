@@ -38,8 +38,11 @@ def _variant(walk: Path, tmp: Path, effects: dict[str, bool]) -> Path:
     return dst
 
 
-def _image(ds: Path, target_us: float, stamp_ns: int) -> tuple[np.ndarray, TruthCache]:
-    cache = TruthCache(EmulatorConfig(), ds)
+def _image(ds: Path, target_us: float, stamp_ns: int, beyond: str = "extrapolate"
+           ) -> tuple[np.ndarray, TruthCache]:
+    """The truth image; by default a camera that exposes beyond the longest bracket (``beyond="extrapolate"``), so
+    that the ``exposure`` effect is there to switch off."""
+    cache = TruthCache(EmulatorConfig(beyond=beyond), ds)  # type: ignore[arg-type]
     images = {e: np.zeros((100, 160), np.uint16) for e in (1000, 2000, 4000, LONGEST_US)}
     out = cache.emulate(0, "left", images, target_us, source_us=SOURCE_US, times_ns={SOURCE_US: stamp_ns})
     return out.image, cache
@@ -85,6 +88,25 @@ def test_each_effect_switched_off_is_what_the_emulator_gives_instead(walk: Path,
     assert rmse(gained) > 1.3 * rmse(noisy_long)
     # the same linear level on average (an 8 ms frame centred 12 ms before the 32 ms one: not the same pixels)
     assert abs(float(icrf[gained][ok].mean()) / float(icrf[true_long][ok].mean()) - 1) < 0.05
+
+
+def test_the_truth_takes_gain_beyond_the_longest_bracket_as_the_emulated_camera(walk: Path, tmp_path: Path) -> None:
+    """With the benchmark's camera policy (beyond="gain"), a target beyond the longest bracket is that bracket's
+    exposure plus gain in the truth too, recorded as the emulator records it; within the brackets, the full
+    exposure."""
+    stamp = json.loads((walk / "camera_model.json").read_text())["recording"]["t0_ns"] + 60_000_000
+    target = 4.0 * LONGEST_US
+    ds = _variant(walk, tmp_path, {})
+    gain_truth, cache = _image(ds, target, stamp, beyond="gain")
+    as_variant, _ = _image(_variant(walk, tmp_path, {"exposure": False}), target, stamp)
+    assert np.array_equal(gain_truth, as_variant)
+    images = {e: np.zeros((100, 160), np.uint16) for e in (1000, 2000, 4000, LONGEST_US)}
+    rec = cache.emulate(0, "left", images, target, source_us=SOURCE_US, times_ns={SOURCE_US: stamp})
+    assert cache.emulator.exposure_and_gain(images, target) == (LONGEST_US, 4.0)
+    assert rec.exposure_us == LONGEST_US and rec.gain_db == pytest.approx(20 * np.log10(4.0))
+    within, _ = _image(ds, 4000.0, stamp, beyond="gain")
+    t = cache.trigger_s(stamp, SOURCE_US)
+    assert np.array_equal(within, cache.world.render("left", t, 4000.0))
 
 
 def test_bad_truth_effects_are_one_line_errors(walk: Path, tmp_path: Path) -> None:
