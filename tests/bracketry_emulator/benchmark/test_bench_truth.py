@@ -6,20 +6,13 @@ import json
 from pathlib import Path
 
 import pytest
+from result_rows import metric_rows
 
 from bracketry.cli import main
 from bracketry_emulator.benchmark.truth_agreement import kendall_tau, truth_agreement, write_truth_agreement
 from emu_synthetic import radiance_map, write_tree
 
-
-def _rows(values: dict[str, list[float]]) -> list[dict]:
-    """Result rows: one per (trajectory, method), every metric of the statistics set from ``values``."""
-    rows = []
-    for method, vals in values.items():
-        for k, v in enumerate(vals):
-            rows.append({"trajectory": f"t{k}", "method": method, "coverage_mean": v, "matches_mean": 100 * v,
-                         "rte_pct": 10 - v, "rre_deg_per_m": 1 - v / 10, "time_before_failure_s": 10 * v})
-    return rows
+_rows = metric_rows
 
 
 def test_kendall_tau_and_verdict_flips() -> None:

@@ -7,19 +7,13 @@ from pathlib import Path
 
 import pytest
 import yaml
+from result_rows import metric_rows
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.benchmark.truth_causes import truth_causes, variant_dataset, write_truth_causes
 from bracketry_emulator.metrics.manifest import load_manifest
 
-
-def _rows(values: dict[str, list[float]]) -> list[dict]:
-    rows = []
-    for method, vals in values.items():
-        for k, v in enumerate(vals):
-            rows.append({"trajectory": f"t{k}", "method": method, "coverage_mean": v, "matches_mean": 100 * v,
-                         "rte_pct": 10 - v, "rre_deg_per_m": 1 - v / 10, "time_before_failure_s": 10 * v})
-    return rows
+_rows = metric_rows
 
 
 def test_the_effect_whose_removal_brings_the_truth_to_the_emulation_drives_it() -> None:
