@@ -145,3 +145,25 @@ def test_emulate_fusion_options_and_noise_model(tmp_path: Path, capsys: pytest.C
     noise.write_text("{}")
     assert main([*args, "-o", str(tmp_path / "d"), "--noise", str(noise)]) == 2
     assert "not a noise model" in capsys.readouterr().err
+
+
+def test_warmup_steps_run_on_the_first_sequence_and_write_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+                                                                  ) -> None:
+    """The scheduler's warm-up (in-process and in worker processes): the doubler takes 3 steps on the first view
+    before the run (4 -> 32 ms), then one step per sequence; only the run's steps are written."""
+    rec = tiny_tree(tmp_path, 3)
+    (tmp_path / "ae_runner_plugin.py").write_text(PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    for workers in (1, 2):
+        out = tmp_path / f"w{workers}"
+        res = run_methods(rec, ["ae50", "ae_runner_plugin:Doubler"], out, workers=workers, progress=False,
+                          warmup_steps=3, max_exposure_us=1_000_000.0)
+        assert res.runs["doubler"].exposures_ms == [32.0, 64.0, 128.0]
+        assert len(res.runs["ae50"].steps) == 3
+        assert len((out / "doubler" / "steps.csv").read_text().splitlines()) == 1 + 3
+        assert len(list((out / "doubler" / "images_left").iterdir())) == 3
+        cold = run_methods(rec, ["ae50"], tmp_path / f"c{workers}", workers=workers, progress=False,
+                           write_images=False)
+        # AE50 warmed on the first view starts nearer its settled exposure than from the 4 ms first target
+        settled = cold.runs["ae50"].exposures_ms[-1]
+        assert abs(res.runs["ae50"].exposures_ms[0] - settled) < abs(cold.runs["ae50"].exposures_ms[0] - settled)
