@@ -48,3 +48,24 @@ def test_benchmark_refuses_truth_images_of_a_real_dataset(tmp_path: Path, capsys
         err = capsys.readouterr().err.strip().splitlines()
         assert rc == 2 and len(err) == 1 and "synthetic trajectory" in err[0], err
         assert not (tmp_path / f"out-{images}" / "runs").exists()
+
+
+def test_benchmark_refuses_truth_images_of_a_suite_rendered_by_other_synth_code(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A suite rendered before the synthetic world changed: its truth images would show another world than its
+    brackets (the check runs before any trajectory is read)."""
+    from bracketry_emulator.synth.suite import code_digest
+
+    data = write_tree(tmp_path / "tree", radiance_map(seed=2) * 0.02, n_sequences=2)
+    for code, expected in (("0123456789ab", "rendered by synth code 0123456789ab"),
+                           (code_digest(), "synthetic trajectory")):
+        manifest = tmp_path / f"manifest-{code}.yaml"
+        manifest.write_text(f"suite: {{version: '1', size: demo, seed: 3, code: '{code}'}}\n"
+                            f"trajectories:\n- path: {data}\n  subset: forest\n  name: walk\n")
+        for images in ("truth", "both"):
+            out = tmp_path / f"out-{code}-{images}"
+            rc = main(["benchmark", str(manifest), "--out", str(out), "-m", "ae50", "--slam", "builtin",
+                       "--images", images, "-q"])
+            err = capsys.readouterr().err.strip().splitlines()
+            assert rc == 2 and len(err) == 1 and expected in err[0], err
+            assert not (out / "runs").exists()
