@@ -177,8 +177,8 @@ def motion_cmd(out_dir: Path, overwrite: bool, seed: int, preset: str, instants:
 @click.option("--out", "out_dir", type=output_dir(existing="resume"), required=True,
               help="Output folder: OUT/both (the emulated and truth benchmark, --images both), OUT/variants/<effect> "
                    "(the truth benchmark without that effect); an existing one is resumed.")
-@click.option("--methods", "-m", default="ae50,ae30,ae70,shim,fix", show_default=True,
-              help="AE methods (comma-separated), as bracketry benchmark.")
+@click.option("--methods", "-m", default="fix,ae30,ae50,ae70,shim,wang,kim", show_default=True,
+              help="AE methods (comma-separated), as bracketry benchmark (default: the paper's seven without DRL).")
 @click.option("--effects", default="blur,noise,instant", show_default=True,
               help="Effects of the truth switched off one at a time (comma-separated; also: exposure, a no-op with "
                    "the benchmark's camera, which takes gain beyond the longest bracket in the truth too).")
@@ -190,12 +190,12 @@ def motion_cmd(out_dir: Path, overwrite: bool, seed: int, preset: str, instants:
 @click.option("--workers", default=1, show_default=True, type=Integer(0, 256),
               help="Local worker processes of each benchmark (0 = one per CPU).")
 @click.option("--max-frames", default=None, type=Integer(2), help="Only the first N frames of each run.")
-@click.option("--windows", "windows_text", default="5:50:1", show_default=True,
-              help="RTE/RRE windows in metres (as bracketry benchmark; the demo-size suite's 3 s walks are 1.2-5 m "
-                   "long: 0.5:1.5:0.25 gives every walk an RTE).")
+@click.option("--windows", "windows_text", default=None,
+              help="RTE/RRE windows in metres, as bracketry benchmark. Default: the manifest's windows_m (the "
+                   "demo-size suite's 3 s walks declare 1-3 m), else 5:50:1 (the paper's).")
 def truth_causes_cmd(manifest: Path, out_dir: Path, methods: str, effects: str, reference: str,
                      slam_backend: str, emulate_blur: bool, workers: int, max_frames: int | None,
-                     windows_text: str) -> int:
+                     windows_text: str | None) -> int:
     """Which effect (blur, the frame's instant, noise, exposure vs gain) drives the disagreement of emulated and
     truth benchmarks on a synthetic suite MANIFEST: the truth benchmark again with each effect switched off;
     writes OUT/both/report/truth_causes.{json,md} (and a section of truth_agreement.md there)."""
@@ -214,7 +214,8 @@ def truth_causes_cmd(manifest: Path, out_dir: Path, methods: str, effects: str, 
         raise BracketryError(f"--effects: unknown {', '.join(bad) or 'none given'} (choose from "
                              f"{', '.join(TRUTH_EFFECT_NAMES)})")
     common = ["--methods", methods, "--reference", reference, "--slam", slam_backend, "--workers", str(workers),
-              "--windows", windows_text, "--quiet"] + (["--emulate-blur"] if emulate_blur else []) + \
+              "--quiet"] + (["--windows", windows_text] if windows_text else []) + \
+        (["--emulate-blur"] if emulate_blur else []) + \
         (["--max-frames", str(max_frames)] if max_frames else [])
     out_dir.mkdir(parents=True, exist_ok=True)
 

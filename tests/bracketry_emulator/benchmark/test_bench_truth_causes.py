@@ -84,12 +84,16 @@ def test_truth_causes_command_end_to_end(tmp_path: Path, capsys: pytest.CaptureF
     for k in range(2):
         write_trajectory(World("forest-winter", 10 + k, (320, 200), trajectory=LoopTrajectory(speed_kmh=3.0)),
                          suite / "walks" / f"w{k}", seconds=1.0)
-    (suite / "manifest.yaml").write_text(yaml.safe_dump({"trajectories": [
+    # the manifest's windows (the 1 s walks are 0.8 m long) are the default, as for bracketry benchmark
+    (suite / "manifest.yaml").write_text(yaml.safe_dump({"windows_m": [0.2, 0.3, 0.4], "trajectories": [
         {"path": f"walks/w{k}", "subset": "walks", "name": f"w{k}"} for k in range(2)]}))
     out = tmp_path / "out"
     rc = main(["accuracy", "truth-causes", str(suite / "manifest.yaml"), "--out", str(out), "-m", "ae50,ae30",
-               "--effects", "noise", "--windows", "0.2:0.4:0.1"])
+               "--effects", "noise"])
     assert rc == 0, capsys.readouterr()
+    for part in ("both", "both/truth", "variants/noise/bench"):
+        rows = json.loads((out / part / "report" / "results.json").read_text())
+        assert rows and all([w["window_m"] for w in r["windows"]] == [0.2, 0.3, 0.4] for r in rows), part
     doc = json.loads((out / "both" / "report" / "truth_causes.json").read_text())
     assert doc["methods"] == ["ae50", "ae30"] and list(doc["effects"]) == ["noise"]
     assert set(doc["metrics"]) >= {"coverage_mean", "matches_mean"}
