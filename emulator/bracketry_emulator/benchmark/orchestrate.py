@@ -234,7 +234,7 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     paths = [d for d in c.datasets if not isinstance(d, TrajectorySpec)]
     specs = [d for d in c.datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
     if c.loop.images == "truth":
-        check_truth_datasets(c.datasets)
+        check_truth_datasets(specs)
     weights = c.drl_weights
     if weights is not None and not Path(weights).is_file():
         raise BracketryError(f"--drl-weights file not found: {weights}")
@@ -404,39 +404,21 @@ def group_repeats(runs: list[dict]) -> list[dict]:
     return out
 
 
-def check_suite_code(manifest: Path) -> None:
-    """Refuse (BracketryError, one line) a suite manifest rendered by other synth code than this bracketry's
-    (``suite.code`` against :func:`~bracketry_emulator.synth.suite.code_digest`); anything else passes."""
-    if not (manifest.is_file() and manifest.suffix.lower() in (".yaml", ".yml")):
-        return
-    import yaml
-
-    from bracketry_emulator.synth.suite import code_digest
-
-    try:
-        doc = yaml.safe_load(manifest.read_text())
-    except (OSError, UnicodeDecodeError, yaml.YAMLError):
-        return  # the manifest's own reader reports what is wrong with it
-    ident = doc.get("suite") if isinstance(doc, dict) else None
-    if not isinstance(ident, dict) or "code" not in ident:
-        return
-    ours = code_digest()
-    if str(ident["code"]) != ours:
-        raise BracketryError(
-            f"{manifest}: suite rendered by synth code {ident['code']}, this bracketry renders {ours}: its truth "
-            f"images would show another world than its brackets; render it again (bracketry synth suite --size "
-            f"{ident.get('size', '?')} --seed {ident.get('seed', '?')} --out NEW_DIR)")
-
-
 def check_truth_datasets(datasets: Sequence[str | Path | TrajectorySpec]) -> None:
-    """Refuse (BracketryError, one line) truth images for any trajectory that is not a synthetic one, and for a
-    rendered suite (a manifest with a ``suite:`` block) whose synth code is not this one's: the truth would render
+    """Refuse (BracketryError, one line) truth images for any trajectory that is not a synthetic one, and for one of
+    a rendered suite whose synth code (its manifest's ``suite.code``) is not this bracketry's: the truth would render
     another world than the one its brackets show (a suite rendered before a change of the synthetic world)."""
     from bracketry_emulator.ae.truth import truth_recording
+    from bracketry_emulator.synth.suite import code_digest
 
     paths = [d for d in datasets if not isinstance(d, TrajectorySpec)]
-    for p in paths:
-        check_suite_code(Path(p))
     specs = [d for d in datasets if isinstance(d, TrajectorySpec)] + (expand_datasets(paths) if paths else [])
+    ours = code_digest()
+    for s in specs:
+        if s.suite_code is not None and s.suite_code != ours:
+            raise BracketryError(
+                f"{s.name}: its suite was rendered by synth code {s.suite_code}, this bracketry renders {ours}: its "
+                f"truth images would show another world than its brackets; render the suite again (bracketry synth "
+                f"suite --out NEW_DIR)")
     for s in specs:
         truth_recording(s.path)

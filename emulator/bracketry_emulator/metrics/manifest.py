@@ -57,6 +57,8 @@ class TrajectorySpec:
     warmup_steps: int | None = None
     #: RTE/RRE windows in metres (None: not declared)
     windows_m: tuple[float, ...] | None = None
+    #: the synth code digest of the rendered suite it belongs to (a manifest's ``suite.code``; None: not declared)
+    suite_code: str | None = None
 
     def groundtruth_path(self) -> Path | None:
         """The TUM reference of this trajectory, or None when it has none."""
@@ -91,6 +93,8 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
         entries = doc["trajectories"]
         default_warmup = _warmup(doc.get("warmup_steps"), p, "warmup_steps")
         default_windows = _windows(doc.get("windows_m"), p, "windows_m")
+        suite = doc.get("suite")
+        suite_code = str(suite["code"]) if isinstance(suite, dict) and suite.get("code") is not None else None
         out = []
         for k, e in enumerate(entries):
             if not isinstance(e, dict) or not isinstance(e.get("path"), str):
@@ -106,7 +110,7 @@ def load_manifest(path: str | Path) -> list[TrajectorySpec]:
             windows = _windows(e.get("windows_m"), p, f"trajectories[{k}].windows_m")
             out.append(TrajectorySpec(str(e.get("name") or tp.name), tp, str(e.get("subset", "all")), **extra,
                                       split=split, warmup_steps=default_warmup if warmup is None else warmup,
-                                      windows_m=windows or default_windows))
+                                      windows_m=windows or default_windows, suite_code=suite_code))
     except (OSError, KeyError, TypeError, yaml.YAMLError) as exc:
         raise BracketryError(f"bad dataset manifest {p}: {exc}") from exc
     return out
