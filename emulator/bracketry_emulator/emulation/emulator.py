@@ -263,7 +263,8 @@ class Emulator:
         src = images[source]
         velocity = self._velocity(images, source, times_ns) if exposure_us > source else None
         if velocity is not None and velocity.max_px((exposure_us - source) * 1e-6) >= STEP_PX:
-            blurred = add_motion_blur(self.response.icrf[src], velocity, (exposure_us - source) * 1e-6)
+            blurred = add_motion_blur(self.response.icrf[src], velocity, (exposure_us - source) * 1e-6,
+                                      source * 1e-6)
             linear = total * blurred.astype(np.float64)
             if self._adds_noise(gain):
                 missing = self._missing_variance(blurred, factor, gain)
@@ -352,7 +353,7 @@ class Emulator:
         irradiance = result.irradiance
         velocity = self._velocity(images, ref, times_ns) if exposure_us > ref else None
         if velocity is not None:
-            irradiance = add_motion_blur(irradiance, velocity, (exposure_us - ref) * 1e-6)
+            irradiance = add_motion_blur(irradiance, velocity, (exposure_us - ref) * 1e-6, ref * 1e-6)
         linear = irradiance * (exposure_us * g)
         if self._adds_noise(g):
             target_var = self.config.noise.variance(irradiance * exposure_us, g)
