@@ -16,6 +16,8 @@ MAX_EXPOSURE_OPTION_MS = 1000.0
 DEFAULT_MIN_EXPOSURE_US = 20.0
 #: upper bound (us): 2x the sample's longest bracket (beyond it the emulation extrapolates more than one stop)
 DEFAULT_MAX_EXPOSURE_US = 64000.0
+#: upper bound (dB) of the analog gain a method may set itself (ae/base.py CameraSetting): 24 dB, 16x
+DEFAULT_MAX_GAIN_DB = 24.0
 
 #: the emulator's source-bracket selections; the default first
 SELECTIONS: tuple[str, ...] = ("highernosat", "upstream", "fusion")

@@ -19,7 +19,7 @@ wang, kim (+ gp), zhang, drl (torch, optional extra). Plugins: PLUGINS.md.
 
 from __future__ import annotations
 
-from .base import AEMethod, bayer_gray
+from .base import AEMethod, CameraSetting, bayer_gray
 from .classical import ClassicalAE, ConstantExposure, FixAE, classical_step_ms
 from .loop import (
     DEFAULT_INIT_EXPOSURE_US,
@@ -45,7 +45,8 @@ from .registry import (
 from .runner import LoopConfig, RunSummary, run_methods
 
 __all__ = ["BUILTIN_METHODS", "DEFAULT_INIT_EXPOSURE_US", "DEFAULT_MAX_EXPOSURE_US", "DEFAULT_MIN_EXPOSURE_US",
-           "ENTRY_POINT_GROUP", "PAPER_METHODS", "AEMethod", "ClassicalAE", "ConstantExposure", "FixAE", "Frame",
+           "ENTRY_POINT_GROUP", "PAPER_METHODS", "AEMethod", "CameraSetting", "ClassicalAE", "ConstantExposure",
+           "FixAE", "Frame",
            "LoopConfig", "MethodRun", "MethodSpec", "RunSummary", "Step", "bayer_gray", "classical_step_ms",
            "expand_methods",
            "get_method", "iter_loop", "load_plugin", "parse_method_options", "resolve_methods", "run_loop",

@@ -8,7 +8,12 @@ An AE method is any object with::
 
 ``image`` is the emulated raw RGGB Bayer mosaic (np.ndarray uint16 HxW, 12-bit codes 0..4095) that the camera
 would have delivered at ``exposure_us`` (the exposure the method chose at the previous step, after the runner's
-bounds). The return value is the exposure (us) for the next frame; the runner clamps it to its bounds.
+bounds; with gain, the exposure-equivalent: exposure x linear gain). The return value is the exposure (us) for the
+next frame; the runner clamps it to its bounds. Beyond the longest bracket the camera takes the longest bracket's
+exposure and the rest as analog gain (the emulator's ``beyond="gain"``). A method that sets the gain itself returns
+a :class:`CameraSetting` (exposure us, gain dB) instead: the runner clamps the exposure to its bounds and the gain to
+[0, ``max_gain_db``], and the image is the camera's at that exposure amplified by that gain (the sensor's noise at
+that gain; ``exposure_us`` of the next call is then exposure x gain).
 
 ``meta`` (a plain dict, read-only for methods) holds at least:
     step (int, 0-based), timestamp_ns (int, timestamp of the frame), side ("left"/"right"),
@@ -16,7 +21,9 @@ bounds). The return value is the exposure (us) for the next frame; the runner cl
     uses: methods that synthesise images with the CRF use the same curve), source_exposure_us (int, the bracket
     the image was emulated from), bounds_us ((min_us, max_us), the runner's exposure bounds),
     shared_gray (:class:`SharedGray` of this image: the runner shares gray conversions between the methods that see
-    the same image; methods read it through :func:`gray_for` / :func:`work_gray_for`, which compute when absent).
+    the same image; methods read it through :func:`gray_for` / :func:`work_gray_for`, which compute when absent),
+    gain_db (float, the analog gain the image was taken with) and camera_exposure_us (float, its exposure:
+    ``exposure_us`` / 10^(gain_db / 20)).
 
 Optional attributes: ``init_exposure_us`` (the method's own first exposure, us), and the scheduling hints
 ``step_cost``, ``step_group``, ``created_in_worker`` (see :class:`.registry.MethodTraits` and PLUGINS.md).
@@ -24,13 +31,26 @@ Optional attributes: ``init_exposure_us`` (the method's own first exposure, us),
 
 from __future__ import annotations
 
-from typing import Any, Protocol, runtime_checkable
+from typing import Any, NamedTuple, Protocol, runtime_checkable
 
 import cv2
 import numpy as np
 
 #: 12-bit full scale used by the authors' brightness targets (T = int(P / 100 * 4096)).
 FULL_SCALE_12BIT = 4096
+
+
+class CameraSetting(NamedTuple):
+    """What a method that sets the gain itself returns from ``next_exposure_us``: the camera's exposure (us) and
+    analog gain (dB, >= 0) for the next frame (module docstring)."""
+
+    exposure_us: float
+    gain_db: float
+
+
+def gain_exposure_us(target_us: float, gain_db: float | None) -> float:
+    """The camera exposure (us) of an exposure-equivalent ``target_us`` taken with ``gain_db`` (None: no gain)."""
+    return target_us if gain_db is None else target_us / float(10.0 ** (gain_db / 20.0))
 
 
 @runtime_checkable
@@ -42,8 +62,10 @@ class AEMethod(Protocol):
     def reset(self, init_exposure_us: float) -> None:
         """Forget all state; the first image will be taken at ``init_exposure_us``."""
 
-    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
-        """Exposure (us) of the next frame from the current image (uint16 HxW Bayer) taken at ``exposure_us``."""
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float,
+                         meta: dict[str, Any]) -> float | CameraSetting:
+        """Exposure (us) of the next frame from the current image (uint16 HxW Bayer) taken at ``exposure_us``, or
+        the camera's exposure and gain (:class:`CameraSetting`)."""
 
 
 def bayer_gray(image: np.ndarray) -> np.ndarray:

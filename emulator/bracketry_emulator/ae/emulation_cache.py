@@ -15,7 +15,7 @@ import numpy as np
 
 from ..emulation import EmulatedImage, Emulator, EmulatorConfig
 from ..emulation.selection import SatCount, saturation_fraction
-from .base import SharedGray
+from .base import SharedGray, gain_exposure_us
 
 
 class _SaturationCachingEmulator(Emulator):
@@ -46,8 +46,8 @@ class EmulationCache:
 
     def __init__(self, config: EmulatorConfig) -> None:
         self.emulator = _SaturationCachingEmulator(config)
-        self._cache: dict[tuple[int, str, float], EmulatedImage] = {}
-        self._gray: dict[tuple[int, str, float], SharedGray] = {}
+        self._cache: dict[tuple[int, str, float, float | None], EmulatedImage] = {}
+        self._gray: dict[tuple[int, str, float, float | None], SharedGray] = {}
         self._source: dict[tuple[int, float], int] = {}
 
     def clear(self) -> None:
@@ -69,19 +69,22 @@ class EmulationCache:
         return hit
 
     def stereo(self, seq_index: int, brackets: dict[str, dict[int, np.ndarray]], target_us: float,
-               ae_camera: str, times_ns: Mapping[str, Mapping[int, int]] | None = None) -> dict[str, EmulatedImage]:
+               ae_camera: str, times_ns: Mapping[str, Mapping[int, int]] | None = None,
+               gain_db: float | None = None) -> dict[str, EmulatedImage]:
         """Every side of ``brackets`` ({side: {exposure_us: uint16 HxW}}: the sequence's brackets; only those
         :func:`needed_brackets` names are read) emulated at ``target_us``, all from ONE source bracket (one stereo
         capture). With ``parity`` upstream, ``ae_camera`` alone decides the source, as the authors' left emulator
         does (their right emulator decides on its own, which the joint decision corrects). ``times_ns``: {side:
-        {exposure_us: mid-exposure stamp ns}} of the brackets, for the emulator's motion blur."""
+        {exposure_us: mid-exposure stamp ns}} of the brackets, for the emulator's motion blur. ``gain_db``: the gain a
+        method set (:meth:`Emulator.emulate`): the source is then chosen for the camera's exposure."""
         cfg = self.emulator.config
-        needed = needed_brackets(tuple(next(iter(brackets.values()))), target_us, cfg.selection)
+        chosen_for = gain_exposure_us(target_us, gain_db)
+        needed = needed_brackets(tuple(next(iter(brackets.values()))), chosen_for, cfg.selection)
         subsets = {side: {e: frames[e] for e in needed} for side, frames in brackets.items()}
         decide = (ae_camera,) if cfg.parity == "upstream" else None
-        source = self.source(seq_index, subsets, target_us, decide)
+        source = self.source(seq_index, subsets, chosen_for, decide)
         return {side: self.emulate(seq_index, side, subsets[side], target_us, source,
-                                   None if times_ns is None else times_ns.get(side)) for side in subsets}
+                                   None if times_ns is None else times_ns.get(side), gain_db) for side in subsets}
 
     def ae_choice(self, ae_camera: str) -> Callable[[dict[int, np.ndarray], float], int]:
         """``(ae_images, target_us) -> source bracket (us)``: the decision :meth:`stereo` takes with ``parity``
@@ -95,18 +98,20 @@ class EmulationCache:
         return choose
 
     def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float,
-                source_us: int | None = None, times_ns: Mapping[int, int] | None = None) -> EmulatedImage:
-        """:meth:`Emulator.emulate` of one side's brackets ``{exposure_us: uint16 HxW}``, cached per target."""
-        key = (seq_index, side, float(target_us))
+                source_us: int | None = None, times_ns: Mapping[int, int] | None = None,
+                gain_db: float | None = None) -> EmulatedImage:
+        """:meth:`Emulator.emulate` of one side's brackets ``{exposure_us: uint16 HxW}``, cached per target (and
+        gain a method set)."""
+        key = (seq_index, side, float(target_us), gain_db)
         hit = self._cache.get(key)
         if hit is None:
-            hit = self.emulator.emulate(images, target_us, source_us, times_ns)
+            hit = self.emulator.emulate(images, target_us, source_us, times_ns, gain_db)
             self._cache[key] = hit
         return hit
 
-    def shared_gray(self, seq_index: int, side: str, target_us: float) -> SharedGray:
+    def shared_gray(self, seq_index: int, side: str, target_us: float, gain_db: float | None = None) -> SharedGray:
         """The gray-conversion memo of an image emulated by :meth:`emulate` (shared by the methods that see it)."""
-        key = (seq_index, side, float(target_us))
+        key = (seq_index, side, float(target_us), gain_db)
         shared = self._gray.get(key)
         if shared is None:
             shared = self._gray[key] = SharedGray(self._cache[key].image)

@@ -6,7 +6,10 @@ Python API::
     steps = run_loop(method, sequences, lambda seq, target_us: Frame(emulated_uint16, seq.ts_ns, source_us))
 
 At step k the method's current target exposure is emulated from ``sequences[k]`` (``emulate``), the method sees
-that image and returns the next target, which is clamped to ``[min_exposure_us, max_exposure_us]``. The first
+that image and returns the next target, which is clamped to ``[min_exposure_us, max_exposure_us]``. A method that
+sets the gain itself returns a :class:`~.base.CameraSetting`: its exposure is clamped to the same bounds, its gain to
+``[0, max_gain_db]``, the next target is exposure x gain and ``emulate`` gets that gain too
+(``emulate(sequence, target_us, gain_db)``; a method that returns exposures only never makes that call). The first
 target is ``init_exposure_us``, or the method's own ``init_exposure_us`` attribute when it declares one
 (``constant-<ms>``). With ``warmup_steps`` = n > 0 the method first takes n steps on the first sequence's view
 (``warmup(target_us) -> Frame``, images not recorded, no :class:`Step` yielded): the walk then begins with a camera
@@ -28,8 +31,8 @@ import numpy as np
 
 from bracketry.errors import BracketryError
 
-from ..defaults import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US
-from .base import AEMethod
+from ..defaults import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MAX_GAIN_DB, DEFAULT_MIN_EXPOSURE_US
+from .base import AEMethod, gain_exposure_us
 
 S = TypeVar("S")
 
@@ -71,6 +74,8 @@ class Step:
         ae_s: float, wall time of the method's ``next_exposure_us`` call (s; the only non-deterministic field).
         gain_db: float, the analog gain the step's image stands for (dB): the camera's exposure was
             ``exposure_us / 10**(gain_db / 20)``.
+        next_gain_db: float | None, the gain the method set for the next step (dB, after clamping;
+            ``next_exposure_us`` is then exposure x gain); None: it returned an exposure only.
     """
 
     step: int
@@ -81,6 +86,13 @@ class Step:
     source_exposure_us: int
     ae_s: float
     gain_db: float = 0.0
+    next_gain_db: float | None = None
+
+    @property
+    def next_camera_exposure_us(self) -> float:
+        """The exposure (us) the next step's camera takes when the method set the gain (``next_exposure_us`` /
+        10^(next_gain_db / 20)); else ``next_exposure_us`` (the emulator splits it)."""
+        return gain_exposure_us(self.next_exposure_us, self.next_gain_db)
 
 
 def initial_exposure_us(method: AEMethod, default_us: float = DEFAULT_INIT_EXPOSURE_US) -> float:
@@ -88,71 +100,86 @@ def initial_exposure_us(method: AEMethod, default_us: float = DEFAULT_INIT_EXPOS
     return float(getattr(method, "init_exposure_us", None) or default_us)
 
 
-def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, float], Frame], *,
+def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[..., Frame], *,
               init_exposure_us: float = DEFAULT_INIT_EXPOSURE_US,
               min_exposure_us: float = DEFAULT_MIN_EXPOSURE_US, max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US,
               name: str | None = None, start: int = 0, warmup_steps: int = 0,
-              warmup: Callable[[float], Frame] | None = None) -> Iterator[Step]:
+              warmup: Callable[..., Frame] | None = None,
+              max_gain_db: float = DEFAULT_MAX_GAIN_DB) -> Iterator[Step]:
     """The closed loop of ``method`` over ``sequences``, one :class:`Step` per sequence, lazily.
 
     ``emulate(sequence, target_us) -> Frame`` gives the image the camera would deliver at ``target_us``; it is
-    called once per step, before the method. The method is ``reset`` to its first target (see
-    :func:`initial_exposure_us`). Its ``meta`` holds ``step``, ``timestamp_ns``, ``sequence_index``,
-    ``source_exposure_us``, ``bounds_us`` and the frame's own ``meta`` entries. ``name`` (default: the method's
+    called once per step, before the method (``emulate(sequence, target_us, gain_db)`` after a method set the gain,
+    see the module docstring). The method is ``reset`` to its first target (see :func:`initial_exposure_us`). Its
+    ``meta`` holds ``step``, ``timestamp_ns``, ``sequence_index``, ``source_exposure_us``, ``bounds_us``,
+    ``gain_db``, ``camera_exposure_us`` and the frame's own ``meta`` entries. ``name`` (default: the method's
     ``name``) is used in error messages; ``start`` numbers the first step. ``warmup_steps`` > 0 needs ``warmup``:
-    the first sequence's image at a target (those calls' ``meta`` have ``warmup`` True and negative ``step``).
+    the first sequence's image at a target (called as ``emulate`` is, without the sequence; those calls' ``meta``
+    have ``warmup`` True and negative ``step``).
 
-    Raises BracketryError (one line) when the method raises or returns a non-finite exposure.
+    Raises BracketryError (one line) when the method raises or returns a non-finite exposure or gain.
     """
     label = name or getattr(method, "name", "?")
     target = initial_exposure_us(method, init_exposure_us)
+    gain: float | None = None  # the gain the method set (dB); None: it sets exposures only
     method.reset(target)
     bounds = (min_exposure_us, max_exposure_us)
     if warmup_steps > 0 and warmup is None:
         raise ValueError("warmup_steps > 0 needs a warmup function (the first view at a target)")
 
-    def answer(frame: Frame, target_us: float, k: int, extra: dict[str, Any]) -> tuple[float, float]:
+    def answer(frame: Frame, target_us: float, k: int, extra: dict[str, Any]) -> tuple[float, float | None, float]:
         meta = {"step": k, "timestamp_ns": frame.timestamp_ns, "sequence_index": frame.sequence_index,
-                "source_exposure_us": frame.source_exposure_us, "bounds_us": bounds, **frame.meta, **extra}
+                "source_exposure_us": frame.source_exposure_us, "bounds_us": bounds, "gain_db": frame.gain_db,
+                "camera_exposure_us": gain_exposure_us(target_us, frame.gain_db), **frame.meta, **extra}
         t0 = time.perf_counter()
         try:
-            nxt = float(method.next_exposure_us(frame.image, target_us, meta))
+            raw = method.next_exposure_us(frame.image, target_us, meta)
+            exposure, asked = (float(raw[0]), float(raw[1])) if isinstance(raw, tuple) else (float(raw), None)
         except BracketryError:
             raise
         except Exception as exc:
             raise BracketryError(f"AE method {label} failed at step {k}: {type(exc).__name__}: {exc}") from exc
         ae_s = time.perf_counter() - t0
-        if not np.isfinite(nxt):
+        if not np.isfinite(exposure):
             raise BracketryError(f"AE method {label} returned a non-finite exposure at step {k}")
-        return float(np.clip(nxt, min_exposure_us, max_exposure_us)), ae_s
+        if asked is not None and not np.isfinite(asked):
+            raise BracketryError(f"AE method {label} returned a non-finite gain at step {k}")
+        exposure = float(np.clip(exposure, min_exposure_us, max_exposure_us))
+        if asked is None:
+            return exposure, None, ae_s
+        asked = float(np.clip(asked, 0.0, max_gain_db))
+        return exposure * float(10.0 ** (asked / 20.0)), asked, ae_s
+
+    def take(shoot: Callable[..., Frame], *args: Any) -> Frame:
+        return shoot(*args, target) if gain is None else shoot(*args, target, gain)
 
     it = iter(sequences)
     if warmup_steps > 0:
         assert warmup is not None
         for w in range(warmup_steps):  # on the first view, before the walk: nothing recorded
-            target, _ = answer(warmup(target), target, start - warmup_steps + w, {"warmup": True})
+            target, gain, _ = answer(take(warmup), target, start - warmup_steps + w, {"warmup": True})
     for k, seq in enumerate(it, start):
-        frame = emulate(seq, target)
-        nxt, ae_s = answer(frame, target, k, {})
+        frame = take(emulate, seq)
+        nxt, nxt_gain, ae_s = answer(frame, target, k, {})
         yield Step(k, frame.sequence_index, frame.timestamp_ns, target, nxt, frame.source_exposure_us, ae_s,
-                   frame.gain_db)
-        target = nxt
+                   frame.gain_db, nxt_gain)
+        target, gain = nxt, nxt_gain
 
 
-def run_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[[S, float], Frame], *,
+def run_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[..., Frame], *,
              init_exposure_us: float = DEFAULT_INIT_EXPOSURE_US, min_exposure_us: float = DEFAULT_MIN_EXPOSURE_US,
              max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US, name: str | None = None,
-             warmup_steps: int = 0) -> list[Step]:
+             warmup_steps: int = 0, max_gain_db: float = DEFAULT_MAX_GAIN_DB) -> list[Step]:
     """Every :class:`Step` of ``method`` over ``sequences`` (see :func:`iter_loop`; the warm-up, if any, on the
     first sequence through ``emulate``)."""
     seqs = list(sequences)
 
-    def first_view(target_us: float) -> Frame:
-        return emulate(seqs[0], target_us)
+    def first_view(*request: float) -> Frame:
+        return emulate(seqs[0], *request)
 
     return list(iter_loop(method, seqs, emulate, init_exposure_us=init_exposure_us,
                           min_exposure_us=min_exposure_us, max_exposure_us=max_exposure_us, name=name,
-                          warmup_steps=warmup_steps if seqs else 0, warmup=first_view))
+                          warmup_steps=warmup_steps if seqs else 0, warmup=first_view, max_gain_db=max_gain_db))
 
 
 @dataclass

@@ -143,6 +143,7 @@ class Worker:
         self.source = FrameSource(frames, sequences, s.emulate_sides, strategy, self.emu.ae_choice(s.ae_camera),
                                   reader)
         self.sink = ImageSink(write_threads if s.write_images else 0, stages=self.stages)
+        #: each method's next camera exposure (us): what its next step's source bracket is chosen for
         self.targets: dict[str, float] = {}
         self.runs: dict[str, MethodRun] = {}
         self.writers: dict[str, RunWriter] = {}
@@ -191,9 +192,9 @@ class Worker:
                 for spec, loop in self._loops.items():
                     step = next(loop)
                     self.runs[spec].steps.append(step)
-                    self.targets[spec] = step.next_exposure_us
+                    self.targets[spec] = step.next_camera_exposure_us
                     if nxt is not None:
-                        self.source.prefetch(pos + 1, nxt, step.next_exposure_us)
+                        self.source.prefetch(pos + 1, nxt, step.next_camera_exposure_us)
                     progress(1)
         finally:
             self._brackets = {}
@@ -202,31 +203,32 @@ class Worker:
         self.emu.clear()
         self._ahead_emu.clear()
 
-    def _emulate(self, spec: str, seq_i: int, target_us: float, record: bool = True) -> Frame:
-        """The ``emulate`` of method ``spec``'s loop: the AE camera's image of the current sequence at ``target_us``.
-        Every side is emulated and, before the method sees the image, written to the method's run (one step =
-        one stereo capture; not with ``record`` False: a warm-up step)."""
+    def _emulate(self, spec: str, seq_i: int, target_us: float, gain_db: float | None = None,
+                 record: bool = True) -> Frame:
+        """The ``emulate`` of method ``spec``'s loop: the AE camera's image of the current sequence at ``target_us``
+        (with ``gain_db``: the gain the method set). Every side is emulated and, before the method sees the image,
+        written to the method's run (one step = one stereo capture; not with ``record`` False: a warm-up step)."""
         if seq_i != self._seq_i:
             raise RuntimeError(f"a method's loop asked for sequence {seq_i} while {self._seq_i} is loaded")
         s = self.settings
         seq = self.sequences[seq_i]
         with self.stages.time("emulation"):
-            images = self.emu.stereo(seq_i, self._brackets, target_us, s.ae_camera, seq.timestamps_ns)
+            images = self.emu.stereo(seq_i, self._brackets, target_us, s.ae_camera, seq.timestamps_ns, gain_db)
         if record:
             self.writers[spec].write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
             for feed in self.feeds.get(spec, ()):
                 feed.write_step(seq_i, seq, {side: images[side] for side in s.write_sides}, target_us)
         ae_img = images[s.ae_camera]
         meta: dict[str, Any] = {"side": s.ae_camera, "response": self.emu.emulator.response,
-                                "shared_gray": self.emu.shared_gray(seq_i, s.ae_camera, target_us)}
+                                "shared_gray": self.emu.shared_gray(seq_i, s.ae_camera, target_us, gain_db)}
         if spec in self._looking_ahead:
             meta["look_ahead"] = self._look_ahead
         return Frame(ae_img.image, seq.timestamps_ns[s.ae_camera][ae_img.source_exposure_us],
                      ae_img.source_exposure_us, seq.index, meta, ae_img.gain_db)
 
-    def _first_view(self, spec: str, target_us: float) -> Frame:
-        """A warm-up step's image: the first sequence (loaded) at ``target_us``, not written."""
-        return self._emulate(spec, self._seq_i, target_us, record=False)
+    def _first_view(self, spec: str, target_us: float, gain_db: float | None = None) -> Frame:
+        """A warm-up step's image: the first sequence (loaded) at ``target_us`` (and ``gain_db``), not written."""
+        return self._emulate(spec, self._seq_i, target_us, gain_db, record=False)
 
     def _look_ahead(self, target_us: float, offset: int) -> np.ndarray | None:
         """The AE camera's image (uint16 HxW, read-only) at ``target_us`` of the current sequence (``offset`` 0) or

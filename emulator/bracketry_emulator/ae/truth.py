@@ -101,35 +101,39 @@ class TruthCache(EmulationCache):
         return self.start_s + (t_ns - self.t0_ns) * 1e-9 - 0.5 * exposure_us * 1e-6
 
     def emulate(self, seq_index: int, side: str, images: dict[int, np.ndarray], target_us: float,
-                source_us: int | None = None, times_ns: Mapping[int, int] | None = None) -> EmulatedImage:
+                source_us: int | None = None, times_ns: Mapping[int, int] | None = None,
+                gain_db: float | None = None) -> EmulatedImage:
         """The world's render of ``side`` at ``target_us`` from the trigger of the step's frame (the source bracket,
-        ``source_us`` or the emulator's own choice); needs ``times_ns`` ({exposure_us: stamp ns})."""
-        key = (seq_index, side, float(target_us))
+        ``source_us`` or the emulator's own choice); needs ``times_ns`` ({exposure_us: stamp ns}). ``gain_db``: the
+        gain a method set: the camera's exposure rendered and amplified by it, as beyond the longest bracket."""
+        key = (seq_index, side, float(target_us), gain_db)
         hit = self._cache.get(key)
         if hit is None:
             if times_ns is None:
                 raise BracketryError("a truth image needs the frames' timestamps")
-            source = int(source_us) if source_us is not None else self.emulator.select(images, target_us)
+            exposure_us, gain = self.emulator.exposure_and_gain(images, float(target_us), gain_db)
+            chosen_for = float(target_us) if gain_db is None else exposure_us
+            source = int(source_us) if source_us is not None else self.emulator.select(images, chosen_for)
             t_s = self.trigger_s(int(times_ns[source]), float(source))
             if not self.effects["instant"]:  # centred on the source's stamp, as the emulated image's content
-                t_s = self.trigger_s(int(times_ns[source]), float(target_us))
-            exposure_us, gain = self.emulator.exposure_and_gain(images, float(target_us))
-            image = self._render(side, t_s, float(target_us), max(images),
-                                 full_exposure=exposure_us >= float(target_us))
+                t_s = self.trigger_s(int(times_ns[source]), exposure_us)
+            image = self._render(side, t_s, float(target_us), max(images), exposure_us)
             hit = self._cache[key] = EmulatedImage(image, float(target_us), source, float(target_us) / source,
                                                    "truth", (source,), exposure_us,
                                                    float(20.0 * np.log10(gain)) if gain > 0 else 0.0)
         return hit
 
-    def _render(self, side: str, t_s: float, target_us: float, longest_us: float,
-                full_exposure: bool = True) -> np.ndarray:
-        """The world's frame (uint16 codes) triggered at ``t_s`` with the effects of :attr:`effects`;
-        ``full_exposure`` False: beyond the longest bracket the camera takes gain (module docstring)."""
+    def _render(self, side: str, t_s: float, target_us: float, longest_us: float, exposure_us: float) -> np.ndarray:
+        """The world's frame (uint16 codes) triggered at ``t_s`` with the effects of :attr:`effects`, for
+        ``target_us`` taken as ``exposure_us`` plus analog gain (module docstring); with the ``exposure`` effect off,
+        beyond the longest bracket at most that bracket's exposure."""
         noise = self.effects["noise"]
-        if target_us <= longest_us or (full_exposure and self.effects["exposure"]):
+        if not self.effects["exposure"] and target_us > longest_us:
+            exposure_us = min(exposure_us, longest_us)
+        if exposure_us >= target_us:
             return self.world.render(side, t_s, target_us, noise=noise)
-        # the longest bracket's exposure (its noise, its blur) amplified to the target: what beyond="gain" emulates
-        raw = self.world.render(side, t_s, longest_us, rng=self.world.frame_rng(side, t_s, target_us), noise=noise)
+        # the camera's exposure (its noise, its blur) amplified to the target: what the gain emulation does
+        raw = self.world.render(side, t_s, exposure_us, rng=self.world.frame_rng(side, t_s, target_us), noise=noise)
         response = self.emulator.response
-        linear = response.icrf[raw].astype(np.float64) * (target_us / longest_us)
+        linear = response.icrf[raw].astype(np.float64) * (target_us / exposure_us)
         return response.encode(linear, self.emulator.rounding)

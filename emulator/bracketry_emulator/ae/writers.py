@@ -38,8 +38,8 @@ class ImageSink:
         self.pool = ThreadPoolExecutor(threads, thread_name_prefix="bracketry-png") if threads > 0 else None
         self.max_pending = max(1, max_pending)
         self.pending: deque[Future[None]] = deque()
-        #: (sequence index, side, target us) -> (path, its write) of every image written by this worker
-        self.written: dict[tuple[int, str, float], tuple[Path, Future[None] | None]] = {}
+        #: (sequence index, side, target us, gain dB) -> (path, its write) of every image written by this worker
+        self.written: dict[tuple[int, str, float, float], tuple[Path, Future[None] | None]] = {}
 
     def submit(self, fn: Callable[..., None], *args: Any) -> Future[None] | None:
         if self.stages is not None:
@@ -73,8 +73,8 @@ class ImageSink:
 class LinkingRunWriter(RunWriter):
     """:class:`RunWriter` (same layout, same decoded pixels) that shares images between the methods of a run:
 
-    - an image identical to one already written by another method of the same worker (same sequence, side and
-      target exposure, so the same emulated pixels) becomes a hard link to that file instead of a second encoding
+    - an image identical to one already written by another method of the same worker (same sequence, side, target
+      exposure and gain, so the same emulated pixels) becomes a hard link to that file instead of a second encoding
       (falls back to writing when the file system refuses links). Treat run outputs as read-only.
     - images are encoded on the worker's :class:`ImageSink` threads; :meth:`close` waits for them.
     """
@@ -85,8 +85,9 @@ class LinkingRunWriter(RunWriter):
                          mode=mode, images=images)
         self._sink = sink
 
-    def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:
-        """Hard-link the image when another method already wrote the same (sequence, side, target); else write it."""
+    def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float, float]) -> None:
+        """Hard-link the image when another method already wrote the same (sequence, side, target, gain); else write
+        it."""
         src = self._sink.written.get(key)
         if src is not None and src[0] != path:
             self._sink.submit(self._link, src, path, em, key)
@@ -95,7 +96,7 @@ class LinkingRunWriter(RunWriter):
         self._sink.written[key] = (path, fut)
 
     def _link(self, src: tuple[Path, Future[None] | None], path: Path, em: EmulatedImage,
-              key: tuple[int, str, float]) -> None:
+              key: tuple[int, str, float, float]) -> None:
         """Runs on a sink thread: the source write was submitted earlier (FIFO), so it is running or done."""
         if src[1] is not None:
             src[1].result()

@@ -233,12 +233,15 @@ class Emulator:
         return select_highernosat(exps, target_us, fractions, self.config.alpha)
 
     def emulate(self, images: dict[int, np.ndarray], target_us: float, source_us: int | None = None,
-                times_ns: Mapping[int, int] | None = None) -> EmulatedImage:
+                times_ns: Mapping[int, int] | None = None, gain_db: float | None = None) -> EmulatedImage:
         """Emulate the image at ``target_us`` from ``{exposure_us: uint16 HxW Bayer codes}`` (one sequence).
 
         ``source_us``: the source bracket (fusion: the reference bracket) decided by the caller, e.g. once for both
         cameras by :meth:`select_stereo`; None = this camera's own selection. ``times_ns``: {exposure_us:
-        mid-exposure stamp (ns)} of the brackets, for ``blur`` (without it no blur is emulated).
+        mid-exposure stamp (ns)} of the brackets, for ``blur`` (without it no blur is emulated). ``gain_db``: the analog
+        gain the camera takes for ``target_us`` (an exposure-equivalent: the camera exposes ``target_us`` /
+        10^(gain_db / 20)), as a method that asks for gain sets it; the source is chosen for that exposure and the
+        image amplified by the gain with the sensor's noise (:meth:`exposure_and_gain`). None: the emulator's own split.
         Do not modify the bracket arrays in place between calls (fusion caches its irradiance map per array set).
         Raises BracketryError for no brackets, a non-positive target, mismatched image shapes or a ``source_us``
         that is not among the brackets.
@@ -252,12 +255,13 @@ class Emulator:
         if source_us is not None and source_us not in images:
             raise BracketryError(f"source bracket {source_us} us is not among the brackets {sorted(images)}")
         if self.config.selection == "fusion" and len(images) >= 2:
-            return self._emulate_fusion(images, target_us, source_us, times_ns)
+            return self._emulate_fusion(images, target_us, source_us, times_ns, gain_db)
+        exposure_us, gain = self.exposure_and_gain(images, target_us, gain_db)
         if source_us is not None:
             source = int(source_us)
         else:
-            source = self.select(images, target_us) if len(images) > 1 else next(iter(images))
-        exposure_us, gain = self.exposure_and_gain(images, target_us)
+            chosen_for = target_us if gain_db is None else exposure_us
+            source = self.select(images, chosen_for) if len(images) > 1 else next(iter(images))
         factor = exposure_us / source
         total = factor * gain
         src = images[source]
@@ -280,13 +284,18 @@ class Emulator:
         return EmulatedImage(image, float(target_us), int(source), float(total), self.config.selection, (int(source),),
                              float(exposure_us), _db(gain))
 
-    def exposure_and_gain(self, images: dict[int, np.ndarray], target_us: float) -> tuple[float, float]:
+    def exposure_and_gain(self, images: dict[int, np.ndarray], target_us: float,
+                          gain_db: float | None = None) -> tuple[float, float]:
         """(camera exposure us, linear analog gain) that stand for ``target_us``: beyond the longest bracket with
-        ``beyond="gain"``, the longest bracket's exposure and the rest as gain; times the configured gain."""
+        ``beyond="gain"``, the longest bracket's exposure and the rest as gain; times the configured gain. With
+        ``gain_db`` (a method's own request, >= 0): ``target_us`` / 10^(gain_db / 20) and that gain (and beyond the
+        longest bracket, under ``beyond="gain"``, the rest as more gain)."""
         longest = max(images)
-        if self.config.beyond == "gain" and target_us > longest:
+        asked = 1.0 if gain_db is None else float(10.0 ** (float(gain_db) / 20.0))
+        exposure = target_us / asked
+        if self.config.beyond == "gain" and exposure > longest:
             return float(longest), self.gain * target_us / longest
-        return float(target_us), self.gain
+        return float(exposure), self.gain * asked
 
     def _velocity(self, images: dict[int, np.ndarray], source: int, times_ns: Mapping[int, int] | None
                   ) -> Velocity | None:
@@ -334,9 +343,11 @@ class Emulator:
         return np.maximum(target_var - have, 0.0)
 
     def _emulate_fusion(self, images: dict[int, np.ndarray], target_us: float, ref_us: int | None = None,
-                        times_ns: Mapping[int, int] | None = None) -> EmulatedImage:
-        ref = int(ref_us) if ref_us is not None else self.select(images, target_us)
-        used = fusion_brackets(list(images), target_us, self.config.fusion_brackets)
+                        times_ns: Mapping[int, int] | None = None, gain_db: float | None = None) -> EmulatedImage:
+        exposure_us, g = self.exposure_and_gain(images, target_us, gain_db)
+        chosen_for = target_us if gain_db is None else exposure_us  # the brackets of the camera's own exposure
+        ref = int(ref_us) if ref_us is not None else self.select(images, chosen_for)
+        used = fusion_brackets(list(images), chosen_for, self.config.fusion_brackets)
         key = tuple(images[e] for e in sorted({*used, ref}))
         result = None
         for arrays, cached_ref, cached in self._fusion_cache:
@@ -344,12 +355,11 @@ class Emulator:
                 result = cached
                 break
         if result is None:
-            result = fuse(images, target_us, self.response, self.config.noise, reference_us=ref,
+            result = fuse(images, chosen_for, self.response, self.config.noise, reference_us=ref,
                           brackets=self.config.fusion_brackets, motion=self.config.motion,
                           deghost_sigma=self.config.deghost_sigma)
             self._fusion_cache.append((key, ref, result))
             del self._fusion_cache[:-4]
-        exposure_us, g = self.exposure_and_gain(images, target_us)
         irradiance = result.irradiance
         velocity = self._velocity(images, ref, times_ns) if exposure_us > ref else None
         if velocity is not None:

@@ -110,12 +110,12 @@ class RunWriter:
         """Where the image of ``side`` named by ``timestamp_ns`` goes."""
         return self.root / f"images_{side}" / f"{timestamp_ns}.png"
 
-    def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float]) -> None:
+    def write_image(self, path: Path, em: EmulatedImage, key: tuple[int, str, float, float]) -> None:
         """Write one emulated image as a lossless PNG (``png_compression``, see the module docstring).
 
-        ``key`` = (sequence index, side, target exposure us) identifies the image's content, for subclasses that
-        share identical images between runs (hard links) instead of writing them again. A file already at ``path``
-        is replaced, never written through (it may be a hard link of an earlier run)."""
+        ``key`` = (sequence index, side, target exposure us, gain dB) identifies the image's content, for subclasses
+        that share identical images between runs (hard links) instead of writing them again. A file already at
+        ``path`` is replaced, never written through (it may be a hard link of an earlier run)."""
         if path.is_file():
             path.unlink()
         try:
@@ -138,7 +138,8 @@ class RunWriter:
                                  f"{sorted(sources)} us (one source bracket per stereo step)")
         ts = seq.timestamps_ns[self.sides[0]][em.source_exposure_us]
         for side in self.sides if self.images else ():
-            self.write_image(self.image_path(side, ts), side_images[side], (seq.index, side, float(target_us)))
+            self.write_image(self.image_path(side, ts), side_images[side],
+                             (seq.index, side, float(target_us), float(side_images[side].gain_db)))
             self._times[side].write(f"{ts} {ts} {target_us / 1000.0:.6f}\n")
         self._steps.writerow([step, ts, f"{target_us / 1000.0:.6f}", f"{em.source_exposure_us / 1000.0:.6f}",
                               f"{em.factor:.6f}", em.selection, self.mode, f"{em.camera_exposure_us / 1000.0:.6f}",

@@ -9,6 +9,7 @@ import pytest
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.ae import ConstantExposure, Frame, run_loop
+from bracketry_emulator.ae.base import CameraSetting
 from bracketry_emulator.ae.registry import MethodTraits, method_traits
 
 
@@ -64,7 +65,68 @@ def test_method_sees_the_image_emulated_at_the_exposure_it_asked_for() -> None:
     # the answer 8192 us at step 2 was clamped to the upper bound before it became the next target
     meta = method.seen[2][2]
     assert meta == {"step": 2, "timestamp_ns": 2_000_000, "sequence_index": 2, "source_exposure_us": 2000,
-                    "bounds_us": (100.0, 6000.0), "side": "left"}
+                    "bounds_us": (100.0, 6000.0), "side": "left", "gain_db": 0.0, "camera_exposure_us": 4096.0}
+    assert all(s.next_gain_db is None for s in steps)  # it sets exposures only: emulate never got a gain
+
+
+class _GainFirst:
+    """Sets the gain itself: keeps the exposure at 2 ms and brings the mean to 2048 DN with gain (then clamped)."""
+
+    name = "gain-first"
+
+    def __init__(self) -> None:
+        self.seen: list[tuple[float, dict]] = []
+
+    def reset(self, init_exposure_us: float) -> None:
+        self.seen.clear()
+
+    def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> CameraSetting:
+        self.seen.append((exposure_us, dict(meta)))
+        wanted_us = exposure_us * 2048.0 / max(float(image.mean()), 1.0)
+        return CameraSetting(2000.0, 20.0 * float(np.log10(max(wanted_us / 2000.0, 1e-3))))
+
+
+def test_a_method_that_sets_the_gain_gets_exposure_times_gain() -> None:
+    """The answer (2 ms, g dB) becomes the target 2 ms x 10^(g / 20), emulated with that gain; the gain is clamped to
+    [0, max_gain_db] (a scene needing 4x gets 12 dB; one needing 64x gets the 24 dB bound, 16x)."""
+    calls: list[tuple[int, float, float | None]] = []
+
+    def emulate(seq: tuple[int, float], target_us: float, gain_db: float | None = None) -> Frame:
+        index, dn_per_us = seq
+        calls.append((index, target_us, gain_db))
+        image = np.full((4, 6), min(4095, round(dn_per_us * target_us)), np.uint16)
+        return Frame(image, index, 2000, index, {}, 0.0 if gain_db is None else gain_db)
+
+    # 2048 DN needs 4096 us at 0.5 DN/us (2 ms x 6.23 dB), 127 ms at 0.016 DN/us (2 ms x 36 dB: clamped to 24)
+    seqs = [(0, 0.5), (1, 0.5), (2, 0.016), (3, 0.016)]
+    method = _GainFirst()
+    steps = run_loop(method, seqs, emulate, init_exposure_us=1000.0, max_gain_db=24.0)
+    assert calls[0] == (0, 1000.0, None)  # the first target: an exposure (no answer yet)
+    assert calls[1][1] == pytest.approx(4096.0) and calls[1][2] == pytest.approx(6.2266, abs=1e-3)
+    assert steps[2].next_gain_db == 24.0 and steps[2].next_exposure_us == pytest.approx(2000.0 * 10 ** 1.2)
+    assert steps[2].next_camera_exposure_us == pytest.approx(2000.0)
+    assert calls[3] == (3, pytest.approx(2000.0 * 10 ** 1.2), 24.0)
+    # the method saw its image's gain and the camera's exposure in meta, and exposure x gain as exposure_us
+    exposure_us, meta = method.seen[3]
+    assert exposure_us == pytest.approx(2000.0 * 10 ** 1.2)
+    assert meta["gain_db"] == 24.0 and meta["camera_exposure_us"] == pytest.approx(2000.0)
+    assert [s.gain_db for s in steps] == [0.0, pytest.approx(6.2266, abs=1e-3), pytest.approx(6.2266, abs=1e-3),
+                                          24.0]
+
+
+def test_a_non_finite_gain_is_one_line() -> None:
+    class Bad:
+        name = "bad-gain"
+
+        def reset(self, init_exposure_us: float) -> None:
+            pass
+
+        def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> CameraSetting:
+            return CameraSetting(1000.0, float("nan"))
+
+    seqs, emulate, _ = _world([0.5])
+    with pytest.raises(BracketryError, match="returned a non-finite gain at step 0"):
+        run_loop(Bad(), seqs, emulate)
 
 
 @pytest.mark.parametrize("answer,words", [(float("nan"), "returned a non-finite exposure at step 0"),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 import re
 import sys
@@ -94,3 +95,50 @@ def test_the_documented_example_plugin_runs_in_closed_loop(tmp_path: Path, monke
     assert (out / "exposures.csv").read_text().splitlines()[0] == "step,timestamp_ns,ae50_ms,median40_ms"
     sys.modules.pop("my_ae.bright", None)
     sys.modules.pop("my_ae", None)
+
+
+GAIN_PLUGIN = textwrap.dedent('''
+    from bracketry_emulator.ae import CameraSetting
+
+
+    class QuarterAndGain:
+        """1 ms at 12 dB every frame (the exposure-equivalent 3.98 ms); records what it was told."""
+
+        name = "quarter-gain"
+
+        def reset(self, init_exposure_us):
+            self.seen = []
+
+        def next_exposure_us(self, image, exposure_us, meta):
+            self.seen.append((exposure_us, meta["gain_db"], meta["camera_exposure_us"]))
+            return CameraSetting(1000.0, 12.0)
+''')
+
+
+@pytest.mark.parametrize("workers", ["1", "2"])
+def test_a_plugin_that_sets_the_gain_runs_in_closed_loop(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                          workers: str) -> None:
+    """Through ``bracketry emulate`` (in-process and forked workers): after the first frame (4 ms), every step is
+    1 ms at 12 dB, emulated from the 1 ms bracket, recorded in ae.csv and steps.csv; the other method (ae50) in the
+    same run is unchanged by it."""
+    from bracketry.cli import main
+
+    (tmp_path / "gain_plugin_demo.py").write_text(GAIN_PLUGIN)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    rec = tiny_tree(tmp_path, 3)
+    out = tmp_path / "runs"
+    assert main(["emulate", str(rec), "--method", "ae50,gain_plugin_demo:QuarterAndGain", "--out", str(out),
+                 "-j", workers, "-q"]) == 0
+    with open(out / "quarter-gain" / "ae.csv") as f:
+        rows = list(csv.DictReader(f))
+    target_ms = 10 ** (12 / 20)  # 1 ms x 12 dB
+    assert [float(r["exposure_ms"]) for r in rows] == pytest.approx([4.0, target_ms, target_ms], rel=1e-5)
+    assert [float(r["gain_db"]) for r in rows] == pytest.approx([0.0, 12.0, 12.0])
+    assert [float(r["source_exposure_ms"]) for r in rows] == [4.0, 1.0, 1.0]
+    with open(out / "quarter-gain" / "steps.csv") as f:
+        steps = list(csv.DictReader(f))
+    assert [float(r["exposure_ms"]) for r in steps] == pytest.approx([4.0, 1.0, 1.0])
+    assert [float(r["gain_db"]) for r in steps] == pytest.approx([0.0, 12.0, 12.0])
+    with open(out / "ae50" / "ae.csv") as f:
+        assert all(float(r["gain_db"]) == 0.0 for r in csv.DictReader(f))
+    sys.modules.pop("gain_plugin_demo", None)

@@ -109,6 +109,29 @@ def test_the_truth_takes_gain_beyond_the_longest_bracket_as_the_emulated_camera(
     assert np.array_equal(within, cache.world.render("left", t, 4000.0))
 
 
+def test_the_truth_of_a_method_that_sets_the_gain_is_its_exposure_amplified(walk: Path, tmp_path: Path) -> None:
+    """A method that asked for 2 ms at 12 dB (4x: the target 8 ms, the longest bracket): the world's 2 ms frame (its
+    blur, its noise) amplified 4x, recorded as 2 ms and 12 dB; the same target without a gain request is the full
+    8 ms frame."""
+    stamp = json.loads((walk / "camera_model.json").read_text())["recording"]["t0_ns"] + 60_000_000
+    cache = TruthCache(EmulatorConfig(beyond="gain"), _variant(walk, tmp_path, {}))
+    images = {e: np.zeros((100, 160), np.uint16) for e in (1000, 2000, 4000, LONGEST_US)}
+    gain_db = 20 * np.log10(4.0)
+    target = float(LONGEST_US)
+    rec = cache.emulate(0, "left", images, target, source_us=SOURCE_US, times_ns={SOURCE_US: stamp},
+                        gain_db=gain_db)
+    assert rec.exposure_us == pytest.approx(2000.0) and rec.gain_db == pytest.approx(gain_db)
+    t = cache.trigger_s(stamp, SOURCE_US)
+    world, response = cache.world, cache.emulator.response
+    raw = world.render("left", t, 2000.0, rng=world.frame_rng("left", t, target))
+    expected = response.encode(response.icrf[raw].astype(np.float64) * 4.0, cache.emulator.rounding)
+    assert np.array_equal(rec.image, expected)
+    full = cache.emulate(0, "left", images, target, source_us=SOURCE_US, times_ns={SOURCE_US: stamp})
+    assert full.exposure_us == target and full.gain_db == 0.0
+    assert np.array_equal(full.image, world.render("left", t, target))
+    assert not np.array_equal(full.image, rec.image)
+
+
 def test_bad_truth_effects_are_one_line_errors(walk: Path, tmp_path: Path) -> None:
     for bad in ({"motion": False}, {"noise": "no"}):
         with pytest.raises(BracketryError, match="truth_effects"):

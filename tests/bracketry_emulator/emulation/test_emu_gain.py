@@ -30,6 +30,31 @@ def test_beyond_the_longest_bracket_is_its_exposure_plus_gain() -> None:
     assert inside.camera_exposure_us == 6_000.0 and inside.gain_db == 0.0
 
 
+def test_a_gain_a_method_asks_for_is_its_exposure_amplified() -> None:
+    """4 ms at 12 dB (the target 16 ms, inside the brackets): the 4 ms bracket is the source (the camera's exposure),
+    amplified 4x with the noise model's gain noise; the mean level is the 16 ms frame's, the noise larger. With the
+    gain request beyond the longest bracket the rest is gain too. Fusion takes the request the same way."""
+    level_16 = 400.0
+    irr = np.full((200, 200), level_16 / 16_000.0)
+    imgs = _brackets(irr, seed=3)
+    model = NoiseModel(read_dn=1.0, dn_per_e=0.4)
+    emu = Emulator(EmulatorConfig(noise=model))
+    asked = emu.emulate(imgs, 16_000.0, gain_db=20 * np.log10(4.0))
+    assert asked.source_exposure_us == 4000 and asked.camera_exposure_us == pytest.approx(4000.0)
+    assert asked.gain_db == pytest.approx(20 * np.log10(4.0))
+    exposed = emu.emulate(imgs, 16_000.0)
+    assert exposed.source_exposure_us == 16_000 and exposed.gain_db == 0.0
+    a, b = (SRGB.icrf[x.image].astype(np.float64) for x in (asked, exposed))
+    assert a.mean() == pytest.approx(b.mean(), rel=0.03)
+    assert a.var() == pytest.approx(16 * (1.0 + 0.4 * level_16 / 4), rel=0.10)  # a 4 ms frame read out at 4x
+    assert a.var() > 2.5 * b.var()
+    far = emu.emulate(imgs, 256_000.0, gain_db=6.0)  # 128 ms asked: the longest bracket, the rest as gain
+    assert far.camera_exposure_us == 32_000.0 and far.gain_db == pytest.approx(20 * np.log10(8.0))
+    fused = Emulator(EmulatorConfig(selection="fusion", noise=model)).emulate(imgs, 16_000.0, gain_db=20 * np.log10(4))
+    assert fused.camera_exposure_us == pytest.approx(4000.0) and fused.source_exposure_us == 4000
+    assert SRGB.icrf[fused.image].astype(np.float64).var() == pytest.approx(a.var(), rel=0.15)
+
+
 def test_fused_gain_has_the_noise_models_noise() -> None:
     """A flat field fused from every bracket is nearly noise-free; at 4x gain beyond 32 ms the emulated image has
     the variance G^2 (read^2 + k S) of a 32 ms frame read out with gain 4 (within 10 %)."""
