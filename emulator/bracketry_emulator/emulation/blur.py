@@ -153,7 +153,7 @@ def colour_ratios(linear: np.ndarray) -> np.ndarray:
     """Local colour ratio of each plane of a 2x2 mosaic at its own pixels: float32 (4, H/2, W/2), planes in the order
     (0, 0), (0, 1), (1, 0), (1, 1). The plane's Gaussian low-pass (:data:`RATIO_SIGMA_PX`) over the mean of the four
     low-passes, each taken at the same points (the planes sit half a plane pixel apart: their low-passes moved
-    there, bilinear; a plane's own low-pass against its neighbours' unmoved would read an edge as a colour)."""
+    there, bicubic; a plane's own low-pass against its neighbours' unmoved would read an edge as a colour)."""
     low = [cv2.GaussianBlur(np.ascontiguousarray(linear[dy::2, dx::2], dtype=np.float32), (0, 0), RATIO_SIGMA_PX)
            for dy, dx in _PLANES]
     h2, w2 = low[0].shape
