@@ -16,7 +16,10 @@ What the relay adds to the fake's behaviour:
 - **No merged triggers.** The fake has one trigger flag: a trigger that arrives while the previous one is not filled
   yet is held (its ack is the fake's, so the client waits) and forwarded when the fill takes the previous one. So two
   triggers never merge into one frame, whatever the fake's poll rate or the machine's load. A trigger the fake never
-  fills (e.g. written by a client without control) is dropped after ``trigger_expiry_s``.
+  fills (e.g. written by a client without control) is dropped after ``trigger_expiry_s``; one still unfilled when a
+  new acquisition starts (the last trigger before an AcquisitionStop that came first) is dropped then, so it never
+  holds the new acquisition's triggers (the camera would deliver nothing for ``trigger_expiry_s``: 2 s, the daemon's
+  stall limit).
 - **Seeded packet loss.** When a loss ratio is set (> 0 when the client writes the stream destination), the client's
   stream destination writes (SCDA 0x0D18, SCP 0x0D00 port bits) are rewritten so the fake streams to the relay
   (read-backs show the client's values); the relay forwards each GVSP packet to the client unless
@@ -111,6 +114,8 @@ class FakeCameraRelay:
         self.dropped: list[tuple[int, int]] = []
         self.triggers_held = 0
         self.triggers_expired = 0
+        #: triggers still unfilled when the next acquisition started, dropped then (module docstring)
+        self.triggers_dropped_at_start = 0
         self._lock = threading.Lock()
         self._outstanding: _Forwarded | None = None  # forwarded to the fake, not filled yet (at most one)
         self._held: deque[tuple[socket.socket, bytes, Trigger]] = deque()
@@ -262,7 +267,20 @@ class FakeCameraRelay:
                     self._stream_dest = None
             if (REG_TRIGGER_SOFTWARE, 1) in regs and self._trigger(client, req_id, up, packet, t_ns):
                 return
+            if (REG_ACQUISITION, 1) in regs:
+                up.send(packet)
+                self._acquisition_started()
+                return
         up.send(packet)
+
+    def _acquisition_started(self) -> None:
+        """AcquisitionStart was forwarded: a trigger forwarded before it and never filled is not this acquisition's;
+        drop it and forward the next held one (module docstring)."""
+        with self._lock:
+            if self._outstanding is not None:
+                self.triggers_dropped_at_start += 1
+                self._outstanding = None
+                self._release_held()
 
     def _rewrite_stream_destination(self, packet: bytes, regs: list[tuple[int, int]]) -> bytes:
         out = bytearray(packet)

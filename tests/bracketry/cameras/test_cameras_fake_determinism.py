@@ -159,3 +159,57 @@ def test_triggers_closer_than_the_poll_period_are_not_merged() -> None:
     ts = [f.cam_timestamp_ns for f in frames]
     assert stamps[0] <= ts[0] <= stamps[1] <= ts[1] <= stamps[2] <= ts[2]
     assert ts[1] - ts[0] < 50_000_000  # trigger times, not fill times (the fills are >= one 100 ms poll apart)
+
+
+def _writereg(req_id: int, *regs: tuple[int, int]) -> bytes:
+    """A GVCP WRITEREG command packet (ack requested) writing ``regs`` ((address, value), ...)."""
+    import struct
+
+    from bracketry.cameras.fake_relay import CMD_WRITEREG
+
+    body = b"".join(struct.pack(">II", a, v) for a, v in regs)
+    return struct.pack(">BBHHH", 0x42, 0x01, CMD_WRITEREG, len(body), req_id) + body
+
+
+def test_a_trigger_left_unfilled_by_a_stopped_acquisition_does_not_hold_the_next_ones() -> None:
+    """The relay forwards one trigger at a time to the fake. A trigger forwarded just before AcquisitionStop is never
+    filled; at the next AcquisitionStart it is dropped and the trigger waiting behind it goes to the fake at once,
+    instead of after ``trigger_expiry_s`` (2 s: a camera silent that long is stalled for the daemon). A stand-in
+    for the fake's GVCP socket records what the relay forwards; no timing decides anything."""
+    import socket
+
+    from bracketry.cameras.fake_relay import (
+        REG_ACQUISITION,
+        REG_EXPOSURE_US,
+        REG_TRIGGER_MODE,
+        REG_TRIGGER_SOFTWARE,
+        REG_TRIGGER_SOURCE,
+        FakeCameraRelay,
+    )
+
+    fake = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    fake.bind(("127.0.0.1", 0))
+    fake.settimeout(10.0)
+    registers = {REG_ACQUISITION: 1, REG_TRIGGER_MODE: 1, REG_TRIGGER_SOURCE: 1, REG_EXPOSURE_US: 1000}
+    relay = FakeCameraRelay("127.0.0.1", fake.getsockname(), registers.__getitem__, serial="STALE01", seed=0,
+                            trigger_expiry_s=60.0).start()
+    client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        def send(packet: bytes) -> bytes:
+            client.sendto(packet, ("127.0.0.1", 3956))
+            return packet
+
+        first = send(_writereg(1, (REG_TRIGGER_SOFTWARE, 1)))
+        assert fake.recv(4096) == first  # forwarded: the fake's one trigger, not filled yet
+        held = send(_writereg(2, (REG_TRIGGER_SOFTWARE, 1)))  # held behind it
+        stop = send(_writereg(3, (REG_ACQUISITION, 0)))
+        assert fake.recv(4096) == stop  # the held trigger is not forwarded: the first is still outstanding
+        assert relay.triggers_held == 1
+        start = send(_writereg(4, (REG_ACQUISITION, 1)))
+        assert fake.recv(4096) == start
+        assert fake.recv(4096) == held  # right after the start, not 60 s later
+        assert relay.triggers_dropped_at_start == 1 and relay.triggers_expired == 0
+    finally:
+        client.close()
+        relay.stop()
+        fake.close()
