@@ -27,7 +27,8 @@ HISTORY_PHRASES: tuple[str, ...] = (
     r"\bold (?:name|spelling|method|code|kernel|version|emulator|renderer)\b",
     r"\bearlier (?:release|version|emulator|code|implementation|commit|kernel|blur)\b",
     r"\bformer (?:kernel|method|code|version|release|name|emulator)\b",
-    r"\bnew in\b", r"\btoday's\b", r"\b(?:was|were|has been|have been) (?:changed|replaced|renamed|removed|added|fixed)\b",
+    r"\bnew in\b", r"\btoday's\b",
+    r"\b(?:was|were|has been|have been) (?:changed|replaced|renamed|removed|added|fixed)\b",
 )
 #: (file, phrase found) pairs allowed, each with its reason
 ALLOWED: dict[tuple[str, str], str] = {}
