@@ -49,10 +49,10 @@ class DocCommand:
 
 
 def markdown_files(root: Path) -> list[Path]:
-    """The Markdown files of the repository that git knows or would add (tracked, and untracked but not ignored)."""
+    """The Markdown files git tracks (not the reports a run writes into the working tree)."""
     try:
-        out = subprocess.run(["git", "-C", str(root), "ls-files", "--cached", "--others", "--exclude-standard",
-                              "-z", "--", "*.md"], check=True, capture_output=True).stdout
+        out = subprocess.run(["git", "-C", str(root), "ls-files", "--cached", "-z", "--", "*.md"], check=True,
+                             capture_output=True).stdout
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("git is not available to list the repository's Markdown files")
     return sorted({root / p for p in out.decode().split("\0") if p and (root / p).is_file()})

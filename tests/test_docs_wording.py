@@ -1,6 +1,6 @@
 """Documents say what is, not what was: no history wording in the prose of any Markdown file of the repository.
 
-The prose of every Markdown file git knows (tracked, and untracked but not ignored) is scanned for the phrases of
+The prose of every Markdown file git tracks is scanned for the phrases of
 :data:`HISTORY_PHRASES` (case-insensitive, whole words). Fenced code blocks and inline code spans are not prose
 (``systemctl enable --now`` is a command) and are left out. A measurement's date belongs in docs/RESULTS.md's header,
 a change's story in the git log. :data:`ALLOWED` lists the few (file, phrase) pairs where such a word says what is;
@@ -40,8 +40,8 @@ _PATTERN = re.compile("|".join(f"(?:{p})" for p in HISTORY_PHRASES), re.IGNORECA
 
 def markdown_files(root: Path) -> list[Path]:
     try:
-        out = subprocess.run(["git", "-C", str(root), "ls-files", "--cached", "--others", "--exclude-standard",
-                              "-z", "--", "*.md"], check=True, capture_output=True).stdout
+        out = subprocess.run(["git", "-C", str(root), "ls-files", "--cached", "-z", "--", "*.md"], check=True,
+                             capture_output=True).stdout
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("git is not available to list the repository's Markdown files")
     return sorted({root / p for p in out.decode().split("\0") if p and (root / p).is_file()})
