@@ -28,7 +28,7 @@ def _camera_info(text: str, where: str) -> dict[str, Any]:
     """The ROS camera_info fields of a YAML text: width, height, k (9), d, r (9), p (12), distortion_model."""
     try:
         doc = yaml.safe_load(text)
-        info = {"width": int(doc["image_width"]), "height": int(doc["image_height"]),
+        info: dict[str, Any] = {"width": int(doc["image_width"]), "height": int(doc["image_height"]),
                 "distortion_model": str(doc.get("distortion_model", "plumb_bob")),
                 "k": [float(v) for v in doc["camera_matrix"]["data"]],
                 "d": [float(v) for v in doc["distortion_coefficients"]["data"]],
