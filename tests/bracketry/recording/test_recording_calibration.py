@@ -144,3 +144,11 @@ def test_calibration_from_capture_to_benchmark_on_the_simulated_rig(tmp_path: Pa
     rect = json.loads((vo / "rectification.json").read_text())
     assert rect["baseline_m"] == pytest.approx(StereoRectifier.from_dir(cal).baseline_m, rel=1e-9)
     assert (bench / "report" / "results.csv").is_file()
+
+
+def test_simulate_refuses_a_folder_that_is_no_calibration_in_one_line(tmp_path: Path, capsys) -> None:  # type: ignore[no-untyped-def]
+    (tmp_path / "empty").mkdir()
+    assert cli_main(["simulate", "--out", str(tmp_path / "rig"), "--calibration", str(tmp_path / "empty")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "has no left.yaml" in err and len(err.splitlines()) == 1
+    assert not (tmp_path / "rig").exists()
