@@ -25,6 +25,7 @@ from mcap_ros2._dynamic import serialize_dynamic
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet
 from bracketry.recording import topics as T
+from bracketry.recording.calibration import CALIBRATION_RECORD, camera_infos
 from bracketry.recording.mcap_writer import ChunkedMcapWriter
 from bracketry.recording.msgdefs import MSGDEFS, encode_image, stamp
 
@@ -171,12 +172,15 @@ class Recorder:
     """Writes ``out_dir/<name>_<NNN>.mcap`` files from a bounded queue in its own thread."""
 
     def __init__(self, out_dir: str | Path, name: str, config: RecorderConfig | None = None, *,
-                 metadata: dict[str, str] | None = None, calibration: dict[str, dict[str, Any]] | None = None) -> None:
+                 metadata: dict[str, str] | None = None, calibration: dict[str, dict[str, Any]] | None = None,
+                 calibration_files: dict[str, str] | None = None) -> None:
         self.out_dir = Path(out_dir)
         self.name = name
         self.config = config or RecorderConfig()
         self.metadata = dict(metadata or {})
-        self.calibration = calibration or {}
+        #: the stereo calibration carried by every file (``bracketry.recording.calibration``: {file name: text})
+        self.calibration_files = dict(calibration_files or {})
+        self.calibration = calibration or (camera_infos(self.calibration_files) if self.calibration_files else {})
         self.summary = RecorderSummary(frames_written={s: 0 for s in self.config.sides})
         self._queue: queue.Queue[tuple[str, Any] | None] = queue.Queue(maxsize=self.config.queue_max_items)
         self._thread: threading.Thread | None = None
@@ -250,6 +254,8 @@ class Recorder:
         w.add_metadata(T.METADATA_NAME, {"format": T.FORMAT_NAME, "version": T.FORMAT_VERSION,
                                          "sides": ",".join(cfg.sides), "file_index": str(self._file_index),
                                          "image_encoding": T.IMAGE_ENCODING, **self.metadata})
+        if self.calibration_files:
+            w.add_metadata(CALIBRATION_RECORD, self.calibration_files)
         self._writer = w
         self._file_started = time.monotonic()
         self.summary.files.append(str(path))
