@@ -402,18 +402,24 @@ static int unpack(scratch_t *s, const header_t *hdr, size_t idat_len, uint8_t *o
     return OK;
 }
 
-static PyObject *decode(PyObject *self, PyObject *args)
+/* Copies a PNG held in memory into the scratch file buffer and checks it, without the GIL (as ``load``). */
+static int load_bytes(const uint8_t *data, size_t n, scratch_t *s, header_t *hdr, size_t *idat_len)
 {
-    PyObject *path_obj = NULL, *out_obj = NULL;
-    (void)self;
-    if (!PyArg_ParseTuple(args, "O&O", PyUnicode_FSConverter, &path_obj, &out_obj)) {
-        return NULL;
+    if (reserve(&s->file, &s->file_cap, n + 1) != 0) {
+        return NO_MEMORY;
     }
-    const char *path = PyBytes_AS_STRING(path_obj);
+    memcpy(s->file, data, n);
+    return parse(s->file, n, hdr, idat_len);
+}
+
+/* decode(path, out) when ``data`` is NULL, else decode_bytes(data, out): ``path_obj`` (a bytes object) names the
+   file for OSError. */
+static PyObject *decode_any(PyObject *path_obj, const Py_buffer *data, PyObject *out_obj)
+{
+    const char *path = path_obj != NULL ? PyBytes_AS_STRING(path_obj) : NULL;
     Py_buffer out = {0};
     int given = out_obj != Py_None, have_out = given;
     if (given && PyObject_GetBuffer(out_obj, &out, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) != 0) {
-        Py_DECREF(path_obj);
         return NULL;
     }
     header_t hdr = {0, 0, 0};
@@ -425,7 +431,9 @@ static PyObject *decode(PyObject *self, PyObject *args)
     size_t dst_len = have_out ? (size_t)out.len : 0;
     Py_BEGIN_ALLOW_THREADS
     scratch_t *s = scratch_get();
-    rc = s == NULL ? NO_MEMORY : load(path, s, &hdr, &idat_len, &err);
+    rc = s == NULL ? NO_MEMORY
+         : data != NULL ? load_bytes((const uint8_t *)data->buf, (size_t)data->len, s, &hdr, &idat_len)
+                        : load(path, s, &hdr, &idat_len, &err);
     if (rc == OK && have_out
         && (out.ndim != 2 || out.shape == NULL || out.shape[0] != (Py_ssize_t)hdr.height
             || out.shape[1] != (Py_ssize_t)hdr.width || out.itemsize != hdr.depth / 8)) {
@@ -463,7 +471,31 @@ static PyObject *decode(PyObject *self, PyObject *args)
         PyErr_NoMemory();
     }
     Py_XDECREF(fresh);
+    return result;
+}
+
+static PyObject *decode(PyObject *self, PyObject *args)
+{
+    PyObject *path_obj = NULL, *out_obj = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "O&O", PyUnicode_FSConverter, &path_obj, &out_obj)) {
+        return NULL;
+    }
+    PyObject *result = decode_any(path_obj, NULL, out_obj);
     Py_DECREF(path_obj);
+    return result;
+}
+
+static PyObject *decode_bytes(PyObject *self, PyObject *args)
+{
+    Py_buffer data = {0};
+    PyObject *out_obj = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*O", &data, &out_obj)) {
+        return NULL;
+    }
+    PyObject *result = decode_any(NULL, &data, out_obj);
+    PyBuffer_Release(&data);
     return result;
 }
 
@@ -610,6 +642,9 @@ static PyMethodDef methods[] = {
      "when its shape is (height, width) and its item size the sample size; native byte order), else (also when\n"
      "``out`` is None) into a new bytearray. ``buffer`` is the one written. None when the file is anything else or\n"
      "not valid in every respect (the caller falls back to another decoder). OSError when it cannot be read."},
+    {"decode_bytes", decode_bytes, METH_VARARGS,
+     "decode_bytes(data, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
+     "``decode`` of a whole PNG file held in ``data`` (a bytes-like object, e.g. a member read from a zip)."},
     {"encode_stored", encode_stored, METH_VARARGS,
      "encode_stored(image, height, width, bpp, head, blocks) -> bytes\n\n"
      "A whole PNG file: ``head`` (signature and IHDR chunk), one IDAT chunk holding the zlib stream of stored\n"
