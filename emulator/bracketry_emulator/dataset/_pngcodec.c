@@ -412,9 +412,27 @@ static int load_bytes(const uint8_t *data, size_t n, scratch_t *s, header_t *hdr
     return parse(s->file, n, hdr, idat_len);
 }
 
-/* decode(path, out) when ``data`` is NULL, else decode_bytes(data, out): ``path_obj`` (a bytes object) names the
-   file for OSError. */
-static PyObject *decode_any(PyObject *path_obj, const Py_buffer *data, PyObject *out_obj)
+/* Inflates a raw deflate stream (a zip member) of ``size`` bytes whose CRC-32 is ``crc`` into the scratch file buffer
+   and checks it, without the GIL (as ``load``). Anything that does not inflate to exactly ``size`` bytes of that CRC
+   falls back (the caller reads the member another way and reports what is wrong). */
+static int load_deflated(const uint8_t *data, size_t n, size_t size, uint32_t crc, scratch_t *s, header_t *hdr,
+                         size_t *idat_len)
+{
+    if (reserve(&s->file, &s->file_cap, size + 1) != 0) {
+        return NO_MEMORY;
+    }
+    size_t actual = 0;
+    if (libdeflate_deflate_decompress(s->inflater, data, n, s->file, size, &actual) != LIBDEFLATE_SUCCESS
+        || actual != size || (uint32_t)libdeflate_crc32(0, s->file, size) != crc) {
+        return FALLBACK;
+    }
+    return parse(s->file, size, hdr, idat_len);
+}
+
+/* decode(path, out) when ``data`` is NULL, else decode_bytes(data, out) (``inflated`` < 0) or
+   decode_deflated(data, inflated, crc, out): ``path_obj`` (a bytes object) names the file for OSError. */
+static PyObject *decode_any(PyObject *path_obj, const Py_buffer *data, Py_ssize_t inflated, uint32_t crc,
+                            PyObject *out_obj)
 {
     const char *path = path_obj != NULL ? PyBytes_AS_STRING(path_obj) : NULL;
     Py_buffer out = {0};
@@ -432,6 +450,8 @@ static PyObject *decode_any(PyObject *path_obj, const Py_buffer *data, PyObject 
     Py_BEGIN_ALLOW_THREADS
     scratch_t *s = scratch_get();
     rc = s == NULL ? NO_MEMORY
+         : data != NULL && inflated >= 0
+             ? load_deflated((const uint8_t *)data->buf, (size_t)data->len, (size_t)inflated, crc, s, &hdr, &idat_len)
          : data != NULL ? load_bytes((const uint8_t *)data->buf, (size_t)data->len, s, &hdr, &idat_len)
                         : load(path, s, &hdr, &idat_len, &err);
     if (rc == OK && have_out
@@ -481,7 +501,7 @@ static PyObject *decode(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "O&O", PyUnicode_FSConverter, &path_obj, &out_obj)) {
         return NULL;
     }
-    PyObject *result = decode_any(path_obj, NULL, out_obj);
+    PyObject *result = decode_any(path_obj, NULL, -1, 0, out_obj);
     Py_DECREF(path_obj);
     return result;
 }
@@ -494,7 +514,7 @@ static PyObject *decode_bytes(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*O", &data, &out_obj)) {
         return NULL;
     }
-    PyObject *result = decode_any(NULL, &data, out_obj);
+    PyObject *result = decode_any(NULL, &data, -1, 0, out_obj);
     PyBuffer_Release(&data);
     return result;
 }
@@ -635,6 +655,26 @@ static PyObject *encode_stored(PyObject *self, PyObject *args)
     return result;
 }
 
+static PyObject *decode_deflated(PyObject *self, PyObject *args)
+{
+    Py_buffer data = {0};
+    Py_ssize_t inflated = 0;
+    unsigned long crc = 0;
+    PyObject *out_obj = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*nkO", &data, &inflated, &crc, &out_obj)) {
+        return NULL;
+    }
+    if (inflated < 0) {
+        PyBuffer_Release(&data);
+        PyErr_SetString(PyExc_ValueError, "inflated size must be >= 0");
+        return NULL;
+    }
+    PyObject *result = decode_any(NULL, &data, inflated, (uint32_t)crc, out_obj);
+    PyBuffer_Release(&data);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"decode", decode, METH_VARARGS,
      "decode(path, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
@@ -645,6 +685,10 @@ static PyMethodDef methods[] = {
     {"decode_bytes", decode_bytes, METH_VARARGS,
      "decode_bytes(data, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
      "``decode`` of a whole PNG file held in ``data`` (a bytes-like object, e.g. a member read from a zip)."},
+    {"decode_deflated", decode_deflated, METH_VARARGS,
+     "decode_deflated(data, size, crc32, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
+     "``decode_bytes`` of the PNG file that the raw deflate stream ``data`` (a zip member's bytes) inflates to: None\n"
+     "also when it does not inflate to exactly ``size`` bytes of CRC-32 ``crc32``."},
     {"encode_stored", encode_stored, METH_VARARGS,
      "encode_stored(image, height, width, bpp, head, blocks) -> bytes\n\n"
      "A whole PNG file: ``head`` (signature and IHDR chunk), one IDAT chunk holding the zlib stream of stored\n"

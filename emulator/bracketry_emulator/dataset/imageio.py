@@ -109,6 +109,21 @@ def read_png12_bytes(data: bytes, source: str, out: np.ndarray | None = None) ->
     return _checked12(img, None, source)
 
 
+def read_png12_deflated(data: bytes, size: int, crc32: int, source: str, out: np.ndarray | None = None
+                        ) -> np.ndarray | None:
+    """:func:`read_png12_bytes` of the PNG file that the raw deflate stream ``data`` (a deflated zip member's bytes)
+    inflates to (``size`` bytes, CRC-32 ``crc32``), inflated and decoded by the ``_pngcodec`` extension's
+    ``decode_deflated``. None when the extension cannot (not built; the stream or its CRC is wrong; a PNG it does not
+    decode): the caller then inflates it another way (and reports what is wrong)."""
+    decode = getattr(png_codec(), "decode_deflated", None)
+    got = decode(data, size, crc32, out if _fits(out) else None) if decode is not None else None
+    if got is None:
+        return None
+    h, w, depth, or_samples, buf = got
+    img = out if buf is out else np.frombuffer(buf, np.uint16 if depth == 16 else np.uint8).reshape(h, w)
+    return _checked12(img, or_samples, source)
+
+
 def _fits(out: np.ndarray | None) -> bool:
     """True when ``out`` can be decoded into (2-D, uint8/uint16, C-contiguous, writeable)."""
     return out is not None and out.ndim == 2 and out.dtype in (np.uint8, np.uint16) and out.flags.c_contiguous \

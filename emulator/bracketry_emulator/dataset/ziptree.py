@@ -2,11 +2,11 @@
 
 The zip holds a trajectory folder the benchmark accepts (DATASET.md, "BorealHDR tree"), either at the zip's root or
 inside one top-level folder (a recording folder ``camera_left/``, ``camera_right/``, or a parent holding one
-recording and ``calibration/``, as the BorealHDR sample). The PNGs (stored or deflated) are never unpacked: each
-frame's loader reads its member's bytes and decodes them in memory (``read_png12_bytes``); a stored member's bytes
-are read straight from the archive at their offset (one ``pread``; the PNG's own CRCs and zlib checksum are checked
-by the decoder), a deflated one through :mod:`zipfile` (which checks its CRC). The archive is opened once per process
-(``os.getpid()`` keyed), never shared across a fork.
+recording and ``calibration/``, as the BorealHDR sample). The PNGs (stored or deflated) are never unpacked to disk:
+each frame's loader reads its member's bytes straight from the archive at their offset (``pread``) and decodes them in
+memory: a stored member as a PNG file (``read_png12_bytes``; the PNG's own CRCs and zlib checksum are checked), a
+deflated one inflated and checked against its CRC-32 by the compiled decoder (``read_png12_deflated``), else through
+:mod:`zipfile`. The archive is opened once per process (``os.getpid()`` keyed), never shared across a fork.
 
 The trajectory's small side files (``groundtruth.txt``, ``reference.yaml`` and what it names, ``calibration/``, any
 other file outside the camera and lidar folders, up to :data:`MAX_SIDE_FILE_BYTES` each) are copied once into
@@ -30,7 +30,7 @@ import numpy as np
 
 from .borealhdr import SIDE_FOLDERS, exposure_us_from_folder
 from .grouping import group_sequences
-from .imageio import read_png12_bytes
+from .imageio import read_png12_bytes, read_png12_deflated
 from .model import Dataset, DatasetError, Frame
 
 #: Side files larger than this are not copied out of the archive (rosbags, point clouds).
@@ -182,25 +182,30 @@ def _handles(zip_path: str) -> tuple[int, zipfile.ZipFile]:
 
 class ZipPngLoader:
     """Loads one bracket PNG held in an archive (a :data:`~.model.FrameLoader`, as ``PngLoader``): ``zip_path``,
-    ``member``, its ``header_offset``, ``size`` (compressed) and whether it is ``stored``. Picklable."""
+    ``member``, its ``header_offset``, ``size`` (compressed), ``file_size`` and ``crc``, whether it is ``stored``
+    or ``deflated`` (neither: another method or encrypted, read through zipfile). Picklable."""
 
-    __slots__ = ("header_offset", "member", "size", "stored", "zip_path")
+    __slots__ = ("crc", "deflated", "file_size", "header_offset", "member", "size", "stored", "zip_path")
 
     def __init__(self, zip_path: str, info: zipfile.ZipInfo) -> None:
         self.zip_path = zip_path
         self.member = info.filename
         self.header_offset = info.header_offset
         self.size = info.compress_size
-        self.stored = info.compress_type == zipfile.ZIP_STORED and not info.flag_bits & 0x1
+        self.file_size = info.file_size
+        self.crc = info.CRC
+        plain = not info.flag_bits & 0x1
+        self.stored = info.compress_type == zipfile.ZIP_STORED and plain
+        self.deflated = info.compress_type == zipfile.ZIP_DEFLATED and plain
 
     @property
     def source(self) -> str:
         return f"{self.zip_path}:{self.member}"
 
-    def data(self) -> bytes:
-        """The member's bytes (the PNG file)."""
-        fd, zf = _handles(self.zip_path)
-        if self.stored:
+    def raw(self) -> bytes:
+        """The member's bytes as the archive holds them (compressed when deflated), read at their offset."""
+        fd, _ = _handles(self.zip_path)
+        try:
             head = os.pread(fd, _LOCAL_HEADER.size, self.header_offset)
             if len(head) == _LOCAL_HEADER.size:
                 fields = _LOCAL_HEADER.unpack(head)
@@ -209,23 +214,39 @@ class ZipPngLoader:
                     data = os.pread(fd, self.size, start)
                     if len(data) == self.size:
                         return data
-            raise DatasetError(f"truncated or corrupt zip member: {self.source}")
+        except OSError as exc:
+            raise DatasetError(f"cannot read zip member {self.source}: {exc.strerror or exc}") from None
+        raise DatasetError(f"truncated or corrupt zip member: {self.source}")
+
+    def data(self) -> bytes:
+        """The member's bytes (the PNG file)."""
+        if self.stored:
+            return self.raw()
+        _, zf = _handles(self.zip_path)
         try:
             return zf.read(self.member)
-        except (zipfile.BadZipFile, OSError, EOFError, NotImplementedError, RuntimeError) as exc:
+        except (zipfile.BadZipFile, OSError, EOFError, NotImplementedError, RuntimeError, ValueError) as exc:
             raise DatasetError(f"cannot read zip member {self.source}: {exc}") from None
 
-    def __call__(self) -> np.ndarray:
-        return read_png12_bytes(self.data(), self.source)
-
-    def into(self, out: np.ndarray) -> np.ndarray:
+    def _load(self, out: np.ndarray | None) -> np.ndarray:
+        if self.deflated:
+            img = read_png12_deflated(self.raw(), self.file_size, self.crc, self.source, out)
+            if img is not None:
+                return img
         return read_png12_bytes(self.data(), self.source, out)
 
+    def __call__(self) -> np.ndarray:
+        return self._load(None)
+
+    def into(self, out: np.ndarray) -> np.ndarray:
+        return self._load(out)
+
     def __getstate__(self) -> tuple:
-        return (self.zip_path, self.member, self.header_offset, self.size, self.stored)
+        return tuple(getattr(self, k) for k in self.__slots__)
 
     def __setstate__(self, state: tuple) -> None:
-        self.zip_path, self.member, self.header_offset, self.size, self.stored = state
+        for k, v in zip(self.__slots__, state, strict=True):
+            setattr(self, k, v)
 
     def __repr__(self) -> str:
         return f"ZipPngLoader({self.source!r})"

@@ -145,10 +145,27 @@ def test_truncated_member_is_one_line(borealhdr_sequence: Path, tmp_path: Path, 
     frame = open_dataset(archive).sequences()[0].frames["left"][1000]
     loader = frame.loader
     assert isinstance(loader, ZipPngLoader)
+    state = dict(zip(ZipPngLoader.__slots__, loader.__getstate__()))
     damaged = ZipPngLoader.__new__(ZipPngLoader)
-    damaged.__setstate__((loader.zip_path, loader.member, loader.header_offset, archive.stat().st_size, True))
+    damaged.__setstate__(tuple({**state, "size": archive.stat().st_size}[k] for k in ZipPngLoader.__slots__))
     with pytest.raises(DatasetError, match="truncated or corrupt zip member"):
         damaged()
+    # a deflated member with a byte changed in the middle of its data: its CRC-32 fails, one line
+    deflated = _zip(borealhdr_sequence, tmp_path / "d.zip", "", zipfile.ZIP_DEFLATED)
+    frame = open_dataset(deflated).sequences()[0].frames["left"][1000]
+    loader = frame.loader
+    assert isinstance(loader, ZipPngLoader) and loader.deflated
+    good = frame.load().copy()
+    raw = bytearray(deflated.read_bytes())
+    at = loader.header_offset + 30 + len(loader.member) + loader.size // 2
+    raw[at] ^= 0x55
+    broken = tmp_path / "broken.zip"
+    broken.write_bytes(bytes(raw))
+    frames = open_dataset(broken).sequences()[0].frames["left"]
+    with pytest.raises(DatasetError, match=r"cannot read zip member .*broken\.zip"):
+        frames[1000].load()
+    assert np.array_equal(frames[2000].load(), open_dataset(deflated).sequences()[0].frames["left"][2000].load())
+    assert not np.array_equal(good, frames[2000].load())
 
 
 @pytest.mark.realdata
