@@ -15,6 +15,8 @@ APT_PACKAGES=(libaravis-0.8-0 gir1.2-aravis-0.8 aravis-tools aravis-tools-cli li
   iproute2 util-linux python3-venv python3-dev chromium libdeflate-dev
   libgl1 libegl1 libopengl0 libsm6 libice6 libx11-6 libxext6  # the OpenGL/X11 runtime libraries pyorbslam3 links
   slurm-wlm munge)  # a one-node Slurm the cluster tests start (bracketry benchmark --cluster slurm)
+# pdflatex with booktabs (texlive-latex-recommended) and amssymb (texlive-base): the report's LaTeX tables compiled
+APT_PACKAGES+=(texlive-latex-base texlive-latex-recommended texlive-fonts-recommended)
 command -v node >/dev/null 2>&1 || APT_PACKAGES+=(nodejs)
 command -v npm >/dev/null 2>&1 || APT_PACKAGES+=(npm)
 
