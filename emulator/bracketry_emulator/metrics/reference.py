@@ -13,7 +13,8 @@ A trajectory folder may carry ``reference.yaml`` next to its images::
       quaternion: [qx, qy, qz, qw]
 
 Formats: TUM ``t_s tx ty tz qx qy qz qw`` (space-separated); KITTI 12 numbers per line (a 3x4 ``[R | t]``, no time:
-``times`` gives them, else the trajectory's left images do, one pose per image in time order); EuRoC CSV ``t_ns, px, py, pz, qw, qx, qy, qz[, ...]`` (header lines start with ``#``). All
+``times`` gives them, else the trajectory's left images do, one pose per image in time order); EuRoC CSV
+``t_ns, px, py, pz, qw, qx, qy, qz[, ...]`` (header lines start with ``#``). All
 poses are sensor-to-world. The camera's pose is ``T_world_sensor(t) @ T_sensor_camera``, interpolated at each image
 time: linear in translation, spherical-linear in rotation (SE(3) per component); image times outside the reference's
 time span get no pose (and so no RTE pairs).

@@ -51,7 +51,8 @@ _CM_WIDTH = {**dict.fromkeys("0123456789", 5.0), **dict.fromkeys("abdghknopquv",
              ".": 2.8, ",": 2.8, ":": 2.8, ";": 2.8, "(": 3.9, ")": 3.9, "/": 5.0, "-": 3.3, "_": 5.0, "%": 8.3,
              "&": 7.8, "#": 8.3, "$": 5.0, "{": 5.0, "}": 5.0, "~": 5.0, "^": 5.0, "\\": 5.0, "+": 7.8, "=": 7.8}
 _MACRO_WIDTH = {r"$\blacktriangle$": "M", r"$\blacktriangledown$": "M", r"$\equiv$": "M", "--": "0",
-                r"\textbackslash{}": "\\", r"\textasciitilde{}": "~", r"\textasciicircum{}": "^", "$-$": "+", "$^\\circ$": "-"}
+                r"\textbackslash{}": "\\", r"\textasciitilde{}": "~", r"\textasciicircum{}": "^", "$-$": "+",
+                "$^\\circ$": "-"}
 
 #: short two-row heads (name, unit) of the CSV columns and metrics; a column not listed keeps its name on the first row
 SHORT_HEADS = {
@@ -101,16 +102,13 @@ def estimate_width_pt(rows: list[list[str]], scale: float = SMALL, tabcolsep_pt:
     return sum(max(cell_width_pt(r[j], scale) for r in rows if j < len(r)) + 2 * tabcolsep_pt for j in range(n))
 
 
-def tabular(header: list[str] | list[list[str]], rows: list[list[str]], caption: str, label: str,
-            align: str | None = None) -> str:
-    """A float with one booktabs ``tabular``: ``header`` (one row of cells, or several rows) and ``rows`` are LaTeX
-    cells (already escaped). The first of :data:`LAYOUTS` whose estimated width fits: a ``table`` of one column
+def tabular(heads: list[list[str]], rows: list[list[str]], caption: str, label: str, align: str | None = None) -> str:
+    """A float with one booktabs ``tabular``: ``heads`` (the head rows) and ``rows`` are LaTeX cells (already
+    escaped). The first of :data:`LAYOUTS` whose estimated width fits: a ``table`` of one column
     (:data:`COLUMN_WIDTH_PT`), else a full-width ``table*`` (:data:`TEXT_WIDTH_PT`)."""
-    heads = [header] if header and isinstance(header[0], str) else header
-    heads = [list(h) for h in heads]  # type: ignore[arg-type]
     n = len(heads[0])
     align = align or "l" + "r" * (n - 1)
-    env, size, scale, sep_pt = next(
+    env, size, _, sep_pt = next(
         (lay for lay in LAYOUTS if ESTIMATE_MARGIN * estimate_width_pt([*heads, *rows], lay[2], lay[3])
          <= (COLUMN_WIDTH_PT if lay[0] == "table" else TEXT_WIDTH_PT)), LAYOUTS[-1])
     lines = [PREAMBLE.rstrip("\n"), f"\\begin{{{env}}}", r"\centering", f"\\caption{{{caption}}}",
