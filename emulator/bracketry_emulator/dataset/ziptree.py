@@ -80,7 +80,9 @@ def locate(path: str | Path) -> ZipTrajectory:
             infos = zf.infolist()
         except (zipfile.BadZipFile, OSError) as exc:
             raise DatasetError(f"not a readable zip archive (bad or truncated): {p} ({exc})") from None
-    members = {i.filename: i for i in infos if not i.is_dir() and _safe(i.filename)}
+    # macOS archivers add __MACOSX/ (resource forks mirroring the tree): not a second recording
+    members = {i.filename: i for i in infos
+               if not i.is_dir() and _safe(i.filename) and not i.filename.startswith("__MACOSX/")}
     roots = set()
     for name in members:
         parts = name.split("/")
