@@ -42,6 +42,8 @@ typedef struct {
     size_t file_cap;
     uint8_t *raw;
     size_t raw_cap;
+    uint8_t *member; /* a deflated zip member as read, before inflating */
+    size_t member_cap;
     struct libdeflate_decompressor *inflater;
 } scratch_t;
 
@@ -55,6 +57,7 @@ static void scratch_free(void *p)
     }
     free(s->file);
     free(s->raw);
+    free(s->member);
     if (s->inflater != NULL) {
         libdeflate_free_decompressor(s->inflater);
     }
@@ -429,10 +432,57 @@ static int load_deflated(const uint8_t *data, size_t n, size_t size, uint32_t cr
     return parse(s->file, size, hdr, idat_len);
 }
 
-/* decode(path, out) when ``data`` is NULL, else decode_bytes(data, out) (``inflated`` < 0) or
-   decode_deflated(data, inflated, crc, out): ``path_obj`` (a bytes object) names the file for OSError. */
+/* Reads exactly n bytes at ``offset`` of ``fd``; FALLBACK when the file ends before (a truncated archive). */
+static int read_at(int fd, uint8_t *dst, size_t n, off_t offset, int *err)
+{
+    size_t got = 0;
+    while (got < n) {
+        ssize_t r = pread(fd, dst + got, n - got, offset + (off_t)got);
+        if (r < 0) {
+            if (errno == EINTR) {
+                continue;
+            }
+            *err = errno;
+            return OS_ERROR;
+        }
+        if (r == 0) {
+            return FALLBACK;
+        }
+        got += (size_t)r;
+    }
+    return OK;
+}
+
+/* Reads a zip member's data (``n`` bytes at ``offset`` of ``fd``) into the scratch file buffer, inflating it when
+   ``inflated`` >= 0 (a deflated member of that size and CRC-32), and checks the PNG, without the GIL. */
+static int load_member(int fd, off_t offset, size_t n, Py_ssize_t inflated, uint32_t crc, scratch_t *s,
+                       header_t *hdr, size_t *idat_len, int *err)
+{
+    if (inflated < 0) {
+        if (reserve(&s->file, &s->file_cap, n + 1) != 0) {
+            return NO_MEMORY;
+        }
+        int rc = read_at(fd, s->file, n, offset, err);
+        return rc != OK ? rc : parse(s->file, n, hdr, idat_len);
+    }
+    if (reserve(&s->member, &s->member_cap, n + 1) != 0) {
+        return NO_MEMORY;
+    }
+    int rc = read_at(fd, s->member, n, offset, err);
+    return rc != OK ? rc : load_deflated(s->member, n, (size_t)inflated, crc, s, hdr, idat_len);
+}
+
+/* decode(path, out) when ``data`` and ``member`` are NULL, decode_bytes(data, out) (``inflated`` < 0) or a deflated
+   ``data`` (``inflated`` >= 0), decode_member(...) when ``member`` is given: ``path_obj`` (a bytes object, or NULL)
+   names the file for OSError. */
+typedef struct {
+    int fd;           /* >= 0: a zip member at ``offset``, ``size`` bytes (``inflated`` / ``crc`` as below) */
+    off_t offset;
+    size_t size;
+} member_t;
+
 static PyObject *decode_any(PyObject *path_obj, const Py_buffer *data, Py_ssize_t inflated, uint32_t crc,
-                            PyObject *out_obj)
+                            const member_t *member, PyObject *out_obj)
 {
     const char *path = path_obj != NULL ? PyBytes_AS_STRING(path_obj) : NULL;
     Py_buffer out = {0};
@@ -450,6 +500,8 @@ static PyObject *decode_any(PyObject *path_obj, const Py_buffer *data, Py_ssize_
     Py_BEGIN_ALLOW_THREADS
     scratch_t *s = scratch_get();
     rc = s == NULL ? NO_MEMORY
+         : member != NULL ? load_member(member->fd, member->offset, member->size, inflated, crc, s, &hdr, &idat_len,
+                                        &err)
          : data != NULL && inflated >= 0
              ? load_deflated((const uint8_t *)data->buf, (size_t)data->len, (size_t)inflated, crc, s, &hdr, &idat_len)
          : data != NULL ? load_bytes((const uint8_t *)data->buf, (size_t)data->len, s, &hdr, &idat_len)
@@ -486,7 +538,8 @@ static PyObject *decode_any(PyObject *path_obj, const Py_buffer *data, Py_ssize_
         result = Py_NewRef(Py_None);
     } else if (rc == OS_ERROR) {
         errno = err;
-        result = PyErr_SetFromErrnoWithFilenameObject(PyExc_OSError, path_obj);
+        result = path_obj != NULL ? PyErr_SetFromErrnoWithFilenameObject(PyExc_OSError, path_obj)
+                                  : PyErr_SetFromErrno(PyExc_OSError);
     } else if (!PyErr_Occurred()) {
         PyErr_NoMemory();
     }
@@ -501,7 +554,7 @@ static PyObject *decode(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "O&O", PyUnicode_FSConverter, &path_obj, &out_obj)) {
         return NULL;
     }
-    PyObject *result = decode_any(path_obj, NULL, -1, 0, out_obj);
+    PyObject *result = decode_any(path_obj, NULL, -1, 0, NULL, out_obj);
     Py_DECREF(path_obj);
     return result;
 }
@@ -514,7 +567,7 @@ static PyObject *decode_bytes(PyObject *self, PyObject *args)
     if (!PyArg_ParseTuple(args, "y*O", &data, &out_obj)) {
         return NULL;
     }
-    PyObject *result = decode_any(NULL, &data, -1, 0, out_obj);
+    PyObject *result = decode_any(NULL, &data, -1, 0, NULL, out_obj);
     PyBuffer_Release(&data);
     return result;
 }
@@ -655,24 +708,23 @@ static PyObject *encode_stored(PyObject *self, PyObject *args)
     return result;
 }
 
-static PyObject *decode_deflated(PyObject *self, PyObject *args)
+static PyObject *decode_member(PyObject *self, PyObject *args)
 {
-    Py_buffer data = {0};
-    Py_ssize_t inflated = 0;
+    int fd = -1;
+    long long offset = 0;
+    Py_ssize_t size = 0, inflated = -1;
     unsigned long crc = 0;
     PyObject *out_obj = NULL;
     (void)self;
-    if (!PyArg_ParseTuple(args, "y*nkO", &data, &inflated, &crc, &out_obj)) {
+    if (!PyArg_ParseTuple(args, "iLnnkO", &fd, &offset, &size, &inflated, &crc, &out_obj)) {
         return NULL;
     }
-    if (inflated < 0) {
-        PyBuffer_Release(&data);
-        PyErr_SetString(PyExc_ValueError, "inflated size must be >= 0");
+    if (fd < 0 || offset < 0 || size < 0) {
+        PyErr_SetString(PyExc_ValueError, "fd, offset and size must be >= 0");
         return NULL;
     }
-    PyObject *result = decode_any(NULL, &data, inflated, (uint32_t)crc, out_obj);
-    PyBuffer_Release(&data);
-    return result;
+    member_t member = {fd, (off_t)offset, (size_t)size};
+    return decode_any(NULL, NULL, inflated, (uint32_t)crc, &member, out_obj);
 }
 
 static PyMethodDef methods[] = {
@@ -685,10 +737,11 @@ static PyMethodDef methods[] = {
     {"decode_bytes", decode_bytes, METH_VARARGS,
      "decode_bytes(data, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
      "``decode`` of a whole PNG file held in ``data`` (a bytes-like object, e.g. a member read from a zip)."},
-    {"decode_deflated", decode_deflated, METH_VARARGS,
-     "decode_deflated(data, size, crc32, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
-     "``decode_bytes`` of the PNG file that the raw deflate stream ``data`` (a zip member's bytes) inflates to: None\n"
-     "also when it does not inflate to exactly ``size`` bytes of CRC-32 ``crc32``."},
+    {"decode_member", decode_member, METH_VARARGS,
+     "decode_member(fd, offset, size, inflated, crc32, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
+     "``decode`` of a zip member's PNG: its ``size`` bytes of data at ``offset`` of the open file ``fd``, stored\n"
+     "(``inflated`` -1) or deflated (``inflated``: its size, ``crc32``: its CRC-32). None also when the file ends\n"
+     "before the data or the data does not inflate to ``inflated`` bytes of that CRC."},
     {"encode_stored", encode_stored, METH_VARARGS,
      "encode_stored(image, height, width, bpp, head, blocks) -> bytes\n\n"
      "A whole PNG file: ``head`` (signature and IHDR chunk), one IDAT chunk holding the zlib stream of stored\n"

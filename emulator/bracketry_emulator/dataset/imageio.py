@@ -109,14 +109,15 @@ def read_png12_bytes(data: bytes, source: str, out: np.ndarray | None = None) ->
     return _checked12(img, None, source)
 
 
-def read_png12_deflated(data: bytes, size: int, crc32: int, source: str, out: np.ndarray | None = None
-                        ) -> np.ndarray | None:
-    """:func:`read_png12_bytes` of the PNG file that the raw deflate stream ``data`` (a deflated zip member's bytes)
-    inflates to (``size`` bytes, CRC-32 ``crc32``), inflated and decoded by the ``_pngcodec`` extension's
-    ``decode_deflated``. None when the extension cannot (not built; the stream or its CRC is wrong; a PNG it does not
-    decode): the caller then inflates it another way (and reports what is wrong)."""
-    decode = getattr(png_codec(), "decode_deflated", None)
-    got = decode(data, size, crc32, out if _fits(out) else None) if decode is not None else None
+def read_png12_member(fd: int, offset: int, size: int, inflated: int, crc32: int, source: str,
+                      out: np.ndarray | None = None) -> np.ndarray | None:
+    """:func:`read_png12` of a PNG held in a zip member: its ``size`` bytes of data at ``offset`` of the open file
+    ``fd``, stored (``inflated`` -1) or deflated (``inflated``: the PNG's size, ``crc32``: its CRC-32), read (and
+    inflated, and checked against the CRC) by the ``_pngcodec`` extension's ``decode_member`` without a copy in
+    Python. None when the extension cannot (not built; the archive ends early; the data or its CRC is wrong; a PNG
+    it does not decode): the caller then reads the member another way (and reports what is wrong)."""
+    decode = getattr(png_codec(), "decode_member", None)
+    got = decode(fd, offset, size, inflated, crc32, out if _fits(out) else None) if decode is not None else None
     if got is None:
         return None
     h, w, depth, or_samples, buf = got

@@ -4,9 +4,10 @@ The zip holds a trajectory folder the benchmark accepts (DATASET.md, "BorealHDR 
 inside one top-level folder (a recording folder ``camera_left/``, ``camera_right/``, or a parent holding one
 recording and ``calibration/``, as the BorealHDR sample). The PNGs (stored or deflated) are never unpacked to disk:
 each frame's loader reads its member's bytes straight from the archive at their offset (``pread``) and decodes them in
-memory: a stored member as a PNG file (``read_png12_bytes``; the PNG's own CRCs and zlib checksum are checked), a
-deflated one inflated and checked against its CRC-32 by the compiled decoder (``read_png12_deflated``), else through
-:mod:`zipfile`. The archive is opened once per process (``os.getpid()`` keyed), never shared across a fork.
+memory by the compiled decoder (``read_png12_member``): a stored member as a PNG file (the PNG's own CRCs and zlib
+checksum are checked), a deflated one inflated and checked against its CRC-32 first; without the compiled decoder (or
+for a PNG it does not decode) the member's bytes are read through :mod:`zipfile` and decoded by OpenCV. The archive
+is opened once per process (``os.getpid()`` keyed), never shared across a fork.
 
 The trajectory's small side files (``groundtruth.txt``, ``reference.yaml`` and what it names, ``calibration/``, any
 other file outside the camera and lidar folders, up to :data:`MAX_SIDE_FILE_BYTES` each) are copied once into
@@ -30,7 +31,7 @@ import numpy as np
 
 from .borealhdr import SIDE_FOLDERS, exposure_us_from_folder
 from .grouping import group_sequences
-from .imageio import read_png12_bytes, read_png12_deflated
+from .imageio import read_png12_bytes, read_png12_member
 from .model import Dataset, DatasetError, Frame
 
 #: Side files larger than this are not copied out of the archive (rosbags, point clouds).
@@ -204,21 +205,29 @@ class ZipPngLoader:
     def source(self) -> str:
         return f"{self.zip_path}:{self.member}"
 
+    def _data_offset(self, fd: int) -> int:
+        """Where the member's data starts in the archive (after its local header)."""
+        try:
+            head = os.pread(fd, _LOCAL_HEADER.size, self.header_offset)
+        except OSError as exc:
+            raise DatasetError(f"cannot read zip member {self.source}: {exc.strerror or exc}") from None
+        if len(head) == _LOCAL_HEADER.size:
+            fields = _LOCAL_HEADER.unpack(head)
+            if fields[0] == _LOCAL_MAGIC:
+                return self.header_offset + _LOCAL_HEADER.size + int(fields[9]) + int(fields[10])
+        raise DatasetError(f"truncated or corrupt zip member: {self.source}")
+
     def raw(self) -> bytes:
         """The member's bytes as the archive holds them (compressed when deflated), read at their offset."""
         fd, _ = _handles(self.zip_path)
+        start = self._data_offset(fd)
         try:
-            head = os.pread(fd, _LOCAL_HEADER.size, self.header_offset)
-            if len(head) == _LOCAL_HEADER.size:
-                fields = _LOCAL_HEADER.unpack(head)
-                if fields[0] == _LOCAL_MAGIC:
-                    start = self.header_offset + _LOCAL_HEADER.size + fields[9] + fields[10]
-                    data = os.pread(fd, self.size, start)
-                    if len(data) == self.size:
-                        return data
+            data = os.pread(fd, self.size, start)
         except OSError as exc:
             raise DatasetError(f"cannot read zip member {self.source}: {exc.strerror or exc}") from None
-        raise DatasetError(f"truncated or corrupt zip member: {self.source}")
+        if len(data) != self.size:
+            raise DatasetError(f"truncated or corrupt zip member: {self.source}")
+        return data
 
     def data(self) -> bytes:
         """The member's bytes (the PNG file)."""
@@ -231,8 +240,10 @@ class ZipPngLoader:
             raise DatasetError(f"cannot read zip member {self.source}: {exc}") from None
 
     def _load(self, out: np.ndarray | None) -> np.ndarray:
-        if self.deflated:
-            img = read_png12_deflated(self.raw(), self.file_size, self.crc, self.source, out)
+        if self.stored or self.deflated:
+            fd, _ = _handles(self.zip_path)
+            img = read_png12_member(fd, self._data_offset(fd), self.size, -1 if self.stored else self.file_size,
+                                    self.crc, self.source, out)
             if img is not None:
                 return img
         return read_png12_bytes(self.data(), self.source, out)

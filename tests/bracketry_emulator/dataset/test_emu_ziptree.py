@@ -187,3 +187,18 @@ def test_benchmark_of_a_zip_without_ground_truth(borealhdr_sample: Path, tmp_pat
         assert math.isnan(x["rte_pct"]) and math.isnan(x["rre_deg_per_m"])
         assert x["reference"].startswith("no reference")
     assert "RTE/RRE: no reference" in (out / "report" / "report.md").read_text()
+
+
+@pytest.mark.realdata
+def test_zip_without_the_compiled_decoder_gives_the_same_frames(borealhdr_sequence: Path, tmp_path: Path,
+                                                                monkeypatch: pytest.MonkeyPatch) -> None:
+    """Without ``_pngcodec`` the members are read through zipfile and decoded by OpenCV: the same pixels."""
+    from bracketry_emulator.extensions import extensions_disabled
+
+    monkeypatch.setenv("BRACKETRY_CACHE", str(tmp_path / "cache"))
+    archive = _zip(borealhdr_sequence, tmp_path / "t.zip", "", zipfile.ZIP_DEFLATED)
+    folder_seq, zip_seq = open_dataset(borealhdr_sequence).sequences()[0], open_dataset(archive).sequences()[0]
+    with extensions_disabled():
+        got = zip_seq.load("right")
+    want = folder_seq.load("right")
+    assert set(got) == set(want) and all(np.array_equal(got[e], want[e]) for e in want)
