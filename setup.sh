@@ -29,6 +29,8 @@ RIG_APT_PACKAGES=(libaravis-0.8-0 gir1.2-aravis-0.8 aravis-tools aravis-tools-cl
 if [ "$ROLE" = rig ]; then
   APT_PACKAGES=("${RIG_APT_PACKAGES[@]}")
 else
+  # pdflatex with booktabs (texlive-latex-recommended) and amssymb (texlive-base): the report's LaTeX tables compiled
+  APT_PACKAGES+=(texlive-latex-base texlive-latex-recommended texlive-fonts-recommended)
   command -v node >/dev/null 2>&1 || APT_PACKAGES+=(nodejs)
   command -v npm >/dev/null 2>&1 || APT_PACKAGES+=(npm)
 fi

@@ -41,6 +41,7 @@ MARKER_NEEDS: dict[str, tuple[str, ...]] = {
     "socat": ("socat",),
     "chromium": ("Chromium",),
     "orbslam3": ("ORB-SLAM3 (pyorbslam3)",),
+    "latex": ("pdflatex (booktabs, amssymb)",),
 }
 
 

@@ -135,7 +135,7 @@ def command(dataset: Path, methods: str, method_option: tuple[str, ...], method_
             min_exposure_ms: float,
             max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
             no_images: bool, png_compression: str, overwrite: bool, quiet: bool) -> int:
-    """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world or MCAP).
+    """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world, a .zip of either, or MCAP).
 
     Every method starts at --init-exposure-ms; at each bracket sequence its current target is emulated for the
     cameras, the images are written, and the method picks the next target from the --ae-camera image. Each decoded
