@@ -23,7 +23,7 @@ from bracketry.cameras.aravis_gi import CameraError, glib_error_message, load_ar
 from bracketry.cameras.frame_ids import FrameIdUnwrapper
 from bracketry.cameras.pixels import PIXEL_FORMAT_NAMES, payload_to_image
 from bracketry.cameras.profiles import CameraSettings, ConfigReport, apply_writes, probe_features, profile_writes
-from bracketry.cameras.triggering import ExposureReadbacks
+from bracketry.cameras.triggering import ExposureReadbacks, TriggerStamps
 from bracketry.errors import BracketryError
 from bracketry.ipv4 import unicast_ipv4
 
@@ -58,6 +58,9 @@ class Frame:
         counter_value: the CounterValue chunk (trigger counter), None without chunks.
         exposure_us_register: the exposure register read back at this frame's software trigger (set by the recording
             session once the frame is paired with its pulse, from ``GigECamera.exposure_readbacks``), None otherwise.
+        trigger_seq: the pulse its own trigger stamp shows (set by the recording session from
+            ``GigECamera.trigger_stamps`` for a camera that stamps frames with its trigger's receive time, see
+            ``bracketry.cameras.triggering``), None when unknown.
     """
 
     side: str
@@ -75,6 +78,7 @@ class Frame:
     exposure_us_reported: float | None = None
     counter_value: int | None = None
     exposure_us_register: float | None = None
+    trigger_seq: int | None = None
 
 
 @dataclass
@@ -148,6 +152,8 @@ class GigECamera:
         self._counter_names: tuple[str, ...] = ()
         #: exposure register read back at each software trigger, by trigger_seq (``SoftwareTrigger`` fills it)
         self.exposure_readbacks = ExposureReadbacks()
+        #: host time of each software trigger sent, by trigger_seq (``SoftwareTrigger`` fills it)
+        self.trigger_stamps = TriggerStamps()
 
     def _take_control(self, wait_s: float) -> None:
         """Hold the GigE Vision control privilege (writes and streaming need it), waiting up to ``wait_s`` seconds.
@@ -268,6 +274,7 @@ class GigECamera:
             self._stream.push_buffer(Aravis.Buffer.new_allocate(payload))
         self._unwrapper = FrameIdUnwrapper()
         self.exposure_readbacks.clear()  # a new stream's pulses are numbered from 0 again
+        self.trigger_stamps.clear()
         self._last_missing = 0
         self._stats = StreamStats()
         self._running.set()

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, ExposureReadbacks
+from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, ExposureReadbacks, TriggerStamps, frame_pulse
 from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet, Pairer
@@ -179,6 +179,17 @@ class RecordingSession:
                 except AttributeError:  # a frame type without the field: no read-back for it
                     continue
 
+    def _mark_pulse(self, frame: Any) -> None:
+        """``frame.trigger_seq`` from its own trigger stamp, when its camera keeps ``trigger_stamps`` and the stamp
+        shows one (``bracketry.cameras.triggering.frame_pulse``): the pairer then takes that pulse as it is."""
+        stamps = getattr(self._cameras_at_start.get(frame.side), "trigger_stamps", None)
+        if not isinstance(stamps, TriggerStamps):
+            return
+        seq = frame_pulse(frame, stamps)
+        if seq is not None:
+            with contextlib.suppress(AttributeError):  # a frame type without the field: placed by the pairer's checks
+                frame.trigger_seq = seq
+
     def _run(self) -> None:
         next_status = time.monotonic() + self.status_period_s
         while True:
@@ -187,6 +198,7 @@ class RecordingSession:
             except queue.Empty:
                 kind, item = "idle", None
             if kind == "frame":
+                self._mark_pulse(item)
                 self.pairer.add_frame(item)
             elif kind == "event":
                 self.pairer.add_event(item)
