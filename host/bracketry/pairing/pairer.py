@@ -109,6 +109,7 @@ class SideCounters:
     missing_packets: int = 0
     late: int = 0
     before_start: int = 0
+    stamped: int = 0  # frames placed by their own trigger stamp (``frame.trigger_seq``)
 
 
 @dataclass
@@ -221,6 +222,7 @@ class Pairer:
                 c.frames -= 1
                 c.before_start += 1
                 return -1
+            c.stamped += 1
             st.offset = int(stamped) - frame.frame_index  # frames without a stamp of their own follow it
         elif st.offset is None:
             first = self._initial_seq(frame)

@@ -145,6 +145,11 @@ class RecordingSession:
                 self.inbox_overflows += 1
             log.error("pairing inbox full: frame id %d of camera %s dropped", frame.frame_id, frame.side)
 
+    def received(self) -> dict[str, int]:
+        """Frames each camera delivered so far (counted on arrival, before pairing; priming frames included)."""
+        with self._lock:
+            return {side: self.frames_received.get(side, 0) for side in self._cameras_at_start}
+
     def on_trigger_event(self, event: TriggerEvent) -> None:
         """A TRIGGER event from the trigger device (any thread)."""
         self.recorder.put_event(event)
