@@ -22,7 +22,14 @@ import numpy as np
 from bracketry.cameras.aravis_gi import CameraError, glib_error_message, load_aravis
 from bracketry.cameras.frame_ids import FrameIdUnwrapper
 from bracketry.cameras.pixels import PIXEL_FORMAT_NAMES, payload_to_image
-from bracketry.cameras.profiles import CameraSettings, ConfigReport, apply_writes, probe_features, profile_writes
+from bracketry.cameras.profiles import (
+    CameraSettings,
+    ConfigReport,
+    apply_writes,
+    probe_features,
+    profile_kind,
+    profile_writes,
+)
 from bracketry.cameras.triggering import ExposureReadbacks, TriggerStamps
 from bracketry.errors import BracketryError
 from bracketry.ipv4 import unicast_ipv4
@@ -240,6 +247,20 @@ class GigECamera:
     def software_trigger(self) -> None:
         """Fire one software trigger (TriggerSource Software)."""
         self._device.execute_command("TriggerSoftware")
+
+    def read_lost_triggers(self) -> int | None:
+        """Software triggers the camera lost so far (its profile's ``lost_triggers_register``, one GVCP read; poll at
+        ~1 Hz), None when its profile keeps no such count or the read failed."""
+        if self._settings is None:
+            return None
+        register = profile_kind(self._settings.profile).lost_triggers_register
+        if register is None:
+            return None
+        try:
+            return int(self._device.read_register(register))
+        except Exception as exc:
+            log.debug("camera %s: lost-trigger count unreadable: %s", self.side, glib_error_message(exc))
+            return None
 
     def read_temperature_c(self) -> float | None:
         """DeviceTemperature in °C, or None when the camera has none (poll at ~1 Hz, not per frame)."""

@@ -164,7 +164,8 @@ def trigger_message(ev: TriggerEvent) -> dict[str, Any]:
 
 STATUS_FIELDS = ("fps_left", "fps_right", "frames_left", "frames_right", "drops_left", "drops_right",
                  "incomplete_left", "incomplete_right", "unpaired", "missing_packets_left", "missing_packets_right",
-                 "queue_overflows", "temperature_left_c", "temperature_right_c", "free_disk_mb")
+                 "queue_overflows", "temperature_left_c", "temperature_right_c", "free_disk_mb", "lost_triggers_left",
+                 "lost_triggers_right")
 
 
 class Recorder:

@@ -109,6 +109,7 @@ class RecordingSession:
         self.tap = tap
         #: the latest rig status (RigStatus fields), for readers outside the pairing thread
         self.last_status: dict[str, Any] = {}
+        self._lost_at_start: dict[str, int | None] = {}  # each camera's lost-trigger count when the session started
 
     def start(self) -> RecordingSession:
         """Start pairing and every camera's stream.
@@ -132,7 +133,14 @@ class RecordingSession:
                 self._thread = None
                 raise SessionStartError(side, str(exc)) from exc
             started.append(cam)
+        self._lost_at_start = {side: self._read_lost_triggers(cam) for side, cam in self.cameras.items()}
         return self
+
+    @staticmethod
+    def _read_lost_triggers(cam: Any) -> int | None:
+        """The camera's count of software triggers it lost (``GigECamera.read_lost_triggers``), None without one."""
+        read = getattr(cam, "read_lost_triggers", None)
+        return read() if read is not None else None
 
     def _on_frame(self, frame: Any) -> None:
         with self._lock:
@@ -228,6 +236,8 @@ class RecordingSession:
             out[f"drops_{side}"] = c.drops
             out[f"incomplete_{side}"] = c.incomplete
             out[f"missing_packets_{side}"] = c.missing_packets
+            lost, lost_then = self._read_lost_triggers(cam), self._lost_at_start.get(side)
+            out[f"lost_triggers_{side}"] = max(0, lost - lost_then) if lost is not None and lost_then is not None else 0
             temperature = cam.read_temperature_c() if hasattr(cam, "read_temperature_c") else None
             out[f"temperature_{side}_c"] = math.nan if temperature is None else temperature
             unpaired += c.unpaired
@@ -268,7 +278,9 @@ class RecordingSession:
             self._inbox.put(("stop", None))
             self._thread.join(timeout=30)
             self._thread = None
-        self.recorder.put_status(self.status())
+        status = self.status()
+        self.recorder.put_status(status)
         summary = self.recorder.stop()
         return {"pairing": self.pairer.summary(), "inbox_overflows": self.inbox_overflows,
+                "lost_triggers": {s: int(status.get(f"lost_triggers_{s}", 0)) for s in self.cameras},
                 "recorder": vars(summary), "streams": {s: c.stats().as_dict() for s, c in self.cameras.items()}}
