@@ -155,6 +155,17 @@ def current_frame_meta(meta: Any) -> dict[str, Any]:
     return out
 
 
+def current_status(status: Any) -> dict[str, Any]:
+    """A decoded RigStatus of any version of the recording format as a dict of the current definition (fields a
+    recording made before them lacks: 0, as the recorder writes a count it has none of)."""
+    out: dict[str, Any] = {
+        "header": {"stamp": {"sec": int(status.header.stamp.sec), "nanosec": int(status.header.stamp.nanosec)},
+                   "frame_id": str(status.header.frame_id)}}
+    for key in STATUS_FIELDS:
+        out[key] = getattr(status, key, 0)
+    return out
+
+
 def trigger_message(ev: TriggerEvent) -> dict[str, Any]:
     return {"session_id": ev.session_id & 0xFFFFFFFF, "trigger_seq": ev.trigger_seq & 0xFFFFFFFF,
             "bracket_index": ev.bracket_index, "exposure_us": ev.exposure_us,
