@@ -4,8 +4,9 @@ It owns the open devices (the trigger client and the cameras, opened through the
 reconnection backoff per device, and the fault checks: a trigger that stopped answering or rebooted, an idle camera
 that no longer answers GVCP, a recording camera that stalled (:class:`StallWatch`, a pure state machine over the open
 acquisition's frame and pulse counts). The daemon's own starvation (:class:`LoopWatch`: gaps in its supervisor loop)
-is told from a silent device: the time the daemon was not run counts towards no device's fault. It never touches a recording: it reports what it found, and the daemon
-(``bracketry.daemon.rig``) decides what happens to the open segment.
+is told from a silent device: the time the daemon was not run counts towards no device's fault. It never touches a
+recording: it reports what it found, and the daemon (``bracketry.daemon.rig``) decides what happens to the open
+segment.
 
 Threads: every method but the read-only properties runs under the daemon's action lock (buttons, the status socket,
 the monitor's actions and the 1 Hz supervisor thread); the supervisor's own lock guards its fields for readers
