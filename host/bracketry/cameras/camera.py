@@ -304,6 +304,10 @@ class GigECamera:
                                         daemon=True)
         self._thread.start()
         try:
+            # an acquisition a controller killed mid-recording left running keeps streaming to that controller's
+            # port: stopped first, the acquisition started now streams to the destination written above
+            with contextlib.suppress(Exception):
+                self._camera.stop_acquisition()
             self._camera.start_acquisition()
         except Exception as exc:
             self.stop()

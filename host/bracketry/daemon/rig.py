@@ -305,6 +305,7 @@ class RigDaemon:
             self._check_cameras(now, starved_s)
             self._reconnect()
             self.view.check_panel()
+        self.loop_watch.done(time.monotonic() if now_s is None else now_s)
 
     def _check_trigger(self, starved_s: float) -> None:
         if self.sensors.check_trigger(starved_s) is None:

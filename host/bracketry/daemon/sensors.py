@@ -191,23 +191,28 @@ STARVED_GAP_PERIODS = 2.0
 class LoopWatch:
     """Gaps in the daemon's own supervisor loop (pure: the caller gives the time of each step).
 
-    The loop steps every ``period_s``; a step that comes more than ``starved_periods`` periods after the previous
-    one shows that the daemon itself was starved (a loaded host did not run it), not that a device fell silent: for
-    that window the daemon saw nothing, so nothing seen missing in it is a device's fault. :meth:`step` returns the
-    time the daemon lost in the window (the gap less one period; 0.0 for a step on time), which the fault checks
-    leave out. ``starved_windows``, ``starved_s`` and ``longest_gap_s`` sum it up.
+    The loop waits ``period_s`` after each step; a step that starts more than ``starved_periods`` periods after the
+    previous one ended shows that the daemon itself was starved (a loaded host did not run it), not that a device fell
+    silent: for that window the daemon saw nothing, so nothing seen missing in it is a device's fault (a step that
+    itself took long, e.g. restarting a segment, is the daemon at work, not starved). :meth:`step` returns the time
+    the daemon lost in the window (the gap less one period; 0.0 for a step on time), which the fault checks leave
+    out. ``starved_windows``, ``starved_s`` and ``longest_gap_s`` sum it up.
     """
 
     def __init__(self, period_s: float = 1.0, starved_periods: float = STARVED_GAP_PERIODS) -> None:
         self.period_s, self.starved_periods = period_s, starved_periods
-        self._last_s: float | None = None
+        self._last_s: float | None = None  # end of the previous step
         self.starved_windows = 0
         self.starved_s = 0.0
         self.longest_gap_s = 0.0
 
+    def done(self, now_s: float) -> None:
+        """The step that began with :meth:`step` ended at ``now_s``: the wait for the next one starts."""
+        self._last_s = now_s
+
     def step(self, now_s: float) -> float:
-        """A supervisor step at ``now_s`` (monotonic seconds); returns the seconds the daemon was starved since the
-        previous step (0.0 when it came on time)."""
+        """A supervisor step begins at ``now_s`` (monotonic seconds); returns the seconds the daemon was starved
+        since the previous step ended (0.0 when it came on time)."""
         last, self._last_s = self._last_s, now_s
         if last is None:
             return 0.0
@@ -218,8 +223,8 @@ class LoopWatch:
         lost = gap - self.period_s
         self.starved_windows += 1
         self.starved_s += lost
-        log.warning("daemon starved: supervisor step %.2f s after the previous one (period %.2f s): no device fault "
-                    "is declared for those %.2f s", gap, self.period_s, lost)
+        log.warning("daemon starved: supervisor step %.2f s after the previous one ended (period %.2f s): no device "
+                    "fault is declared for those %.2f s", gap, self.period_s, lost)
         return lost
 
 

@@ -10,7 +10,8 @@ trigger and panel simulators), driven through its panel buttons as :mod:`bracket
 seeded order, each after a seeded stretch of recording:
 
 - ``cable_pull``: a camera off the network until the daemon shows it ERR, back after 2 s;
-- ``camera_restart``: a camera's server stopped and started again at once (new frame ids, no controller);
+- ``camera_restart``: a camera's server stopped and started again at once (new frame ids, no controller), until
+  the daemon closed the segment it was in and records with both cameras again;
 - ``serial_garbage``: five bursts of 256 seeded bytes of line noise from the trigger simulator (SIGUSR1);
 - ``disk_full``: a ballast file fills the recording disk below ``stop_free_mb``; once the daemon stopped, the
   ballast goes and RECORD is pressed again;
@@ -19,7 +20,8 @@ seeded order, each after a seeded stretch of recording:
 Between faults, and for the whole run without faults, the daemon's states are polled every 0.5 s: a sensor not in
 REC while no fault is under way is a *false fault*. Accounting: every frame a fake camera served (by its trigger
 stamp, which the recording keeps as ``FrameMeta.cam_timestamp_ns``; the priming frames aside) is either recorded, or
-lost inside a fault's window (served up to ``CRASH_WINDOW_S`` before a fault began and until it was over), or
+lost inside a fault's window (served up to ``CRASH_WINDOW_S`` before a fault began and until the rig recorded with
+every sensor again), or
 *unaccounted*; every recording is verified (a truncated one is repaired and the copy verified).
 """
 
@@ -45,7 +47,7 @@ from bracketry.testing.faults import ALL, Session, _sensors_and_record
 
 FAULTS = ("cable_pull", "serial_garbage", "disk_full", "sigkill", "camera_restart")
 #: frames served this long before a fault began may be lost with it (the recorder's open chunk, frames in flight)
-CRASH_WINDOW_S = 2.0
+CRASH_WINDOW_S = 3.0
 #: problem kinds of ``verify`` that a fault explains in the recording it closed (a camera gone leaves drops and
 #: unpaired frames behind, line noise loses TRIGGER events, a SIGKILL truncates the file)
 EXPLAINED_KINDS = ("drops", "unpaired", "events_missing", "truncated")
@@ -126,10 +128,19 @@ class Soak:
         self.rig.start_camera(side)
         self._all_rec()
 
+    def _segments(self) -> int:
+        reply = self.rig._status_or_none()
+        return int(reply["segments"]) if reply else 0
+
     def _camera_restart(self, side: str) -> None:
+        before = self._segments()
         self.stop_camera(side)
         self.rig.start_camera(side)
-        time.sleep(3.0)  # the daemon finds the camera it knew gone (no frames, no control), then the new one
+        # the daemon finds the camera it knew gone (no frames, no control): the segment closes; then the new one
+        deadline = time.monotonic() + 60.0
+        while self._segments() <= before and time.monotonic() < deadline:
+            self.rig.check_alive()
+            time.sleep(0.2)
         self._all_rec()
 
     def _serial_garbage(self, _side: str) -> None:

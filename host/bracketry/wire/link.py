@@ -31,6 +31,10 @@ Listener = Callable[[int, int, dict[str, Any]], None]
 
 #: a device HEARTBEAT whose uptime_ms is this much below the previous one announces a reboot (milliseconds)
 UPTIME_SLACK_MS = 50
+#: the ticker's period (peer check, heartbeat, reconnection), seconds
+TICK_S = 0.05
+#: a tick this long after the previous one shows this process starved: that time counts as no silence of the peer
+STARVED_TICK_GAP_S = 0.5
 
 #: device -> host message types handed to listeners
 EVENT_TYPES = (bproto.MSG_TRIGGER, bproto.MSG_BUTTON, bproto.MSG_HELLO, bproto.MSG_HEARTBEAT)
@@ -82,7 +86,8 @@ class SerialLink:
 
     Parameters: ``url`` (pyserial URL or path), ``baudrate``, ``heartbeat_period_s`` (0.5 = 2 Hz; ``None`` sends no
     HEARTBEAT, e.g. for the panel whose PANEL_STATE is the host heartbeat), ``peer_lost_after_s`` (1.5 s = 3 missed
-    heartbeats), ``reconnect`` (reopen the port after an I/O error, e.g. an unplug), ``time_ns`` (host clock for
+    heartbeats; time this process was not run, a ticker gap over ``STARVED_TICK_GAP_S``, does not count as
+    silence), ``reconnect`` (reopen the port after an I/O error, e.g. an unplug), ``time_ns`` (host clock for
     PING stamps and the clock model; default ``time.monotonic_ns``). BUTTON frames are handed to the listeners as
     they come (ACKs and duplicates are the panel client's).
 
@@ -335,8 +340,14 @@ class SerialLink:
     def _tick_loop(self) -> None:
         next_hb = time.monotonic()
         next_reconnect = 0.0
-        while not self._closed.wait(0.05):
+        last_tick = next_hb
+        while not self._closed.wait(TICK_S):
             now = time.monotonic()
+            if now - last_tick > STARVED_TICK_GAP_S:
+                # this process was not run (a loaded host): its reader could not take what the peer sent either, so
+                # that time is no silence of the peer's
+                self._last_rx_s = min(now, self._last_rx_s + (now - last_tick - TICK_S))
+            last_tick = now
             if not self.connected:
                 if self.reconnect and now >= next_reconnect:
                     next_reconnect = now + 0.5
