@@ -73,11 +73,11 @@ def main() -> int:
         print(f"ERROR: {r['error']}")
     print("faults injected: " + ", ".join(f"{k} {n}" for k, n in sorted(r.get("faults", {}).items())))
     print(f"{'camera':>8} {'served':>8} {'recorded':>9} {'in_fault':>9} {'unaccounted':>12} {'not_served':>11} "
-          f"{'twice':>6}")
+          f"{'twice':>6} {'unstamped':>10}")
     sides = r.get("sides", {})
     for side, c in sides.items():
         print(f"{side:>8} {c['served']:>8} {c['recorded']:>9} {c['in_fault_window']:>9} {c['unaccounted']:>12} "
-              f"{c['not_served']:>11} {c['recorded_twice']:>6}")
+              f"{c['not_served']:>11} {c['recorded_twice']:>6} {c.get('unstamped', 0):>10}")
     verified = r.get("verify", [])
     clean = sum(1 for v in verified if v["ok"])
     truncated = [v for v in verified if v["truncated"]]

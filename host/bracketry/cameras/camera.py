@@ -161,6 +161,7 @@ class GigECamera:
         self.exposure_readbacks = ExposureReadbacks()
         #: host time of each software trigger sent, by trigger_seq (``SoftwareTrigger`` fills it)
         self.trigger_stamps = TriggerStamps()
+        self._first_stream = True  # no stream started on this connection yet (see ``start``)
 
     def _take_control(self, wait_s: float) -> None:
         """Hold the GigE Vision control privilege (writes and streaming need it), waiting up to ``wait_s`` seconds.
@@ -304,10 +305,13 @@ class GigECamera:
                                         daemon=True)
         self._thread.start()
         try:
-            # an acquisition a controller killed mid-recording left running keeps streaming to that controller's
-            # port: stopped first, the acquisition started now streams to the destination written above
-            with contextlib.suppress(Exception):
-                self._camera.stop_acquisition()
+            if self._first_stream:
+                # an acquisition a controller killed mid-recording left running keeps streaming to that controller's
+                # port: stopped first (once, on the first stream of this connection), the acquisition started now
+                # streams to the destination written above
+                self._first_stream = False
+                with contextlib.suppress(Exception):
+                    self._camera.stop_acquisition()
             self._camera.start_acquisition()
         except Exception as exc:
             self.stop()

@@ -19,7 +19,9 @@ seeded order, each after a seeded stretch of recording:
 
 Between faults, and for the whole run without faults, the daemon's states are polled every 0.5 s: a sensor not in
 REC while no fault is under way is a *false fault*. Accounting: every frame a fake camera served (by its trigger
-stamp, which the recording keeps as ``FrameMeta.cam_timestamp_ns``; the priming frames aside) is either recorded, or
+stamp, which the recording keeps as ``FrameMeta.cam_timestamp_ns``; the priming frames aside; a frame the fake filled
+for no trigger of its relay's carries the fake's own stamp and is matched with a recorded frame no stamped one
+accounts for) is either recorded, or
 lost inside a fault's window (served up to ``CRASH_WINDOW_S`` before a fault began and until the rig recorded with
 every sensor again), or
 *unaccounted*; every recording is verified (a truncated one is repaired and the copy verified).
@@ -263,13 +265,17 @@ def account(soak: Soak) -> dict[str, Any]:
     served = soak.served()
     sides: dict[str, Any] = {}
     for side in ("left", "right"):
-        counts = Counter({"served": 0, "recorded": 0, "in_fault_window": 0, "unaccounted": 0, "not_served": 0})
+        counts = Counter({"served": 0, "recorded": 0, "in_fault_window": 0, "unaccounted": 0, "not_served": 0,
+                          "unstamped": 0})
         seen: set[int] = set()
         unaccounted: list[int] = []
         for _fid, t_ns, exposure_us in served[side]:
             if exposure_us == PRIMING_EXPOSURE_US:
                 continue
             counts["served"] += 1
+            if t_ns == 0:  # a fill no relay trigger was waiting for: it carries the fake's own stamp (matched below)
+                counts["unstamped"] += 1
+                continue
             seen.add(t_ns)
             if recorded[side].get(t_ns):
                 counts["recorded"] += 1
@@ -278,7 +284,12 @@ def account(soak: Soak) -> dict[str, Any]:
             else:
                 counts["unaccounted"] += 1
                 unaccounted.append(t_ns)
-        counts["not_served"] = sum(n for t, n in recorded[side].items() if t not in seen)
+        # recorded frames whose stamp no stamped served frame has: the unstamped served frames, else not served
+        others = sum(n for t, n in recorded[side].items() if t not in seen)
+        matched = min(others, counts["unstamped"])
+        counts["recorded"] += matched
+        counts["unaccounted"] += counts["unstamped"] - matched
+        counts["not_served"] = others - matched
         counts["recorded_twice"] = sum(n - 1 for n in recorded[side].values() if n > 1)
         sides[side] = {**counts, "unaccounted_stamps": unaccounted[:20]}
     verified = verify_all(soak.rig)
