@@ -44,7 +44,7 @@ COUNTER_NAMES = ("frames_in", "frames_out", "crc_errors", "length_errors", "cobs
                  "unsolicited_hellos", "heartbeats_in", "heartbeats_out", "peer_lost", "trigger_events",
                  "button_events", "bad_payloads", "unknown_types",
                  "unmatched_replies", "listener_errors", "reconnects", "io_errors", "seq_gaps", "send_acks",
-                 "send_nacks")
+                 "send_nacks", "write_timeouts")
 
 
 def open_serial(url: str, baudrate: int = 921600, read_timeout_s: float = 0.05) -> serial.SerialBase:
@@ -313,6 +313,13 @@ class SerialLink:
         try:
             with self._write_lock:
                 port.write(frame)
+        except serial.SerialTimeoutException as exc:
+            # the peer does not read (a device busy, a simulator not run on a loaded host): the port is fine, and
+            # reopening it would throw away what the peer sent meanwhile; this frame is lost, counted
+            with self._lock:
+                self._counters["write_timeouts"] += 1
+            log.warning("%s: write timed out (the peer does not read): frame dropped", self.name)
+            raise DeviceLostError(f"{self.name}: write timed out: {exc}") from exc
         except (serial.SerialException, OSError) as exc:
             self._io_failed(exc)
             raise DeviceLostError(f"{self.name}: write failed: {exc}") from exc
