@@ -93,9 +93,9 @@ class Soak:
 
     def stop_camera(self, side: str) -> None:
         cam = self.rig.cameras.get(side)
-        if cam is not None:
-            self.served_done[side] += cam.frames()
         self.s.stop_camera(side)
+        if cam is not None:  # read once stopped: a frame filled while it stopped is counted too
+            self.served_done[side] += cam.frames()
 
     def watch(self, seconds: float) -> None:
         """Let the rig record for ``seconds``, polling its states: a sensor not in REC is a false fault."""
