@@ -157,13 +157,13 @@ class SegmentRecorder:
         return self._open is not None
 
     def progress(self) -> Progress | None:
-        """Frames and pulses per camera of the open acquisition (None when none is open)."""
+        """Frames and pulses per camera of the open acquisition (None when none is open). Frames are counted as they
+        arrive from each camera (``RecordingSession.frames_received``), not once paired: a pairing thread behind on
+        a loaded host is not a silent camera."""
         o = self._open
         if o is None:
             return None
-        counters = o.session.pairer.counters
-        return Progress(o.session_id, {s: c.frames for s, c in counters.items()}, dict(o.pulses),
-                        o.camera_trigger.failed)
+        return Progress(o.session_id, o.session.received(), dict(o.pulses), o.camera_trigger.failed)
 
     def open_session(self) -> RecordingSession | None:
         o = self._open

@@ -156,6 +156,17 @@ def current_frame_meta(meta: Any) -> dict[str, Any]:
     return out
 
 
+def current_status(status: Any) -> dict[str, Any]:
+    """A decoded RigStatus of any version of the recording format as a dict of the current definition (fields a
+    recording made before them lacks: 0, as the recorder writes a count it has none of)."""
+    out: dict[str, Any] = {
+        "header": {"stamp": {"sec": int(status.header.stamp.sec), "nanosec": int(status.header.stamp.nanosec)},
+                   "frame_id": str(status.header.frame_id)}}
+    for key in STATUS_FIELDS:
+        out[key] = getattr(status, key, 0)
+    return out
+
+
 def trigger_message(ev: TriggerEvent) -> dict[str, Any]:
     return {"session_id": ev.session_id & 0xFFFFFFFF, "trigger_seq": ev.trigger_seq & 0xFFFFFFFF,
             "bracket_index": ev.bracket_index, "exposure_us": ev.exposure_us,
@@ -165,7 +176,8 @@ def trigger_message(ev: TriggerEvent) -> dict[str, Any]:
 
 STATUS_FIELDS = ("fps_left", "fps_right", "frames_left", "frames_right", "drops_left", "drops_right",
                  "incomplete_left", "incomplete_right", "unpaired", "missing_packets_left", "missing_packets_right",
-                 "queue_overflows", "temperature_left_c", "temperature_right_c", "free_disk_mb")
+                 "queue_overflows", "temperature_left_c", "temperature_right_c", "free_disk_mb", "lost_triggers_left",
+                 "lost_triggers_right")
 
 
 class Recorder:
