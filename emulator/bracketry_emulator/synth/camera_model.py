@@ -11,8 +11,8 @@ Per pixel (Bayer channel c of the RGGB mosaic, exposure time t in microseconds):
     code     = response_lut[level]                                            sRGB-encoded (default), pcalib, or linear
 
 ``radiance`` is in scene units where one unit gives one photo-electron per microsecond on a pixel of QE 1 at the image
-centre (a green pixel collects ``qe_rgb[1]`` of it). The default response reproduces the real sample's codes exactly: code = floor(4095 * sRGB_OETF(k / 4095)) of
-the linear level k (2920 distinct codes, saturated code 4094).
+centre (a green pixel collects ``qe_rgb[1]`` of it). The default response reproduces the real sample's codes exactly:
+code = floor(4095 * sRGB_OETF(k / 4095)) of the linear level k (2920 distinct codes, saturated code 4094).
 
 The defaults are the rig's sensor, the Sony IMX392 of the Basler a2A1920-51gcPRO (``hw/bom.csv``; 3.45 um pixels,
 12-bit ADC, 0 dB gain as the rig runs it): saturation capacity about 10.5 ke-, temporal dark noise about 2.3 e-

@@ -33,11 +33,12 @@ How each part acts (all of it deterministic, from the world seed):
 - **canopy** / **canopy_patches**: the light reaching every point of a sector of the world (the polar angles about
   the loop's centre that the route crosses between ``from`` and ``to``) is reduced by ``density`` (0.985: 6 stops);
   patches alternate along the route (``period_m``, ``duty``); ``edge_m`` is the width of the sector's soft edge
-  (default 1.5 m; a forest edge onto a sunlit field is a few tens of centimetres). **clouds**: bands of cloud shadow (cells of ``size_m``,
-  a share ``cover`` covered) drifting at ``speed_mps`` towards ``direction_deg`` (from north, clockwise); a
-  shadowed point keeps its sky light and ``1 - opacity`` of the direct sun; the sun itself is hidden while the camera
-  is in a cloud's shadow. **dimming**: one factor on all light over time (log-linear between the keys). These are
-  applied to each render at the frame's instant ``t_s`` from the world position of every pixel's hit.
+  (default 1.5 m; a forest edge onto a sunlit field is a few tens of centimetres). **clouds**: bands of cloud shadow
+  (cells of ``size_m``, a share ``cover`` covered) drifting at ``speed_mps`` towards ``direction_deg`` (from north,
+  clockwise); a shadowed point keeps its sky light and ``1 - opacity`` of the direct sun; the sun itself is hidden
+  while the camera is in a cloud's shadow. **dimming**: one factor on all light over time (log-linear between the
+  keys). These are applied to each render at the frame's instant ``t_s`` from the world position of every pixel's
+  hit.
 - **glare**: a veil ``glare * 0.01 * E_sun / (angle^2 + 0.01^2)`` around a visible sun within 70 degrees of the
   optical axis (E_sun: the disk's radiance x its solid angle).
 - **fresh_snow**: the ground of the sector becomes smooth, nearly textureless snow; ``contrast`` gives it a natural
