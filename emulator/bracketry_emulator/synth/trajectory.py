@@ -107,8 +107,8 @@ class LoopTrajectory:
         pitch_deg: downward pitch of the optical axis.
         step_hz: step frequency (vertical bounce at step_hz, roll/sway/yaw at step_hz / 2).
         bounce_m, roll_deg, sway_m, yaw_deg, nod_deg: gait amplitudes of the trunk that carries the backpack
-            (walking gait: the trunk bobs 2-3 cm per step, sways 2-4 cm and rolls 2-3 degrees per stride, turns
-            3-5 degrees with the pelvis and pitches 1-2 degrees; with an 18-20 kg pack, towards the upper values).
+            (walking: the trunk bobs 2-3 cm per step, sways 2-3 cm and rolls about 2 degrees per stride; the upper
+            trunk, where the rig rides, turns less than the pelvis: about 2 degrees; it pitches about 1 degree).
         phase_rad: start position on the loop.
         turn_deg, turn_period_s: the walker looking around: a yaw of ``turn_deg`` amplitude with that period, on
             top of the gait (0: none). A 15-degree look every 7 s turns at up to 13 degrees/s.
@@ -121,10 +121,10 @@ class LoopTrajectory:
     pitch_deg: float = 6.0
     step_hz: float = 1.7
     bounce_m: float = 0.025
-    roll_deg: float = 2.5
-    sway_m: float = 0.03
-    yaw_deg: float = 4.0
-    nod_deg: float = 1.5
+    roll_deg: float = 2.0
+    sway_m: float = 0.025
+    yaw_deg: float = 2.0
+    nod_deg: float = 1.0
     phase_rad: float = 0.0
     turn_deg: float = 0.0
     turn_period_s: float = 7.0
