@@ -27,6 +27,7 @@ machine-vision lenses: 1-5 %). DATASET.md compares the model with the real sampl
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -331,9 +332,9 @@ def spread_gaussian(a: np.ndarray, sigma_px: float) -> np.ndarray:
     a 0.5 px one, normalised: the sum is kept). float32 (H, W)."""
     s = max(float(sigma_px), 0.5)
     r = max(1, int(np.ceil(3.0 * s)))
-    x = np.arange(-r, r + 1, dtype=np.float64)
-    taps = np.exp(-0.5 * (x / s) ** 2)
-    taps /= taps.sum()
+    weights = [math.exp(-0.5 * (k / s) ** 2) for k in range(-r, r + 1)]  # libm: the same on every CPU
+    total = sum(weights)
+    taps = np.array([w / total for w in weights])
     a = np.asarray(a, np.float32)
     return _blur_rows(_blur_rows(a, taps).T.copy(), taps).T.copy()
 

@@ -77,7 +77,7 @@ def orb_keypoints(codes: np.ndarray, size: tuple[int, int] = (640, 400), n_featu
     gray = cv2.cvtColor((np.asarray(codes) >> 4).astype(np.uint8), cv2.COLOR_BayerBG2GRAY)
     if gray.shape[::-1] != tuple(size):
         gray = cv2.resize(gray, size, interpolation=cv2.INTER_AREA)
-    orb = cv2.ORB_create(nfeatures=n_features, fastThreshold=fast_threshold)
+    orb = cv2.ORB_create(nfeatures=n_features, fastThreshold=fast_threshold)  # type: ignore[attr-defined]
     return len(orb.detect(gray, None))
 
 
@@ -109,7 +109,7 @@ def _main(sample: str) -> None:  # pragma: no cover - prints DATASET.md's table
     print("|---|---|---|---|---|---|---|")
     for ms in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0):
         files = sorted((next(root.glob("*/camera_left")) / f"{ms:.1f}").glob("*.png"))
-        real = [frame_stats(cv2.imread(str(f), cv2.IMREAD_UNCHANGED)) for f in files]
+        real = [frame_stats(np.asarray(cv2.imread(str(f), cv2.IMREAD_UNCHANGED))) for f in files]
         syn = [frame_stats(world.render("left", t, ms * 1000.0)) for t in (2.0, 6.0, 10.0)]
 
         def med(rows: list[dict], key: str) -> float:
