@@ -1,15 +1,22 @@
-"""The oracle (method id ``oracle``): per step, the exposure of a fine grid under which the most ORB features are
-tracked into the next frame. NON-CAUSAL: it reads the next step's brackets, which no camera can. A control row that
-frames the benchmark's results (how well any exposure choice could do), not an AE method.
+"""The oracle (method id ``oracle``): per step, the exposure of a fine grid under which the most ORB features of the
+recent frames (a stand-in for SLAM's local map) are tracked into the next frame. NON-CAUSAL: it reads the next step's
+brackets, which no camera can. A control row that frames the benchmark's results (how well any exposure choice could
+do), not an AE method.
 
 Score of a candidate exposure ``e`` for step k+1, at step k (the documented image-quality score)::
 
-    tracked(e) = cross-checked ORB matches between the image of step k (as the method got it) and I_{k+1}(e)
-                 with Hamming distance <= 40 whose keypoint moved at most 8 % of the image size, / ORB_FEATURES
+    tracked(F, e, a) = cross-checked ORB matches between frame F and I_{k+1}(e) with Hamming distance <= 40 whose
+                       keypoint moved at most a x 8 % of the image size, / ORB_FEATURES
+    score(e)         = mean over the last MAP_WINDOW frames F_j as the method got them (j = k, k-1, ..., a = k+1-j
+                       steps before k+1) of tracked(F_j, e, a)
 
 where ``I_{k+1}(e)`` is the AE camera's image of step k+1 emulated at ``e`` (the closed loop's own emulation, the
 same source bracket a method asking for ``e`` gets), both turned into 8-bit gray as the localisation sees them
 (:func:`~bracketry_emulator.features.demosaic.to_gray8`) and area-downscaled to at most :data:`WORK_WIDTH` columns.
+With ``window`` 1 this is the share tracked from the current frame alone (one step ahead). The window is what keeps
+SLAM tracking: ORB-SLAM matches each frame to its local map, points made from the last keyframes, so an exposure that
+matches the current frame but not the ones before it (a drift or a jump away from the map's brightness) loses map
+points a one-step score does not see.
 When no exposure reaches :data:`MIN_SHARE` (the current frame is too dark or blank to track from, e.g. at the
 start), ``e`` is judged from the current step's image at ``e`` instead (``I_k(e)`` into ``I_{k+1}(e)``).
 The answer for step k+1 is the ``e`` with the largest score; scores within 5 % of the best count as equal and then
@@ -25,8 +32,10 @@ interval), and it rewards what the tracker needs at a change of light: a next fr
 Grid: exposures ``hi_ms * 2**(-k / steps_per_stop)`` for k = 0, 1, ... down to ``lo_ms`` (default 0.25..32 ms in
 half stops: 15 exposures), clipped to the loop's bounds. Searched coarse to fine: every whole stop (8 exposures),
 then from the best one along the grid in both directions while the score does not drop (a unimodal score needs
-2 more). Cost per evaluated exposure: one emulation, one ORB extraction and one matching, about 4 ms at 320 px
-width (about 90 ms a step at 320x200 here).
+2 more). Cost per evaluated exposure: one emulation, one ORB extraction and ``window`` matchings (the window's
+features are kept, not extracted again): with the default window of 3, two matchings more than the one-step score
+(on the shared 2-core machine under load: 11 ms an extraction, 36 ms a 500 x 500 cross-checked matching, so about
+2.5 times the one-step score's cost per exposure).
 
 What the method sees (beside the image): ``meta["look_ahead"](target_us, offset)`` -> uint16 HxW Bayer image of
 the AE camera at ``target_us`` for the current step (offset 0) or the next one (offset 1; None at the last step),
@@ -36,6 +45,7 @@ given by the closed loop (:mod:`.scheduler`) to methods that declare ``looks_ahe
 from __future__ import annotations
 
 import math
+from collections import deque
 from collections.abc import Callable
 from typing import Any
 
@@ -60,6 +70,10 @@ KEEP_WITHIN = 0.05
 #: below this best share the current frame is too poor to judge from (dark, blank): each exposure is then judged
 #: by the share tracked from the current step's image at that exposure into the next step's
 MIN_SHARE = 0.05
+
+#: frames the score matches the next one against: the current frame and the ones before it, as the method got them
+#: (ORB-SLAM tracks against its local map, built from the last keyframes, not against the last frame alone)
+MAP_WINDOW = 3
 
 #: a frame's ORB features: keypoint positions (float32 Nx2, px), descriptors (uint8 Nx32), image size (px)
 Features = tuple[np.ndarray, np.ndarray, int]
@@ -101,9 +115,10 @@ class ORBTracker:
         xy = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
         return xy, desc, max(gray8.shape)
 
-    def tracked_share(self, a: Features | None, b: Features | None) -> float:
+    def tracked_share(self, a: Features | None, b: Features | None, steps: int = 1) -> float:
         """Cross-checked matches of ``a``'s descriptors into ``b``'s within :attr:`max_hamming` whose keypoint moved
-        at most :data:`MAX_MOTION` of the image size, / ``n_features``."""
+        at most ``steps`` x :data:`MAX_MOTION` of the image size (``b`` is ``steps`` frames after ``a``),
+        / ``n_features``."""
         if a is None or b is None:
             return 0.0
         (xy_a, da, size), (xy_b, db, _) = a, b
@@ -114,7 +129,7 @@ class ORBTracker:
         ti = np.fromiter((m.trainIdx for m in matches), np.intp, len(matches))
         dist = np.fromiter((m.distance for m in matches), np.float32, len(matches))
         moved = np.linalg.norm(xy_a[qi] - xy_b[ti], axis=1)
-        ok = (dist <= self.max_hamming) & (moved <= MAX_MOTION * size)
+        ok = (dist <= self.max_hamming) & (moved <= MAX_MOTION * steps * size)
         return int(np.count_nonzero(ok)) / float(self.n_features)
 
 
@@ -130,17 +145,22 @@ class OracleAE:
     #: relative cost of one step (~15 emulations and ORB extractions), for balancing worker processes
     step_cost = 150
 
-    def __init__(self, lo_ms: float = 0.25, hi_ms: float = 32.0, steps_per_stop: int = 2) -> None:
-        if not (0 < lo_ms < hi_ms) or steps_per_stop < 1:
-            raise ValueError(f"oracle grid needs 0 < lo_ms < hi_ms and steps_per_stop >= 1, got {lo_ms}, {hi_ms}, "
-                             f"{steps_per_stop}")
+    def __init__(self, lo_ms: float = 0.25, hi_ms: float = 32.0, steps_per_stop: int = 2,
+                 window: int = MAP_WINDOW) -> None:
+        if not (0 < lo_ms < hi_ms) or steps_per_stop < 1 or window < 1:
+            raise ValueError(f"oracle grid needs 0 < lo_ms < hi_ms, steps_per_stop >= 1 and window >= 1, got {lo_ms}, "
+                             f"{hi_ms}, {steps_per_stop}, {window}")
         self.lo_ms, self.hi_ms, self.steps_per_stop = float(lo_ms), float(hi_ms), int(steps_per_stop)
+        self.window = int(window)
         self.tracker = ORBTracker()
         #: per step: {exposure_us: score} of the last decision (for inspection and tests)
         self.last_scores: dict[float, float] = {}
+        #: the features of the last ``window`` frames as the method got them, newest first (its stand-in map)
+        self._map: deque[Features | None] = deque(maxlen=self.window)
 
     def reset(self, init_exposure_us: float) -> None:
         self.last_scores = {}
+        self._map = deque(maxlen=self.window)
 
     def next_exposure_us(self, image: np.ndarray, exposure_us: float, meta: dict[str, Any]) -> float:
         look: LookAhead | None = meta.get("look_ahead")
@@ -151,9 +171,8 @@ class OracleAE:
                                 tuple(meta.get("bounds_us", (1.0, 1e9))))  # type: ignore[arg-type]
         if look(grid[0], 1) is None:  # the last step: its answer is never used
             return float(exposure_us)
-        current = self._describe(image)
-        tracked = self._search(grid, exposure_us,
-                               lambda e: self.tracker.tracked_share(current, self._describe(look(e, 1))))
+        self._map.appendleft(self._describe(image))
+        tracked = self._search(grid, exposure_us, lambda e: self.map_share(self._describe(look(e, 1))))
         if max(tracked.values()) < MIN_SHARE:  # the current frame tracks nothing: judge each exposure on its own
             tracked = self._search(grid, exposure_us, lambda e: self.tracker.tracked_share(
                 self._describe(look(e, 0)), self._describe(look(e, 1))))
@@ -161,6 +180,13 @@ class OracleAE:
         if max(tracked.values()) <= 0.0:
             return float(exposure_us)
         return self._pick(tracked, exposure_us)
+
+    def map_share(self, b: Features | None) -> float:
+        """The mean over the stand-in map's frames (the current one and up to ``window - 1`` before it) of the share
+        of their features tracked into ``b`` (the next frame; a frame ``a`` steps older gets ``a + 1`` times the
+        motion allowance)."""
+        shares = [self.tracker.tracked_share(f, b, age + 1) for age, f in enumerate(self._map)]
+        return float(np.mean(shares)) if shares else 0.0
 
     def _search(self, grid: list[float], current_us: float, score_of: Callable[[float], float]) -> dict[float, float]:
         """{exposure: score} of the grid exposures evaluated: every whole stop (from the longest), then from the
