@@ -135,8 +135,19 @@ def describe(opts: SlamOptions | dict | None) -> str:
         return "built-in stereo VO (OpenCV, ORB-SLAM2-like front end, 5-frame map, no relocalisation)"
     pace = "real time" if o.pace_s is None else ("unpaced" if o.pace_s == 0 else f"{o.pace_s:g} s per frame")
     return (f"ORB-SLAM3 stereo (pyorbslam3), fed at {pace}, loop closing {'on' if o.loop_closing else 'off'}, "
-            f"ORB 3000 features / scale 1.2 / 13 levels / FAST 15-5, ThDepth 35, vocabulary {o.vocabulary_id}, "
+            f"ORB {orb_sizing_text()}, ThDepth 35, vocabulary {o.vocabulary_id}, "
             f"{o.repeats} repeat(s) per run")
+
+
+def orb_sizing_text() -> str:
+    """How ORB-SLAM3's extractor is sized (:data:`~bracketry_emulator.slam.settings.ORB_SIZING`), for the report."""
+    from bracketry_emulator.slam.settings import ORB_SIZING, field_orb_settings
+
+    if ORB_SIZING == "paper":
+        return "3000 features / scale 1.2 / 13 levels / FAST 15-5 (the paper's)"
+    big, small = field_orb_settings(640, 400), field_orb_settings(320, 200)
+    return (f"sized for the paper's view ({big.n_features} features / {big.n_levels} levels at 640x400, "
+            f"{small.n_features} / {small.n_levels} at 320x200; scale 1.2, FAST 15-5)")
 
 
 def orbslam3_options(opts: SlamOptions) -> Any:
@@ -174,7 +185,8 @@ def combine_repeats(runs: list[dict]) -> dict:
     """One result per (trajectory, method) from its repeats: medians, spreads (max - min) and the runs' values.
 
     Failed repeats (``error``) are left out of the medians; with none left the result carries the first error.
-    The per-frame lists and windows come from the repeat whose RTE is closest to the median.
+    The per-frame lists and windows come from the repeat whose RTE is closest to the median; ``failure_runs`` lists
+    ``{"repeat", "time_s", "cause"}`` of every repeat that lost track (:mod:`~.failure_analysis`).
     """
     ok = [r for r in runs if not r.get("error")]
     if not ok:
@@ -196,5 +208,7 @@ def combine_repeats(runs: list[dict]) -> dict:
             out[f"{k}_runs"] = [float(v) for v in vals]
             out[f"{k}_spread"] = float(np.ptp(fin)) if len(fin) else float("nan")
     out["success"] = sum(bool(r["success"]) for r in ok) * 2 > len(ok)  # the majority of the repeats
+    out["failure_runs"] = [{"repeat": int(r.get("repeat", 0)), "time_s": float(r["time_before_failure_s"]),
+                            "cause": str(r["failure_cause"])} for r in ok if r.get("failure_cause")]
     out.update(repeats=len(runs), repeats_ok=len(ok), errors=[r["error"] for r in runs if r.get("error")])
     return out

@@ -178,13 +178,27 @@ def medians_tex(medians: list[list[str]]) -> str:
     return tabular([["Method" if k == 0 else "", *h] for k, h in enumerate(heads)], rows, caption, "table:medians")
 
 
+def causes_tex(causes: list[list[str]]) -> str:
+    """The cause table (``causes``: :func:`~bracketry_emulator.report.tables.cause_table`), one row per method, the
+    paper's reading in its last column."""
+    rows = [[escape(c) for c in r] for r in causes[1:]]
+    caption = ("Runs that lost track per cause of their first loss (from the per-frame saturated and dark shares, "
+               "blur length, exposure ratio to the previous frame and keypoints), beside the paper's reading of its "
+               "own failures; the paper adds glare (every method on Campus1) and blur at the longest brackets.")
+    header = [escape(c.replace("_", " ")) for c in causes[0]]
+    return tabular(header, rows, caption, "table:causes", "l" + "r" * (len(header) - 2) + "p{5cm}")
+
+
 def write_latex(rep: Path, verdicts: list[list[str]], success: list[list[str]], medians: list[list[str]],
-                reference: str, alpha: float) -> dict[str, Path]:
-    """Write ``rep/latex/{verdicts,success,medians}.tex``; returns {``latex/<name>.tex``: path}."""
+                reference: str, alpha: float, causes: list[list[str]] | None = None) -> dict[str, Path]:
+    """Write ``rep/latex/{verdicts,success,medians}.tex`` (and ``causes.tex`` with ``causes``); returns
+    {``latex/<name>.tex``: path}."""
     out = rep / "latex"
     out.mkdir(parents=True, exist_ok=True)
     texts = {"verdicts.tex": verdicts_tex(verdicts, reference, alpha), "success.tex": success_tex(success),
              "medians.tex": medians_tex(medians)}
+    if causes is not None:
+        texts["causes.tex"] = causes_tex(causes)
     files = {}
     for name, text in texts.items():
         (out / name).write_text(text)

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from bracketry_emulator.metrics.failure_causes import CAUSES, failure_rows
 from bracketry_emulator.metrics.manifest import success_counts
 from bracketry_emulator.stats.controls import (
     BEST_CONSTANT,
@@ -264,3 +265,37 @@ def relabel(rows: list[list[str]], labels: dict[str, str], header: bool = False)
     if header:
         return [[labels.get(c, c) for c in rows[0]], *rows[1:]]
     return [rows[0], *[[labels.get(r[0], r[0]), *r[1:]] for r in rows[1:]]]
+
+
+#: the columns of ``failure_causes.csv``: one row per run that lost track (its first loss)
+FAILURE_CAUSE_COLUMNS = ("trajectory", "method", "repeat", "time_s", "cause")
+#: the paper's reading of its own failures, per method (BorealHDR benchmark, Results): what the cause table sits
+#: beside; beyond these, glare failed every method on Campus1 and blur grows at the longest brackets
+PAPER_FAILURE_READING = {
+    "kim": "abrupt exposure changes (its exploration steps)",
+    "wang": "abrupt exposure changes (its jumps); saturation once converged too high",
+    "shim": "short exposures: least blur",
+}
+
+
+def failure_causes_rows(results: list[dict]) -> list[list[str]]:
+    """``failure_causes.csv``: :data:`FAILURE_CAUSE_COLUMNS`, one row per run that lost track (every failed repeat
+    of a combined result; :func:`~bracketry_emulator.metrics.failure_causes.failure_rows`)."""
+    rows = [list(FAILURE_CAUSE_COLUMNS)]
+    for r in results:
+        for f in failure_rows(r):
+            rows.append([str(r["trajectory"]), str(r["method"]), str(int(f["repeat"])), _fmt(float(f["time_s"]), 2),
+                         str(f["cause"])])
+    return rows
+
+
+def cause_table(results: list[dict], methods: list[str]) -> list[list[str]]:
+    """Failed runs per cause (columns, :data:`~bracketry_emulator.metrics.failure_causes.CAUSES`) and method (rows),
+    with the runs that lost track and the paper's reading of that method's failures (:data:`PAPER_FAILURE_READING`;
+    ``-`` when it gives none)."""
+    rows = [["method", *CAUSES, "lost", "the paper's reading"]]
+    for m in methods:
+        causes = [f["cause"] for r in results if r["method"] == m for f in failure_rows(r)]
+        rows.append([m, *[str(causes.count(c)) for c in CAUSES], str(len(causes)),
+                     PAPER_FAILURE_READING.get(m, "-")])
+    return rows

@@ -19,7 +19,14 @@ from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
 from bracketry_emulator.benchmark.slam import combine_repeats, slam_options
 from bracketry_emulator.benchmark.toyworld import ToyWorld
 from bracketry_emulator.slam.orbslam3 import OrbSlam3Options, SlamRunError, map_states, run_orbslam3
-from bracketry_emulator.slam.settings import OrbSlamCamera, pyramid_levels, settings_yaml
+from bracketry_emulator.slam.settings import (
+    MIN_FIELD_FEATURES,
+    PAPER_ORB,
+    OrbSlamCamera,
+    field_orb_settings,
+    pyramid_levels,
+    settings_yaml,
+)
 from bracketry_emulator.slam.vocabulary import build_vocabulary, parse_vocabulary_text, vocabulary_text
 from bracketry_emulator.trajectory_io import read_frames_csv
 
@@ -109,7 +116,18 @@ def test_bench_settings_reals_and_levels() -> None:
     assert np.allclose(fs.getNode("Stereo.T_c1_c2").mat()[:3, 3], [0.18, 0, 0])
     assert int(fs.getNode("ORBextractor.nLevels").real()) == pyramid_levels(320, 240, 13, 1.2) == 8
     assert pyramid_levels(960, 600, 13, 1.2) == 13
+    assert int(fs.getNode("ORBextractor.nFeatures").real()) == MIN_FIELD_FEATURES
     fs.release()
+
+
+def test_bench_field_orb_settings_follow_the_papers_view() -> None:
+    """The paper's 3000 features at 1920 px; at smaller widths the share it spent at the scales those images resolve
+    (level log_1.2(1920 / W) on), never below the floor; its scale factor and FAST thresholds everywhere."""
+    assert field_orb_settings(1920, 1200) == PAPER_ORB
+    big, mid, small = field_orb_settings(960, 600), field_orb_settings(640, 400), field_orb_settings(320, 200)
+    assert (mid.n_features, mid.n_levels) == (794, 11) and (small.n_features, small.n_levels) == (750, 7)
+    assert big.n_features == 1345 and big.n_levels == 13
+    assert {(o.scale_factor, o.ini_th_fast, o.min_th_fast) for o in (big, mid, small)} == {(1.2, 15, 5)}
 
 
 def test_bench_map_states_splits_segments() -> None:
