@@ -24,13 +24,14 @@ BACKENDS = SLAM_BACKENDS
 
 @dataclass(frozen=True)
 class SlamOptions:
-    """The benchmark's SLAM options; defaults chosen from the measurements in ARCHITECTURE.md (real-time feed, loop
+    """The benchmark's SLAM options; defaults chosen from the measurements in ARCHITECTURE.md (lockstep feed, loop
     closing on).
 
     ``backend``: one of :data:`BACKENDS`. ``vocabulary``: DBoW2 text file (orbslam3; resolved before the runs, see
     :func:`resolve_options`). ``vocabulary_id``: ``<file name>:<sha256 prefix>`` of that file (the cache key follows
-    its content). ``pace``: ``"realtime"`` (the recording's own timestamps) or seconds between fed frames (0 =
-    unpaced). ``loop_closing``: ORB-SLAM3's loop-closing thread (off also turns relocalisation off). ``repeats``: runs
+    its content). ``pace``: ``"lockstep"`` (each frame once ORB-SLAM3's mapping threads are idle: results that do not
+    depend on the machine's load, :mod:`bracketry_emulator.slam.quiescence`), ``"realtime"`` (the recording's own
+    timestamps) or seconds between fed frames (0 = unpaced). ``loop_closing``: ORB-SLAM3's loop-closing thread (off also turns relocalisation off). ``repeats``: runs
     per (trajectory, method); the report gives their median and spread.
     """
 
@@ -65,23 +66,38 @@ class SlamOptions:
 
     @property
     def pace_s(self) -> float | None:
-        """Seconds between fed frames; None: real time."""
+        """Seconds between fed frames; None: real time; 0: unpaced (and lockstep: no wall-clock pace)."""
+        if self.pace == "lockstep":
+            return 0.0
         return None if self.pace == "realtime" else float(self.pace)
 
     @property
+    def lockstep(self) -> bool:
+        """ORB-SLAM3 fed in lockstep with its mapping threads."""
+        return self.backend == "orbslam3" and self.pace == "lockstep"
+
+    @property
     def paced(self) -> bool:
-        """ORB-SLAM3 fed at a pace (its runs mostly wait)."""
-        return self.backend == "orbslam3" and self.pace != 0.0
+        """ORB-SLAM3 fed at a wall-clock pace (its runs mostly wait; a lockstep run mostly computes)."""
+        return self.backend == "orbslam3" and self.pace not in (0.0, "lockstep")
+
+
+#: the feeds that are words (the others are seconds between frames)
+PACE_WORDS = ("lockstep", "realtime")
 
 
 def parse_pace(text: str | float | None) -> str | float:
-    """``realtime`` or a non-negative number of seconds -> the option value; anything else: one-line error."""
-    if text is None or text == "realtime":
-        return "realtime"
+    """``lockstep``, ``realtime`` or a non-negative number of seconds -> the option value (None: the default,
+    :data:`~bracketry_emulator.defaults.DEFAULT_SLAM_PACE`); anything else: one-line error."""
+    if text is None:
+        return DEFAULT_SLAM_PACE
+    if text in PACE_WORDS:
+        return str(text)
     try:
         v = float(text)
     except (TypeError, ValueError):
-        raise BracketryError(f"bad --slam-pace {text!r} (use 'realtime' or seconds per frame, e.g. 0.12)") from None
+        raise BracketryError(f"bad --slam-pace {text!r} (use 'lockstep', 'realtime' or seconds per frame, "
+                             "e.g. 0.12)") from None
     if not np.isfinite(v) or v < 0:
         raise BracketryError(f"bad --slam-pace {text!r} (seconds per frame must be >= 0)")
     return v
@@ -133,8 +149,9 @@ def describe(opts: SlamOptions | dict | None) -> str:
     o = opts if isinstance(opts, SlamOptions) else SlamOptions.from_json(opts) if opts else SlamOptions.builtin()
     if o.backend == "builtin":
         return "built-in stereo VO (OpenCV, ORB-SLAM2-like front end, 5-frame map, no relocalisation)"
-    pace = "real time" if o.pace_s is None else ("unpaced" if o.pace_s == 0 else f"{o.pace_s:g} s per frame")
-    return (f"ORB-SLAM3 stereo (pyorbslam3), fed at {pace}, loop closing {'on' if o.loop_closing else 'off'}, "
+    pace = ("in lockstep (each frame once local mapping and loop closing are idle)" if o.lockstep else
+            "at real time" if o.pace_s is None else ("unpaced" if o.pace_s == 0 else f"at {o.pace_s:g} s per frame"))
+    return (f"ORB-SLAM3 stereo (pyorbslam3), fed {pace}, loop closing {'on' if o.loop_closing else 'off'}, "
             f"ORB {orb_sizing_text()}, ThDepth 35, vocabulary {o.vocabulary_id}, "
             f"{o.repeats} repeat(s) per run")
 
@@ -154,7 +171,8 @@ def orbslam3_options(opts: SlamOptions) -> Any:
     """How the ORB-SLAM3 child runs with these options (:class:`~bracketry_emulator.slam.orbslam3.OrbSlam3Options`)."""
     from bracketry_emulator.slam.orbslam3 import OrbSlam3Options
 
-    return OrbSlam3Options(str(opts.vocabulary), pace_s=opts.pace_s, loop_closing=opts.loop_closing)
+    return OrbSlam3Options(str(opts.vocabulary), pace_s=opts.pace_s, lockstep=opts.lockstep,
+                           loop_closing=opts.loop_closing)
 
 
 def run_slam(opts: SlamOptions, run_dir: Path, calibration_dir: str, vo_dir: Path,

@@ -138,7 +138,9 @@ def _windows(text: str) -> tuple[float, ...]:
               help="ORB-SLAM3 vocabulary (e.g. ORBvoc.txt; env PYORBSLAM3_VOCAB). Default: the project's own, "
                    "built once into the user cache (never downloaded).")
 @click.option("--slam-pace", default=DEFAULT_SLAM_PACE, show_default=True,
-              help="ORB-SLAM3 feed: 'realtime' (the recording's timestamps) or seconds per frame (0 = unpaced).")
+              help="ORB-SLAM3 feed: 'lockstep' (each frame once ORB-SLAM3's mapping threads are idle: results that "
+                   "do not move with the machine's load), 'realtime' (the recording's timestamps) or seconds per "
+                   "frame (0 = unpaced).")
 @click.option("--loop-closing/--no-loop-closing", default=True, show_default=True,
               help="ORB-SLAM3's loop-closing thread; off also turns relocalisation off.")
 @click.option("--slam-repeats", default=1, show_default=True, type=Integer(1, 50),

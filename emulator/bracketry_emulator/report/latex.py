@@ -20,13 +20,14 @@ import re
 from pathlib import Path
 
 from bracketry_emulator.stats.mannwhitney import SYMBOL
+from bracketry_emulator.stats.stability import UNSTABLE
 
 _ESCAPES = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_", "{": r"\{",
             "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
 
 #: verdict symbol of the CSV -> its LaTeX command (amssymb)
 LATEX_SYMBOL = {SYMBOL["better"]: r"$\blacktriangle$", SYMBOL["worse"]: r"$\blacktriangledown$",
-                SYMBOL["equal"]: r"$\equiv$", SYMBOL["n/a"]: "--"}
+                SYMBOL["equal"]: r"$\equiv$", SYMBOL["n/a"]: "--", UNSTABLE: "?"}
 
 PREAMBLE = "% needs \\usepackage{booktabs,amssymb}\n"
 

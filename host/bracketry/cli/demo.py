@@ -30,9 +30,10 @@ from bracketry.cli.options import (
               help="The DRL actor's .pth (env BRACKETRY_DRL_WEIGHTS); without it DRL is left out.")
 @click.option("--slam", type=click.Choice(["orbslam3", "builtin"]), default=None,
               help="Localisation (default: orbslam3; builtin with --quick).")
-@click.option("--slam-pace", default="0", show_default=True,
-              help="ORB-SLAM3 feed: seconds between frames (0 = as fast as it tracks: every method's run at once "
-                   "on the machine's cores) or 'realtime' (the recording's timestamps).")
+@click.option("--slam-pace", default="lockstep", show_default=True,
+              help="ORB-SLAM3 feed: 'lockstep' (each frame once ORB-SLAM3's mapping threads are idle: results that "
+                   "do not move with the machine's load), seconds between frames (0 = as fast as it tracks) or "
+                   "'realtime' (the recording's timestamps).")
 @option("--methods", "-m", "methods", aliases=("--method",), default="all", show_default=True,
         help="AE methods: 'all' (the paper's; drl with --drl-weights) or a comma list of ids, plugins "
              "pkg.module:Class or entry points (ae50 is the reference: keep it).")

@@ -55,19 +55,20 @@ class DemoPlan:
     drl_weights: str | None = None
     #: localisation: "orbslam3" (ORB-SLAM3 stereo) or "builtin" (the built-in VO)
     slam: str = "orbslam3"
-    #: ORB-SLAM3 feed: seconds between frames (0 = as fast as it tracks) or "realtime" (see :data:`DEMO_PACE`)
-    slam_pace: str | float = 0.0
+    #: ORB-SLAM3 feed: "lockstep", seconds between frames (0 = as fast as it tracks) or "realtime" (see
+    #: :data:`DEMO_PACE`)
+    slam_pace: str | float = "lockstep"
     #: the synthetic suite benchmarked with the recording: a size of ``bracketry synth suite`` ("demo"), or None
     suite: str | None = None
     #: the suite's seed
     suite_seed: int = 0
 
 
-#: The demo feeds ORB-SLAM3 unpaced: every method's run at once, fed by the one closed-loop pass. On this 2-core
-#: machine seven real-time runs at once fall minutes behind their clock (so "real time" would not hold anyway), and
-#: runs kept within real time (two at a time) would need four 40 s rounds; unpaced, a run also costs ~30 % less CPU
-#: (26 vs 37 CPU-s for the default 40 s recording). ``bracketry benchmark`` keeps real time as its default.
-DEMO_PACE = 0.0
+#: The demo feeds ORB-SLAM3 in lockstep, as ``bracketry benchmark`` does: every method's run at once, fed by the one
+#: closed-loop pass, each frame once that run's mapping threads are idle, so its results do not move with the load.
+#: Real time does not hold on a 2-core machine (seven real-time runs at once fall minutes behind their clock) and
+#: unpaced runs race their own mapping (see :mod:`bracketry_emulator.slam.quiescence`).
+DEMO_PACE = "lockstep"
 
 
 #: The demo's dataset PNGs are stored (deflate without compression): 0.34 vs 5.7 ms an image to write at 640x400
