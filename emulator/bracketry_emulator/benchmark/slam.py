@@ -31,7 +31,8 @@ class SlamOptions:
     :func:`resolve_options`). ``vocabulary_id``: ``<file name>:<sha256 prefix>`` of that file (the cache key follows
     its content). ``pace``: ``"lockstep"`` (each frame once ORB-SLAM3's mapping threads are idle: results that do not
     depend on the machine's load, :mod:`bracketry_emulator.slam.quiescence`), ``"realtime"`` (the recording's own
-    timestamps) or seconds between fed frames (0 = unpaced). ``loop_closing``: ORB-SLAM3's loop-closing thread (off also turns relocalisation off). ``repeats``: runs
+    timestamps) or seconds between fed frames (0 = unpaced). ``loop_closing``: ORB-SLAM3's loop-closing thread (off
+    also turns relocalisation off). ``repeats``: runs
     per (trajectory, method); the report gives their median and spread.
     """
 

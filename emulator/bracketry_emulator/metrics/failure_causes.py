@@ -144,8 +144,10 @@ def _floats(rows: list[dict], key: str, n: int) -> np.ndarray:
     out = np.full(n, np.nan)
     for k, r in enumerate(rows[:n]):
         text = r.get(key)
+        if text is None or text == "":
+            continue
         with contextlib.suppress(ValueError):
-            out[k] = float(text) if text not in (None, "") else np.nan
+            out[k] = float(text)
     return out
 
 

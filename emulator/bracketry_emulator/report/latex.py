@@ -187,7 +187,7 @@ def causes_tex(causes: list[list[str]]) -> str:
                "blur length, exposure ratio to the previous frame and keypoints), beside the paper's reading of its "
                "own failures; the paper adds glare (every method on Campus1) and blur at the longest brackets.")
     header = [escape(c.replace("_", " ")) for c in causes[0]]
-    return tabular(header, rows, caption, "table:causes", "l" + "r" * (len(header) - 2) + "p{5cm}")
+    return tabular([header], rows, caption, "table:causes", "l" + "r" * (len(header) - 2) + "p{5cm}")
 
 
 def write_latex(rep: Path, verdicts: list[list[str]], success: list[list[str]], medians: list[list[str]],

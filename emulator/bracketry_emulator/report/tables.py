@@ -185,7 +185,7 @@ def paired_tables(results: list[dict], methods: list[str], reference: str, alpha
 
         def test(sample: dict[str, dict[str, float]], ref: str, higher: bool = higher
                  ) -> dict[str, PairedComparison]:
-            return wilcoxon_to_reference(sample, ref, higher, alpha, n_tests=len(others))
+            return wilcoxon_to_reference(sample, ref, higher, alpha, n_tests=len(others), method="approx")
 
         share = verdict_stability(values, reference, {m: comps[m].verdict for m in others}, test,
                                   name_seed("wilcoxon", key))

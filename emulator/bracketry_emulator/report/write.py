@@ -2,11 +2,11 @@
 
 Files in ``<out>/report/``: ``results.csv`` (per trajectory and method), ``windows.csv`` (RTE/RRE per window),
 ``summary.csv``, ``medians.csv`` (per method: medians and spread over repeats), ``success.csv`` (per subset),
-``stats.csv`` (p-values, verdicts and their stability), ``failure_causes.csv`` (trajectory, method, repeat, time_s, cause: one row per
-run that lost track, :mod:`~bracketry_emulator.metrics.failure_causes`; with the cause x method table in the report
-and ``latex/causes.tex``), ``verdicts.csv``, ``verdicts_paired.csv`` (each method's
-verdict, then its stability over bootstrap resamples, :mod:`~bracketry_emulator.stats.stability`; the Wilcoxon
-signed-rank verdicts as the same table), ``controls.csv`` (with control rows), ``report.md``, ``report.html``, the PNG figures (box plots
+``stats.csv`` (p-values, verdicts and their stability), ``failure_causes.csv`` (trajectory, method, repeat, time_s,
+cause: one row per run that lost track, :mod:`~bracketry_emulator.metrics.failure_causes`; with the cause x method
+table in the report and ``latex/causes.tex``), ``verdicts.csv``, ``verdicts_paired.csv`` (each method's verdict, then
+its stability over bootstrap resamples, :mod:`~bracketry_emulator.stats.stability`; the Wilcoxon signed-rank verdicts
+as the same table), ``controls.csv`` (with control rows), ``report.md``, ``report.html``, the PNG figures (box plots
 per metric and method over trajectories and repeats ``box_<metric>.png``, per-frame coverage and matches box plots,
 time before failure, exposure traces, qualitative grid) and ``latex/`` (the verdict, success and medians tables as
 LaTeX, :mod:`~bracketry_emulator.report.latex`).

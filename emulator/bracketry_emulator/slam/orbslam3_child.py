@@ -2,9 +2,10 @@
 
 Reads the run's pairs (a run folder's PNGs, or the closed loop's images through the FIFO ``frames_fifo``, see
 :mod:`.frame_stream`), rectifies them as the built-in VO does (same row correction), feeds ORB-SLAM3 at the requested
-pace or in lockstep (each frame once ORB-SLAM3's own threads are idle, :mod:`.quiescence`) (or, ``backend: builtin``, tracks them with the built-in VO), and writes ``frames.csv``,
-``CameraTrajectory<n>.txt``, ``settings.yaml`` and, last, ``slam.json`` (its presence tells the parent the run
-finished). Exit code 0 on success, 1 with a one-line message otherwise.
+pace or in lockstep (each frame once ORB-SLAM3's own threads are idle, :mod:`.quiescence`) (or, ``backend: builtin``,
+tracks them with the built-in VO), and writes ``frames.csv``, ``CameraTrajectory<n>.txt``, ``settings.yaml`` and,
+last, ``slam.json`` (its presence tells the parent the run finished). Exit code 0 on success, 1 with a one-line
+message otherwise.
 """
 
 from __future__ import annotations
@@ -160,13 +161,15 @@ def _track(request: dict) -> dict:
         write_tum(out / f"CameraTrajectory{seg}.txt", [times_ns[i] * 1e-9 for i in idx],
                   [p for p in (poses[i] for i in idx) if p is not None])
     summary = {"backend": "orbslam3", "pyorbslam3": _version(), "vocabulary": opts["vocabulary"],
-               "pace_s": pace, "lockstep": lockstep, "loop_closing": opts["loop_closing"], "settings": str(settings_file),
+               "pace_s": pace, "lockstep": lockstep, "loop_closing": opts["loop_closing"],
+               "settings": str(settings_file),
                "fps_settings": max(1, round(fps)), "n_frames": len(times_ns), "vocabulary_load_s": load_s,
                "track_s_median": float(np.median(track_s)) if track_s else float("nan"),
                "track_s_mean": float(np.mean(track_s)) if track_s else float("nan"),
                "raw_states": {s: raw_states.count(s) for s in sorted(set(raw_states))},
-               "max_late_s": late_s, **({"lockstep_wait_s": waits.wait_s, "lockstep_timeouts": waits.timeouts}
-                                        if lockstep else {}), "source": "stream" if request.get("frames_fifo") else "png"}
+               "max_late_s": late_s,
+               **({"lockstep_wait_s": waits.wait_s, "lockstep_timeouts": waits.timeouts} if lockstep else {}),
+               "source": "stream" if request.get("frames_fifo") else "png"}
     return summary
 
 
