@@ -145,7 +145,7 @@ def _floats(rows: list[dict], key: str, n: int) -> np.ndarray:
     for k, r in enumerate(rows[:n]):
         text = r.get(key)
         with contextlib.suppress(ValueError):
-            out[k] = float(text) if text not in (None, "") else np.nan
+            out[k] = float(text) if isinstance(text, str) and text else np.nan
     return out
 
 
