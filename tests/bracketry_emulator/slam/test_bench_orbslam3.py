@@ -151,7 +151,7 @@ def test_bench_orbslam3_tracks_in_every_repeat(toy: Path, vocabulary: Path, tmp_
     small vocabulary; the built-in VO 3.1 % on the 24 frames); 5 % still catches a scale, frame or timing error
     (those give tens of percent).
     """
-    slam = slam_options("orbslam3", vocabulary, pace=0.0, repeats=3)
+    slam = slam_options("orbslam3", vocabulary, pace="lockstep", repeats=3)
     ds = toy_dataset(toy / "dense", tmp_path / "ds")
     seen: list[dict] = []
     res = run_benchmark(BenchmarkConfig([ds], ["ae50"], tmp_path / "out", reference="ae50",
