@@ -16,7 +16,8 @@ What ORB-SLAM3's ``Settings`` parser demands, learnt the hard way:
 * ``loopClosing: 0`` turns the loop-closing thread off, and with it relocalisation (keyframes reach the
   place-recognition database only through that thread).
 
-The ORB extractor is sized for what the paper's setup sees (:data:`ORB_SIZING`, :func:`field_orb_settings`). The
+The ORB extractor is the paper's by default; :data:`ORB_SIZING` ``field`` sizes it for what the paper's setup sees
+(:func:`field_orb_settings`). The
 authors ran ORB-SLAM2 on 1920x1200 images with 3000 features, scale factor 1.2, 13 levels, FAST 15/5
 (norlab-ulaval/ORB_SLAM2, branch TFR2024, ``Main/stereo/calib_files/stereo-september-2023.yaml``). Its extractor
 spreads the 3000 over the levels geometrically (level l gets a share proportional to 1.2^-l), so each level is one
@@ -43,7 +44,7 @@ from bracketry_emulator.features.orb import OrbSettings
 MIN_TOP_LEVEL_PX = 64
 #: how ORB-SLAM3's extractor is sized: "field" (the paper's features at the scales our image resolves,
 #: :func:`field_orb_settings`) or "paper" (its 3000 features and 13 levels whatever the image size)
-ORB_SIZING = "field"
+ORB_SIZING = "paper"
 #: the paper's image width (px) and ORB extractor (ORB-SLAM2 on 1920x1200)
 PAPER_WIDTH_PX = 1920
 PAPER_ORB = OrbSettings(n_features=3000, scale_factor=1.2, n_levels=13, ini_th_fast=15, min_th_fast=5)
