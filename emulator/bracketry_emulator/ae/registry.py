@@ -167,14 +167,15 @@ def get_method(spec: str, **options: Any) -> AEMethod:
 
 def expand_methods(specs: str | list[str], has_drl_weights: bool = True,
                    warn: Callable[[str], None] | None = None) -> list[str]:
-    """Split a comma list, expand ``all`` (the paper's eight; drl only when weights are given), drop duplicates."""
+    """Split a comma list, expand ``all`` or ``paper`` (the paper's seven, and drl when weights are given), drop
+    duplicates."""
     items = specs.split(",") if isinstance(specs, str) else list(specs)
     out: list[str] = []
     for raw in items:
         s = raw.strip()
         if not s:
             continue
-        if s.lower() == "all":
+        if s.lower() in ("all", "paper"):
             for b in PAPER_METHODS:
                 if b == "drl" and not has_drl_weights:
                     if warn:

@@ -115,8 +115,8 @@ class BenchmarkResult:
 
 
 def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> list[str]:
-    """``all`` / ``paper`` (the paper's eight) or a comma-separated list (or a list) -> method ids, order kept,
-    duplicates removed.
+    """``all`` / ``paper`` (the paper's seven, and drl with its weights) or a comma-separated list (or a list) ->
+    method ids, order kept, duplicates removed.
 
     Without DRL weights (``has_drl_weights=False``) ``all`` leaves ``drl`` out and an explicit ``drl`` is an error.
     """

@@ -18,6 +18,7 @@ from bracketry.cli.options import (
     input_file,
     input_path,
     method_options_options,
+    option,
     output_dir,
     quiet_option,
 )
@@ -63,9 +64,10 @@ def _windows(text: str) -> tuple[float, ...]:
 
 @click.command("benchmark")
 @click.argument("datasets", nargs=-1, required=True, type=input_path())
-@click.option("--methods", "-m", default="all", show_default=True,
-              help="'all' or 'paper' (the paper's eight; drl with --drl-weights) or a comma-separated list of AE "
-                   "method ids (built-ins, plugins pkg.module:Class or entry points; each named by its 'name').")
+@option("--methods", "-m", "methods", aliases=("--method",), default="all", show_default=True,
+        help="AE methods: 'all' or 'paper': the paper's seven (fix, ae30, ae50, ae70, shim, wang, kim) and drl with "
+             "--drl-weights; 'controls': the oracle and constant exposures; or a comma list of ids (zhang, "
+             "constant-<ms>, oracle), plugins pkg.module:Class or entry points (each named by its 'name').")
 @method_options_options()
 @click.option("--stats-methods", default=DEFAULT_STATS_METHODS, show_default=True,
               help="Methods in the statistics and their Bonferroni count: 'paper' (zhang and plugins are reported, "

@@ -64,9 +64,9 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
 @click.command("emulate")
 @click.argument("dataset", type=input_path())
 @option("--methods", "-m", "methods", aliases=("--method",), default="ae50", show_default=True,
-        help="Comma list of AE methods: fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, constant-<ms> "
-             "(e.g. constant-8), a plugin pkg.module:Class or an entry point; 'all' = the paper's eight "
-             "(drl only with --drl-weights; zhang by name).")
+        help="AE methods: 'all' or 'paper': the paper's seven (fix, ae30, ae50, ae70, shim, wang, kim) and drl with "
+             "--drl-weights; 'controls': the oracle and constant exposures; or a comma list of ids (zhang, "
+             "constant-<ms> e.g. constant-8, oracle), plugins pkg.module:Class or entry points.")
 @method_options_options()
 @click.option("--out", "-o", "out_dir", required=True, type=output_dir(),
               help="Output folder (new or empty): one sub-folder per method, summary.json, exposures.csv, "

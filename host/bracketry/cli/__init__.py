@@ -59,11 +59,15 @@ def _available(module: str) -> bool:
         return False
 
 
+#: old names that still run but are not listed (``calibrate-crf`` is ``calibrate crf``)
+HIDDEN_ALIASES = frozenset({"calibrate-crf"})
+
+
 class LazyGroup(click.Group):
     """A click group whose subcommands are imported only when used."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return [name for name, (mod, *_rest) in COMMANDS.items() if _available(mod)]
+        return [name for name, (mod, *_rest) in COMMANDS.items() if _available(mod) and name not in HIDDEN_ALIASES]
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
         entry = COMMANDS.get(cmd_name)

@@ -9,7 +9,7 @@ import click
 from bracketry.cli.options import (
     EXIT_OK,
     EXIT_PROBLEMS,
-    Number,
+    Duration,
     input_file,
     method_options_options,
     option,
@@ -22,8 +22,8 @@ from bracketry.cli.options import (
 @click.option("--out", "out_dir", type=output_dir(), default=Path("demo-out"),
               show_default=True, help="Output folder, new or empty (recording, dataset, benchmark report).")
 @overwrite_option("Run again into a non-empty --out (the earlier demo's files are replaced).")
-@option("--duration-s", "seconds", aliases=("--seconds",), type=Number(3.0, 600.0), default=None,
-        help="Seconds to record, 3 to 600 (default 20, or 10 with --quick).")
+@option("--duration-s", "seconds", aliases=("--seconds",), type=Duration(600.0, min_s=3.0), default=None,
+        help="How long to record: seconds or e.g. 30s, 2m; 3 s to 10 min (default 20 s, or 10 s with --quick).")
 @click.option("--quick", is_flag=True, help="Small and short (320x200, 10 s of recording): the version CI runs.")
 @click.option("--drl-weights", type=input_file(), default=None,
               envvar="BRACKETRY_DRL_WEIGHTS",
@@ -35,7 +35,8 @@ from bracketry.cli.options import (
                    "do not move with the machine's load), seconds between frames (0 = as fast as it tracks) or "
                    "'realtime' (the recording's timestamps).")
 @option("--methods", "-m", "methods", aliases=("--method",), default="all", show_default=True,
-        help="AE methods: 'all' (the paper's; drl with --drl-weights) or a comma list of ids, plugins "
+        help="AE methods: 'all' or 'paper': the paper's seven (fix, ae30, ae50, ae70, shim, wang, kim) and drl with "
+             "--drl-weights; 'controls': the oracle and constant exposures; or a comma list of ids, plugins "
              "pkg.module:Class or entry points (ae50 is the reference: keep it).")
 @method_options_options()
 @click.option("--stats-methods", default="paper", show_default=True,

@@ -103,12 +103,14 @@ MAX_DURATION_S = 7 * 24 * 3600.0
 
 
 class Duration(click.ParamType):
-    """Seconds: ``30``, ``2.5``, ``30s``, ``2m``, ``1h`` or ``1m30s`` -> float seconds, > 0 and <= ``max_s``."""
+    """Seconds: ``30``, ``2.5``, ``30s``, ``2m``, ``1h`` or ``1m30s`` -> float seconds, > 0, >= ``min_s`` and
+    <= ``max_s``."""
 
     name = "duration"
 
-    def __init__(self, max_s: float = MAX_DURATION_S) -> None:
+    def __init__(self, max_s: float = MAX_DURATION_S, min_s: float = 0.0) -> None:
         self.max_s = max_s
+        self.min_s = min_s
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
@@ -125,6 +127,8 @@ class Duration(click.ParamType):
                 self.fail(f"{value!r}: expected seconds or e.g. 30s, 2m, 1h, 1m30s", param, ctx)
         if not math.isfinite(total) or total <= 0:
             self.fail(f"{value!r}: must be more than 0 s", param, ctx)
+        if total < self.min_s:
+            self.fail(f"{value!r}: at least {self.min_s:g} s", param, ctx)
         if total > self.max_s:
             self.fail(f"{value!r}: at most {self.max_s:g} s", param, ctx)
         return total
