@@ -53,15 +53,21 @@ PREVIEW_PORT = 8470
 def scenario_argv(scenario: str, out: Path, result: Path, *args: str, tmpfs_mb: int | None = None) -> list[str]:
     """The command running ``scenario`` in a private network namespace (and, with ``tmpfs_mb``, a private mount
     namespace where ``out/disk`` is a tmpfs of that many MiB)."""
-    from bracketry.cameras.netns import netns_argv
-
     inner = [sys.executable, "-m", "bracketry.testing.faults", "--scenario", scenario, "--out", str(out),
              "--result", str(result), *args]
+    return namespaced_argv(inner, out, tmpfs_mb, "bracketry-sim")
+
+
+def namespaced_argv(inner: list[str], out: Path, tmpfs_mb: int | None, tmpfs_name: str) -> list[str]:
+    """``inner`` in a private network namespace holding the fake cameras' addresses (and, with ``tmpfs_mb``, a
+    private mount namespace where ``out/disk`` is a tmpfs of that many MiB named ``tmpfs_name``)."""
+    from bracketry.cameras.netns import netns_argv
+
     argv = netns_argv(inner, tuple(CAMERA_ADDRESSES.values()))
     if tmpfs_mb is None:
         return argv
     disk = out / "disk"
-    script = (f"mkdir -p {shlex.quote(str(disk))} && mount -t tmpfs -o size={int(tmpfs_mb)}m bracketry-sim "
+    script = (f"mkdir -p {shlex.quote(str(disk))} && mount -t tmpfs -o size={int(tmpfs_mb)}m {tmpfs_name} "
               f"{shlex.quote(str(disk))} && exec \"$@\"")
     return ["unshare", "--mount", "--propagation", "private", "sh", "-c", script, "mountns", *argv]
 

@@ -34,7 +34,6 @@ import contextlib
 import json
 import os
 import random
-import shlex
 import signal
 import sys
 import time
@@ -44,8 +43,8 @@ from pathlib import Path
 from typing import Any
 
 from bracketry.cameras.triggering import PRIMING_EXPOSURE_US
-from bracketry.sim.rig import CAMERA_ADDRESSES, NETNS_ENV, SimOptions, SimulatedRig
-from bracketry.testing.faults import ALL, Session, _sensors_and_record
+from bracketry.sim.rig import NETNS_ENV, SimOptions, SimulatedRig
+from bracketry.testing.faults import ALL, Session, _sensors_and_record, namespaced_argv
 
 FAULTS = ("cable_pull", "serial_garbage", "disk_full", "sigkill", "camera_restart")
 #: frames served this long before a fault began may be lost with it (the recorder's open chunk, frames in flight)
@@ -58,16 +57,8 @@ EXPLAINED_KINDS = ("drops", "unpaired", "events_missing", "truncated")
 def soak_argv(out: Path, result: Path, *args: str, tmpfs_mb: int | None = None) -> list[str]:
     """The command running the soak in a private network namespace (and, with ``tmpfs_mb``, a private mount
     namespace where ``out/disk`` is a tmpfs of that many MiB, the recording disk)."""
-    from bracketry.cameras.netns import netns_argv
-
     inner = [sys.executable, "-m", "bracketry.testing.soak", "--out", str(out), "--result", str(result), *args]
-    argv = netns_argv(inner, tuple(CAMERA_ADDRESSES.values()))
-    if tmpfs_mb is None:
-        return argv
-    disk = out / "disk"
-    script = (f"mkdir -p {shlex.quote(str(disk))} && mount -t tmpfs -o size={int(tmpfs_mb)}m bracketry-soak "
-              f"{shlex.quote(str(disk))} && exec \"$@\"")
-    return ["unshare", "--mount", "--propagation", "private", "sh", "-c", script, "mountns", *argv]
+    return namespaced_argv(inner, out, tmpfs_mb, "bracketry-soak")
 
 
 class Soak:
