@@ -185,7 +185,7 @@ def test_zhang_soft_percentile_weights_hand_computed() -> None:
 def test_wang_weight_and_quality_hand_computed() -> None:
     assert wang_weight(np.array(63.5)) == pytest.approx(1 / 1.25 - 0.001)
     assert wang_weight(np.array(191.5)) == pytest.approx(1 / 1.25 - 0.001)
-    img = np.tile(np.array([1, 1, 101, 101], dtype=np.float64), (4, 1))  # no clipped code (0, 255)
+    img = np.tile(np.array([0, 0, 100, 100], dtype=np.float64), (4, 1))
     w0 = 1 / (1 + 0.25 * math.exp(0.2 * 63.5)) - 0.001
     w100 = 1 / (1 + 0.25 * math.exp(0.2 * (63.5 - 100))) - 0.001
     assert wang_quality(img) == pytest.approx(4 * 160000.0 * (w0 + w100), rel=1e-6)
