@@ -29,8 +29,7 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
-from .borealhdr import SIDE_FOLDERS, exposure_us_from_folder
-from .grouping import group_sequences
+from .borealhdr import SIDE_FOLDERS, exposure_us_from_folder, side_sequences
 from .imageio import read_png12_bytes, read_png12_member
 from .model import Dataset, DatasetError, Frame
 
@@ -294,20 +293,9 @@ def open_zip(path: str | Path, sides: tuple[str, ...] | None = None, *, toleranc
                                                                    for n in z.members))
     wanted = sides or present
     problems: list[str] = []
-    frames_by_side: dict[str, list[Frame]] = {}
-    for side in wanted:
-        if side not in SIDE_FOLDERS:
-            raise DatasetError(f"unknown camera side {side!r} (use left or right)")
-        if side not in present:
-            raise DatasetError(f"missing folder {z.root}{SIDE_FOLDERS[side]}/ in {z.zip_path}")
-        frames_by_side[side] = _scan_side(z, side, problems)
-        if not frames_by_side[side]:
-            raise DatasetError(f"no PNG frames under {z.root}{SIDE_FOLDERS[side]}/ in {z.zip_path}")
-    sequences, group_problems = group_sequences(frames_by_side, tolerance_ns=tolerance_ns)
-    problems.extend(group_problems)
-    if not sequences:
-        detail = f" ({problems[0]})" if problems else ""
-        raise DatasetError(f"no complete bracket sequence in {z.zip_path}{detail}")
+    sequences = side_sequences(wanted, present, lambda side: _scan_side(z, side, problems),
+                               lambda side: f"{z.root}{SIDE_FOLDERS[side]}/ in {z.zip_path}", str(z.zip_path),
+                               problems, tolerance_ns)
     files = _side_file_dir(z) / "trajectory"
     gt = files / "groundtruth.txt"
     return Dataset(path=z.zip_path, kind="synthetic" if gt.is_file() else "borealhdr", sides=tuple(wanted),
