@@ -19,15 +19,13 @@ from __future__ import annotations
 
 import re
 import shlex
-import subprocess
 from dataclasses import dataclass
-from pathlib import Path
 
 import click
-import pytest
 
 from bracketry.cli import cli
 from bracketry.paths import repo_root
+from bracketry_testkit import tracked_markdown_files
 
 #: info strings of the fenced blocks whose lines are commands ("" = no info string)
 SHELL_LANGUAGES = {"", "sh", "bash", "shell", "console", "zsh"}
@@ -48,14 +46,6 @@ class DocCommand:
     words: tuple[str, ...]
 
 
-def markdown_files(root: Path) -> list[Path]:
-    """The Markdown files git tracks (not the reports a run writes into the working tree)."""
-    try:
-        out = subprocess.run(["git", "-C", str(root), "ls-files", "--cached", "-z", "--", "*.md"], check=True,
-                             capture_output=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        pytest.skip("git is not available to list the repository's Markdown files")
-    return sorted({root / p for p in out.decode().split("\0") if p and (root / p).is_file()})
 
 
 def _words(text: str) -> list[str] | None:
@@ -217,7 +207,7 @@ def _leaf_problems(command: click.Command, path: str, args: list[str]) -> list[s
 def _all_commands() -> list[DocCommand]:
     root = repo_root()
     found = []
-    for f in markdown_files(root):
+    for f in tracked_markdown_files(root):
         found += commands_in(f.read_text(encoding="utf-8"), str(f.relative_to(root)))
     return found
 

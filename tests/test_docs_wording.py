@@ -10,12 +10,9 @@ each entry says why.
 from __future__ import annotations
 
 import re
-import subprocess
-from pathlib import Path
-
-import pytest
 
 from bracketry.paths import repo_root
+from bracketry_testkit import tracked_markdown_files
 
 #: phrases that tell a story of changes instead of what is (regular expressions, case-insensitive)
 HISTORY_PHRASES: tuple[str, ...] = (
@@ -38,13 +35,6 @@ _CODE_SPAN = re.compile(r"(`+)(?:(?!\1).)+?\1", re.DOTALL)
 _PATTERN = re.compile("|".join(f"(?:{p})" for p in HISTORY_PHRASES), re.IGNORECASE)
 
 
-def markdown_files(root: Path) -> list[Path]:
-    try:
-        out = subprocess.run(["git", "-C", str(root), "ls-files", "--cached", "-z", "--", "*.md"], check=True,
-                             capture_output=True).stdout
-    except (OSError, subprocess.CalledProcessError):
-        pytest.skip("git is not available to list the repository's Markdown files")
-    return sorted({root / p for p in out.decode().split("\0") if p and (root / p).is_file()})
 
 
 def history_wording(text: str) -> list[tuple[int, str]]:
@@ -69,7 +59,7 @@ def history_wording(text: str) -> list[tuple[int, str]]:
 
 def test_no_history_wording_in_any_document() -> None:
     root = repo_root()
-    files = markdown_files(root)
+    files = tracked_markdown_files(root)
     assert any(f.name == "README.md" for f in files)
     bad = []
     for f in files:
