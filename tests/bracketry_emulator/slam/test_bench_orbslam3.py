@@ -26,6 +26,7 @@ from bracketry_emulator.slam.settings import (
     field_orb_settings,
     pyramid_levels,
     settings_yaml,
+    slam_orb_settings,
 )
 from bracketry_emulator.slam.vocabulary import build_vocabulary, parse_vocabulary_text, vocabulary_text
 from bracketry_emulator.trajectory_io import read_frames_csv
@@ -116,8 +117,12 @@ def test_bench_settings_reals_and_levels() -> None:
     assert np.allclose(fs.getNode("Stereo.T_c1_c2").mat()[:3, 3], [0.18, 0, 0])
     assert int(fs.getNode("ORBextractor.nLevels").real()) == pyramid_levels(320, 240, 13, 1.2) == 8
     assert pyramid_levels(960, 600, 13, 1.2) == 13
-    assert int(fs.getNode("ORBextractor.nFeatures").real()) == MIN_FIELD_FEATURES
+    assert int(fs.getNode("ORBextractor.nFeatures").real()) == slam_orb_settings(320, 240).n_features
     fs.release()
+    field = cv2.FileStorage(settings_yaml(cam, 3.67, orb=field_orb_settings(320, 240)),
+                            cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    assert int(field.getNode("ORBextractor.nFeatures").real()) == MIN_FIELD_FEATURES
+    field.release()
 
 
 def test_bench_field_orb_settings_follow_the_papers_view() -> None:
