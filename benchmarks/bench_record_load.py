@@ -16,8 +16,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import statistics
 import subprocess
 import sys
 import tempfile
@@ -26,7 +24,7 @@ from pathlib import Path
 from typing import Any
 
 from bracketry.cameras.netns import netns_available
-from bracketry.testing.soak import soak_argv
+from bracketry.testing.soak import run_soak_process, soak_argv
 
 
 def start_hogs(n: int) -> list[subprocess.Popen]:
@@ -46,21 +44,13 @@ def run_once(out: Path, seconds: float, hogs: int, fps: float, resolution: str) 
     argv = soak_argv(out, result_path, "--seconds", f"{seconds:g}", "--fps", f"{fps:g}", "--resolution", resolution,
                      "--quiet")
     procs = start_hogs(hogs)
-    loads: list[float] = []
     try:
-        with open(out / "soak.log", "wb") as log:
-            proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log)
-            while proc.poll() is None:
-                loads.append(os.getloadavg()[0])
-                try:
-                    proc.wait(timeout=5.0)
-                except subprocess.TimeoutExpired:
-                    continue
+        exit_code, load1 = run_soak_process(argv, out / "soak.log", 5.0)
     finally:
         end_hogs(procs)
     result = json.loads(result_path.read_text()) if result_path.exists() else {"error": "no result"}
-    result["load1"] = statistics.fmean(loads) if loads else float("nan")
-    result["exit_code"] = proc.returncode
+    result["load1"] = load1
+    result["exit_code"] = exit_code
     return result
 
 

@@ -18,16 +18,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import statistics
-import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 from bracketry.cameras.netns import netns_available
-from bracketry.testing.soak import FAULTS, soak_argv
+from bracketry.testing.soak import FAULTS, run_soak_process, soak_argv
 
 
 def main() -> int:
@@ -54,21 +50,13 @@ def main() -> int:
                      args.resolution, "--quiet", tmpfs_mb=args.tmpfs_mb)
     print(f"soak: {args.minutes:g} min at {args.fps:g} fps ({args.resolution}), faults {faults}, seed {args.seed}; "
           f"folder {out}", flush=True)
-    t0 = time.monotonic()
-    loads = []
-    with open(out / "soak.log", "wb") as log:
-        proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=log, stderr=log)
-        while proc.poll() is None:
-            loads.append(os.getloadavg()[0])
-            try:
-                proc.wait(timeout=10.0)
-            except subprocess.TimeoutExpired:
-                print(f"  {time.monotonic() - t0:6.0f} s", flush=True)
+    _, load1 = run_soak_process(argv, out / "soak.log", 10.0,
+                                lambda elapsed_s: print(f"  {elapsed_s:6.0f} s", flush=True))
     if not result_path.exists():
         print(f"error: the soak wrote no result (see {out}/soak.log)", file=sys.stderr)
         return 1
     r = json.loads(result_path.read_text())
-    print(f"runtime {r.get('runtime_s')} s, mean load1 {statistics.fmean(loads) if loads else float('nan'):.1f}")
+    print(f"runtime {r.get('runtime_s')} s, mean load1 {load1:.1f}")
     if r.get("error"):
         print(f"ERROR: {r['error']}")
     print("faults injected: " + ", ".join(f"{k} {n}" for k, n in sorted(r.get("faults", {}).items())))

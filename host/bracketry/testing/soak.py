@@ -35,16 +35,18 @@ import json
 import os
 import random
 import signal
+import statistics
+import subprocess
 import sys
 import time
-import traceback
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from bracketry.cameras.triggering import PRIMING_EXPOSURE_US
 from bracketry.sim.rig import NETNS_ENV, SimOptions, SimulatedRig
-from bracketry.testing.faults import ALL, Session, _sensors_and_record, namespaced_argv
+from bracketry.testing.faults import ALL, Session, _sensors_and_record, namespaced_argv, run_on_rig
 
 FAULTS = ("cable_pull", "serial_garbage", "disk_full", "sigkill", "camera_restart")
 #: frames served this long before a fault began may be lost with it (the recorder's open chunk, frames in flight)
@@ -59,6 +61,25 @@ def soak_argv(out: Path, result: Path, *args: str, tmpfs_mb: int | None = None) 
     namespace where ``out/disk`` is a tmpfs of that many MiB, the recording disk)."""
     inner = [sys.executable, "-m", "bracketry.testing.soak", "--out", str(out), "--result", str(result), *args]
     return namespaced_argv(inner, out, tmpfs_mb, "bracketry-soak")
+
+
+def run_soak_process(argv: list[str], log: Path, poll_s: float,
+                     on_poll: Callable[[float], None] | None = None) -> tuple[int, float]:
+    """Run the soak command ``argv`` (:func:`soak_argv`) with its output in ``log``, reading the 1-minute load
+    average every ``poll_s`` seconds (``on_poll(elapsed_s)`` each time it is still running). Returns its exit code and
+    the mean of the load averages read."""
+    t0 = time.monotonic()
+    loads: list[float] = []
+    with open(log, "wb") as out:
+        proc = subprocess.Popen(argv, stdin=subprocess.DEVNULL, stdout=out, stderr=out)
+        while proc.poll() is None:
+            loads.append(os.getloadavg()[0])
+            try:
+                proc.wait(timeout=poll_s)
+            except subprocess.TimeoutExpired:
+                if on_poll is not None:
+                    on_poll(time.monotonic() - t0)
+    return proc.returncode, statistics.fmean(loads) if loads else float("nan")
 
 
 class Soak:
@@ -330,26 +351,11 @@ def main(argv: list[str] | None = None) -> int:
     soak = Soak(session, args.seed)
     result: dict[str, Any] = {"seconds": args.seconds, "faults_asked": faults, "seed": args.seed,
                               "fps": args.fps, "resolution": args.resolution, "daemon_log": str(out / "daemon.log")}
-    t0 = time.monotonic()
-    try:
-        rig.prepare_frames(wait=True)
-        rig.start()
-        result.update(run(soak, args.seconds, faults, (lo, hi)))
-    except Exception as exc:
-        result["error"] = f"{type(exc).__name__}: {exc}"
-        result["traceback"] = traceback.format_exc()
+    run_on_rig(session, result, lambda: run(soak, args.seconds, faults, (lo, hi)), soak.stop_camera)
+    if "sides" not in result and "error" in result:
         with contextlib.suppress(Exception):
-            session.step("error")
-    finally:
-        for side in list(rig.cameras):
-            soak.stop_camera(side)
-        rig.close()
-        result["steps"] = session.steps
-        result["runtime_s"] = round(time.monotonic() - t0, 1)
-        if "sides" not in result and "error" in result:
-            with contextlib.suppress(Exception):
-                result.update(account(soak))
-        args.result.write_text(json.dumps(result, indent=1, default=str))
+            result.update(account(soak))
+    args.result.write_text(json.dumps(result, indent=1, default=str))
     return 1 if "error" in result else 0
 
 

@@ -16,7 +16,7 @@ import queue
 import threading
 import time
 from collections import Counter
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -33,7 +33,7 @@ from bracketry.daemon.sensors import open_trigger_client
 from bracketry.errors import BracketryError
 from bracketry.sim.board_rig import BoardSource
 from bracketry.sim.frames import read_frame_id
-from bracketry.trigger.qemu import QemuTrigger, build_firmware
+from bracketry.trigger.qemu import QemuTrigger
 from bracketry_emulator.vo.calibration import CameraInfo, StereoRectifier
 
 SIZE = (640, 400)
@@ -138,22 +138,11 @@ def views() -> Views:
     return Views(BoardSource(BoardSpec(), SIZE, seed=1), PAIRS)
 
 
-@pytest.fixture(scope="module")
-def elf(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return build_firmware(tmp_path_factory.mktemp("stm32_build"))
-
-
-@pytest.fixture
-def qemu(elf: Path) -> Iterator[QemuTrigger]:
-    with QemuTrigger(elf, serial="tcp") as runner:
-        yield runner
-
-
 @pytest.mark.qemu
 @pytest.mark.slow
-def test_capture_drives_line_triggered_cameras_through_the_trigger_firmware(views: Views, qemu: QemuTrigger,
+def test_capture_drives_line_triggered_cameras_through_the_trigger_firmware(views: Views, trigger_qemu: QemuTrigger,
                                                                             tmp_path: Path) -> None:
-    config = rig_config(tmp_path, qemu.url)
+    config = rig_config(tmp_path, trigger_qemu.url)
     cams: dict[str, LineCamera] = {}
     events: list[Any] = []
     tables: list[tuple[int, list[int]]] = []

@@ -150,23 +150,35 @@ def test_the_daemons_own_starvation_is_no_camera_stall() -> None:
     assert [on_time.step(t) for t in (0.0, 1.0, 2.9, 3.9)] == [0.0, 0.0, 0.0, 0.0]  # 1.9 s: late, not starved
 
 
+def stall_daemon(tmp_path: Path, dev: MemDevices) -> RigDaemon:
+    """A daemon on ``dev`` that calls a camera stalled after 2 s of pulses without frames and does not retry within
+    a test (60 s back-off)."""
+    return RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger,
+                                                         camera_stall_s=2.0, backoff_s=(60.0, 60.0)))
+
+
+def deliver_pulses(daemon: RigDaemon, dev: MemDevices, n: int) -> None:
+    """``n`` trigger pulses of bracket 1 through the trigger's listener thread and the pump into the segment (the
+    last event taken is delivered too)."""
+    for seq in range(n):
+        dev.on_event(event(1, seq))
+    daemon.pump.settle(2.0)
+    with daemon.pump.hold():
+        pass
+
+
 def test_daemon_declares_no_fault_for_a_window_it_was_starved_in(tmp_path: Path) -> None:
     """Injected clock: the daemon's supervisor steps at 100 s, then (starved) at 103.5 s; pulses reached the
     cameras, no frame came and the trigger's heartbeat was not read: nothing goes ERR. Steps on time afterwards blame
     the camera still silent, then a trigger still silent."""
     dev = MemDevices()
-    daemon = RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger,
-                                                           camera_stall_s=2.0, backoff_s=(60.0, 60.0)))
+    daemon = stall_daemon(tmp_path, dev)
     daemon.pump.start()
     try:
         daemon.on_button("sensors")
         daemon.on_button("record")
         daemon.supervise_once(now_s=100.0)
-        for seq in range(3):
-            dev.on_event(event(1, seq))
-        daemon.pump.settle(2.0)
-        with daemon.pump.hold():
-            pass
+        deliver_pulses(daemon, dev, 3)
         dev.trigger.peer_lost = True
         daemon.supervise_once(now_s=103.5)  # 3.5 s after the previous step: the daemon itself was starved
         snap = daemon.state.snapshot()
@@ -289,19 +301,14 @@ def test_segment_recorder_goes_on_without_a_camera_that_cannot_stream(tmp_path: 
 
 def test_daemon_closes_a_segment_whose_camera_stalled_and_records_on_without_it(tmp_path: Path) -> None:
     dev = MemDevices()
-    daemon = RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger,
-                                                           camera_stall_s=2.0, backoff_s=(60.0, 60.0)))
+    daemon = stall_daemon(tmp_path, dev)
     daemon.pump.start()
     try:
         daemon.on_button("sensors")
         daemon.on_button("record")
         assert daemon.recording and daemon.segment_index == 1
         daemon.supervise_once(now_s=100.0)  # marks
-        for seq in range(3):
-            dev.on_event(event(1, seq))  # the trigger's listener thread -> the pump -> the segment
-        daemon.pump.settle(2.0)
-        with daemon.pump.hold():
-            pass  # the last event taken is delivered too
+        deliver_pulses(daemon, dev, 3)
         daemon.supervise_once(now_s=101.0)
         daemon.supervise_once(now_s=102.0)
         daemon.supervise_once(now_s=102.5)  # 3 pulses, 2.5 s, no frame: the left camera stalled

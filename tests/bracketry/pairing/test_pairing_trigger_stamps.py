@@ -3,11 +3,10 @@ however late the host fired it (the load-20 false drop: a late host trigger take
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from bracketry.cameras.triggering import PRIMING_SEQ, SoftwareTrigger, TriggerStamps, frame_pulse
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet, Pairer
+from pairing_frames import PairingFrame
 
 PERIOD_NS = 100_000_000  # 10 pulses per second, as the recording tests
 BRACKETS = [1000, 2000, 4000, 8000, 16000, 32000]
@@ -41,18 +40,6 @@ class StampingCam:
         self.clock.t_ns += self.round_trip_ns
 
 
-@dataclass
-class StampedFrame:
-    side: str
-    frame_id: int
-    frame_index: int
-    status: str
-    cam_timestamp_ns: int
-    host_receive_ns: int
-    trigger_seq: int | None = None
-    missing_packets: int = 0
-
-
 def test_trigger_stamps_tell_each_pulse_and_nothing_else() -> None:
     stamps = TriggerStamps()
     stamps.sent(PRIMING_SEQ, 100)
@@ -62,7 +49,7 @@ def test_trigger_stamps_tell_each_pulse_and_nothing_else() -> None:
     stamps.acked(1, 2500)
     assert [stamps.pulse_of(t) for t in (99, 120, 151, 1000, 1999, 2000, 2500, 2501)] == \
         [None, PRIMING_SEQ, None, 0, 0, 1, 1, None]
-    assert frame_pulse(StampedFrame("left", 1, 0, "success", 0, 0), stamps) is None  # no timestamp
+    assert frame_pulse(PairingFrame("left", 1, 0, "success", 0, 0), stamps) is None  # no timestamp
     stamps.sent(2, 50)  # the host clock stepped back: the older stamps are forgotten
     stamps.acked(2, 70)
     assert stamps.pulse_of(1500) is None and stamps.pulse_of(60) == 2 and len(stamps) == 1
@@ -81,7 +68,7 @@ def fire_run(n: int, stall_at: int, stall_pulses: int, slow: range, use_stamps: 
     t0 = clock.t_ns + 10 * PERIOD_NS
     sets: list[PairedSet] = []
     pairer = Pairer(("left", "right"), sets.append, window=4, initial_alignment="host_time")
-    pending: list[StampedFrame] = []
+    pending: list[PairingFrame] = []
     for k in range(n):
         pulse_ns = t0 + k * PERIOD_NS
         clock.t_ns = max(clock.t_ns, pulse_ns + 1_000_000)
@@ -95,7 +82,7 @@ def fire_run(n: int, stall_at: int, stall_pulses: int, slow: range, use_stamps: 
         pending = []
         for side, cam in cams.items():
             stamp = cam.received[-1]
-            f = StampedFrame(side, k + 1, k, "success", stamp, clock.t_ns + 5_000_000)
+            f = PairingFrame(side, k + 1, k, "success", stamp, clock.t_ns + 5_000_000)
             if use_stamps:
                 f.trigger_seq = frame_pulse(f, cam.trigger_stamps)
             pending.append(f)
@@ -124,8 +111,8 @@ def test_a_stamped_frame_of_the_priming_trigger_is_for_no_pulse() -> None:
     sets: list[PairedSet] = []
     pairer = Pairer(("left", "right"), sets.append, window=4, initial_alignment="host_time")
     for side in ("left", "right"):
-        assert pairer.add_frame(StampedFrame(side, 9, 0, "success", 5, 5, trigger_seq=PRIMING_SEQ)) == -1
-        assert pairer.add_frame(StampedFrame(side, 10, 1, "success", 7, 7, trigger_seq=0)) == 0
+        assert pairer.add_frame(PairingFrame(side, 9, 0, "success", 5, 5, trigger_seq=PRIMING_SEQ)) == -1
+        assert pairer.add_frame(PairingFrame(side, 10, 1, "success", 7, 7, trigger_seq=0)) == 0
     pairer.add_event(TriggerEvent(1, 0, 0, 1000, 0, 6))
     pairer.flush()
     assert [s.trigger_seq for s in sets] == [0] and sets[0].complete
