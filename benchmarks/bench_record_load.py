@@ -23,8 +23,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bracketry.cameras.netns import netns_available
-from bracketry.testing.soak import run_soak_process, soak_argv
+from bracketry.testing.soak import parse_rig_bench_args, run_soak_process, soak_argv
 
 
 def start_hogs(n: int) -> list[subprocess.Popen]:
@@ -82,13 +81,8 @@ def main() -> int:
     ap.add_argument("--runs", type=int, default=5)
     ap.add_argument("--seconds", type=float, default=120.0)
     ap.add_argument("--hogs", type=int, default=4)
-    ap.add_argument("--fps", type=float, default=10.0)
-    ap.add_argument("--resolution", default="160x100")
-    ap.add_argument("--keep", type=Path, default=None, help="keep each run's folder under this one")
-    args = ap.parse_args()
-    reason = netns_available()
-    if reason:
-        print(f"error: the simulated rig needs a private network namespace: {reason}", file=sys.stderr)
+    args = parse_rig_bench_args(ap, "keep each run's folder under this one")
+    if args is None:
         return 2
     base = args.keep or Path(tempfile.mkdtemp(prefix="bench_record_load-"))
     rows = []

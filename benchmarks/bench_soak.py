@@ -22,8 +22,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bracketry.cameras.netns import netns_available
-from bracketry.testing.soak import FAULTS, run_soak_process, soak_argv
+from bracketry.testing.soak import FAULTS, parse_rig_bench_args, run_soak_process, soak_argv
 
 
 def main() -> int:
@@ -32,14 +31,9 @@ def main() -> int:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--faults", default="all", help=f"comma-separated of {','.join(FAULTS)}, or all")
     ap.add_argument("--gap-s", default="20,40", help="seconds of recording before each fault: min,max")
-    ap.add_argument("--fps", type=float, default=10.0)
-    ap.add_argument("--resolution", default="160x100")
     ap.add_argument("--tmpfs-mb", type=int, default=512, help="size of the recording disk (a tmpfs)")
-    ap.add_argument("--keep", type=Path, default=None, help="keep the run's folder here")
-    args = ap.parse_args()
-    reason = netns_available()
-    if reason:
-        print(f"error: the simulated rig needs a private network namespace: {reason}", file=sys.stderr)
+    args = parse_rig_bench_args(ap, "keep the run's folder here")
+    if args is None:
         return 2
     faults = ",".join(FAULTS) if args.faults == "all" else args.faults
     out = args.keep or Path(tempfile.mkdtemp(prefix="bench_soak-"))

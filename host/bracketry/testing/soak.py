@@ -44,6 +44,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from bracketry.cameras.netns import netns_available
 from bracketry.cameras.triggering import PRIMING_EXPOSURE_US
 from bracketry.sim.rig import NETNS_ENV, SimOptions, SimulatedRig
 from bracketry.testing.faults import ALL, Session, _sensors_and_record, namespaced_argv, run_on_rig
@@ -80,6 +81,20 @@ def run_soak_process(argv: list[str], log: Path, poll_s: float,
                 if on_poll is not None:
                     on_poll(time.monotonic() - t0)
     return proc.returncode, statistics.fmean(loads) if loads else float("nan")
+
+
+def parse_rig_bench_args(ap: argparse.ArgumentParser, keep_help: str) -> argparse.Namespace | None:
+    """The options every benchmark of the simulated rig shares (``--fps``, ``--resolution``, ``--keep``) added to
+    ``ap``, the command line parsed; None, with one line on stderr, where no private network namespace can be made."""
+    ap.add_argument("--fps", type=float, default=10.0)
+    ap.add_argument("--resolution", default="160x100")
+    ap.add_argument("--keep", type=Path, default=None, help=keep_help)
+    args = ap.parse_args()
+    reason = netns_available()
+    if reason:
+        print(f"error: the simulated rig needs a private network namespace: {reason}", file=sys.stderr)
+        return None
+    return args
 
 
 class Soak:

@@ -151,10 +151,14 @@ def test_the_daemons_own_starvation_is_no_camera_stall() -> None:
 
 
 def stall_daemon(tmp_path: Path, dev: MemDevices) -> RigDaemon:
-    """A daemon on ``dev`` that calls a camera stalled after 2 s of pulses without frames and does not retry within
-    a test (60 s back-off)."""
-    return RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger,
-                                                         camera_stall_s=2.0, backoff_s=(60.0, 60.0)))
+    """A daemon on ``dev``, recording (its pump started, both buttons pressed), that calls a camera stalled after 2 s
+    of pulses without frames and does not retry within a test (60 s back-off)."""
+    daemon = RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger,
+                                                           camera_stall_s=2.0, backoff_s=(60.0, 60.0)))
+    daemon.pump.start()
+    daemon.on_button("sensors")
+    daemon.on_button("record")
+    return daemon
 
 
 def deliver_pulses(daemon: RigDaemon, dev: MemDevices, n: int) -> None:
@@ -173,10 +177,7 @@ def test_daemon_declares_no_fault_for_a_window_it_was_starved_in(tmp_path: Path)
     the camera still silent, then a trigger still silent."""
     dev = MemDevices()
     daemon = stall_daemon(tmp_path, dev)
-    daemon.pump.start()
     try:
-        daemon.on_button("sensors")
-        daemon.on_button("record")
         daemon.supervise_once(now_s=100.0)
         deliver_pulses(daemon, dev, 3)
         dev.trigger.peer_lost = True
@@ -302,10 +303,7 @@ def test_segment_recorder_goes_on_without_a_camera_that_cannot_stream(tmp_path: 
 def test_daemon_closes_a_segment_whose_camera_stalled_and_records_on_without_it(tmp_path: Path) -> None:
     dev = MemDevices()
     daemon = stall_daemon(tmp_path, dev)
-    daemon.pump.start()
     try:
-        daemon.on_button("sensors")
-        daemon.on_button("record")
         assert daemon.recording and daemon.segment_index == 1
         daemon.supervise_once(now_s=100.0)  # marks
         deliver_pulses(daemon, dev, 3)
