@@ -148,7 +148,9 @@ def _track(request: dict) -> dict:
         raw_states.append(name)
         ok = name in ("OK", "OK_KLT") and bool(res.pose_valid)
         poses.append(np.asarray(res.pose_wc, np.float64).reshape(4, 4) if ok else None)
-        matches.append(len(slam.tracked_map_points()) if ok else 0)
+        # counted by the track call itself: tracked_map_points() read afterwards races local mapping, which
+        # starts on a new keyframe at once and culls points (574 or 573 for the same frame)
+        matches.append(int(res.num_tracked_points) if ok else 0)
     slam.shutdown()
     states, segments = map_states([r if p is not None else "LOST" for r, p in zip(raw_states, poses)])
     with (out / "frames.csv").open("w") as fh:
