@@ -132,9 +132,9 @@ def _track(request: dict) -> dict:
         xy = extractor.detect_xy(gl, mask)  # our keypoints at the paper's settings: count and coverage only
         kp.append(len(xy))
         cov.append(grid_coverage(xy, gl.shape[1], gl.shape[0], 20))
-        if lockstep:  # each frame meets the map its predecessors left: ORB-SLAM3's own threads idle
+        if lockstep and k == 0:  # each frame meets the map its predecessors left: ORB-SLAM3's own threads idle
             wait_idle(own_threads, waits)
-        else:
+        elif not lockstep:
             due = t_start + ((t_ns - times_ns[0]) * 1e-9 if pace is None else k * float(pace))
             wait = due - time.perf_counter()
             if wait > 0:
@@ -148,7 +148,12 @@ def _track(request: dict) -> dict:
         raw_states.append(name)
         ok = name in ("OK", "OK_KLT") and bool(res.pose_valid)
         poses.append(np.asarray(res.pose_wc, np.float64).reshape(4, 4) if ok else None)
-        matches.append(len(slam.tracked_map_points()) if ok else 0)
+        # The tracked points still in the map: read while local mapping works on this frame's keyframe (it starts
+        # at once and culls points) the count races it (574 or 573 for the same frame). In lockstep it is read
+        # once that work is done (and the next frame meets the same map); else as the track call returns.
+        if lockstep:
+            wait_idle(own_threads, waits)
+        matches.append((len(slam.tracked_map_points()) if lockstep else int(res.num_tracked_points)) if ok else 0)
     slam.shutdown()
     states, segments = map_states([r if p is not None else "LOST" for r, p in zip(raw_states, poses)])
     with (out / "frames.csv").open("w") as fh:
