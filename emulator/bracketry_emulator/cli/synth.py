@@ -226,7 +226,7 @@ command.add_command(calibration_cmd)  # bracketry synth calibration (its own mod
               help="Output folder: new, empty, or holding this very suite (then reused as it is).")
 @overwrite_option("Replace a non-empty --out that holds something else.")
 @click.option("--size", type=click.Choice(["demo", "full"]), required=True,
-              help="demo: 14 trajectories of 3 s at 320x200; full: 24 of 60 s at 640x400.")
+              help="demo: 10 trajectories of 10 s at 320x200; full: 28 of 60 s at 640x400.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Suite seed (every world seed follows from it).")
 @click.option("--workers", type=WORKERS, default=2, show_default=True,
               help="Trajectories rendered in parallel processes (the bytes do not depend on it).")
