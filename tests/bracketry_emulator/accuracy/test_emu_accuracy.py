@@ -121,8 +121,8 @@ def test_emu_fusion_goal_on_static_stacks_of_other_worlds(preset: str, seed: int
     from bracketry_emulator.synth.world import World
     from bracketry_emulator.synth.writer import write_static
 
-    write_static(World(preset=preset, seed=seed, resolution=(160, 100), camera=linear_camera()), tmp_path, n_exposures=30, repeats=2,
-                 repeat_exposures_ms=(1.0, 8.0))
+    write_static(World(preset=preset, seed=seed, resolution=(160, 100), camera=linear_camera()), tmp_path,
+                 n_exposures=30, repeats=2, repeat_exposures_ms=(1.0, 8.0))
     res = run_static(open_static_stack(tmp_path), modes=("highernosat", "fusion"))
     g = res["goals"]
     assert g["fusion_median_reduction_truth"]["value"] >= 0.35, g
