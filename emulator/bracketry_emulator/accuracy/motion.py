@@ -53,7 +53,7 @@ import numpy as np
 from ..crf import Response
 from ..emulation import Emulator, EmulatorConfig, NoiseModel
 from ..emulation.align import bayer_gray_half
-from ..synth import LoopTrajectory, World
+from ..synth import CameraModel, LoopTrajectory, World
 from .metrics import rmse_dn
 
 SPEEDS_KMH: tuple[float, ...] = (0.0, 2.0, 5.0)
@@ -97,12 +97,16 @@ def sharpness(image: np.ndarray, response_icrf: np.ndarray) -> float:
 
 def _world(preset: str, seed: int, resolution: tuple[int, int], speed_kmh: float,
            blur_method: str = "reproject") -> World:
-    """The walk at ``speed_kmh``; at 0 the camera held still (no walk, no gait: the same view at every instant)."""
+    """The walk at ``speed_kmh``; at 0 the camera held still (no walk, no gait: the same view at every instant).
+
+    The camera does not bloom: the protocol measures the motion blur, and the charge a longer exposure spills around
+    its saturated areas is in no shorter bracket (an effect of its own)."""
+    camera = CameraModel(blooming=0.0)
     if speed_kmh > 0:
         return World(preset, seed, resolution, trajectory=LoopTrajectory(speed_kmh=speed_kmh), motion_blur=True,
-                     blur_method=blur_method)
+                     blur_method=blur_method, camera=camera)
     still = LoopTrajectory(speed_kmh=1e-9, bounce_m=0.0, roll_deg=0.0, sway_m=0.0, yaw_deg=0.0, nod_deg=0.0)
-    return World(preset, seed, resolution, trajectory=still, motion_blur=False)
+    return World(preset, seed, resolution, trajectory=still, motion_blur=False, camera=camera)
 
 
 class _Camera:

@@ -192,7 +192,7 @@ def motion_cmd(out_dir: Path, overwrite: bool, seed: int, preset: str, instants:
 @click.option("--max-frames", default=None, type=Integer(2), help="Only the first N frames of each run.")
 @click.option("--windows", "windows_text", default=None,
               help="RTE/RRE windows in metres, as bracketry benchmark. Default: the manifest's windows_m (the "
-                   "demo-size suite's 3 s walks declare 1-3 m), else 5:50:1 (the paper's).")
+                   "demo-size suite's 10 s walks declare 2-8 m), else 5:50:1 (the paper's).")
 def truth_causes_cmd(manifest: Path, out_dir: Path, methods: str, effects: str, reference: str,
                      slam_backend: str, emulate_blur: bool, workers: int, max_frames: int | None,
                      windows_text: str | None) -> int:

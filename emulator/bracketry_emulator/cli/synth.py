@@ -70,12 +70,17 @@ def _scenario_world(ctx: click.Context, scenario_file: Path, seed: int, seconds:
 
 
 def _make_world(preset: str, seed: int, resolution: str, response: str, calibration: Path | None,
-                speed_kmh: float, motion_blur: bool = False, detail: float = 1.0):
+                speed_kmh: float, motion_blur: bool = False, detail: float = 1.0, blooming: bool = True):
+    """The world of the command-line options; ``blooming=False``: a camera whose saturated pixels do not spill."""
+    import dataclasses
+
     from bracketry_emulator.synth import LoopTrajectory, World, parse_resolution
     from bracketry_emulator.synth.calibration import load_calibration
 
     size = parse_resolution(resolution)
     camera = _camera(response)
+    if not blooming:
+        camera = dataclasses.replace(camera, blooming=0.0)
     calib = load_calibration(calibration, *size) if calibration is not None else None
     if speed_kmh <= 0 or speed_kmh > 20:
         raise BracketryError("--speed-kmh must be in (0, 20]")
@@ -198,14 +203,16 @@ def trajectory_cmd(ctx: click.Context, out: Path, overwrite: bool, preset: str, 
 def static_cmd(out: Path, overwrite: bool, preset: str, seed: int, response: str, calibration: Path | None,
                quiet: bool, resolution: str, n_exposures: int, min_us: float, max_us: float, repeats: int,
                repeat_ms: str, brackets_ms: str, side: str, t_s: float) -> int:
-    """The emulator-validation protocol: sweep, repeats, brackets and the exact noise-free truth of one view."""
+    """The emulator-validation protocol: sweep, repeats, brackets and the exact noise-free truth of one view (a
+    camera without blooming: the protocol measures the emulation of a linear sensor, and no bracket holds the charge
+    a longer exposure spills around its saturated areas)."""
     from bracketry_emulator.synth import write_static
 
     if min_us >= max_us:
         raise BracketryError(f"--min-us ({min_us:g}) must be below --max-us ({max_us:g})")
     reps = _parse_ms_list(repeat_ms, "--repeat-ms")
     brackets = _parse_ms_list(brackets_ms, "--brackets-ms")
-    world = _make_world(preset, seed, resolution, response, calibration, 2.0)
+    world = _make_world(preset, seed, resolution, response, calibration, 2.0, blooming=False)
     out = _out_dir(out)
     bar, update = _progress("synth static", quiet)
     try:
@@ -226,7 +233,7 @@ command.add_command(calibration_cmd)  # bracketry synth calibration (its own mod
               help="Output folder: new, empty, or holding this very suite (then reused as it is).")
 @overwrite_option("Replace a non-empty --out that holds something else.")
 @click.option("--size", type=click.Choice(["demo", "full"]), required=True,
-              help="demo: 14 trajectories of 3 s at 320x200; full: 24 of 60 s at 640x400.")
+              help="demo: 10 trajectories of 10 s at 320x200; full: 28 of 60 s at 640x400.")
 @click.option("--seed", type=SEED, default=0, show_default=True, help="Suite seed (every world seed follows from it).")
 @click.option("--workers", type=WORKERS, default=2, show_default=True,
               help="Trajectories rendered in parallel processes (the bytes do not depend on it).")

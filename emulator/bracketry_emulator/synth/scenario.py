@@ -11,16 +11,17 @@ A scenario file (the shipped ones are in ``synth/scenarios/``; every key is opti
     resolution: 640x400
     fps: 22
     brackets_ms: [1, 2, 4, 8, 16, 32]
-    route: {length_m: 110, pace_kmh: 3.5, start_fraction: 0.0, wobble: [0.18, 0.08]}
+    route: {length_m: 110, pace_kmh: 3.5, start_fraction: 0.0, wobble: [0.18, 0.08], turn_deg: 0,
+            turn_period_s: 7}
     sun: {hour: 10.5, day_of_year: 40, latitude_deg: 46.8, route_heading_deg: 0}
                                      # or {elevation_deg: 20, azimuth_deg: 135} (azimuth: from north, clockwise)
     weather: {overcast: 0.0, glare: 1.0, intensity: 1.0}
     content: {tree_density: 1.0, treeline_scale: 1.0}
     lighting_events:
-      - {kind: canopy, from: 0.10, to: 0.40, density: 0.985}          # route fractions [0, 1), wrap allowed
+      - {kind: canopy, from: 0.10, to: 0.40, density: 0.985, edge_m: 1.5}  # route fractions [0, 1), wrap allowed
       - {kind: canopy_patches, from: 0.5, to: 0.9, density: 0.9, period_m: 9, duty: 0.5}
       - {kind: clouds, cover: 0.5, opacity: 0.95, speed_mps: 12, direction_deg: 90, size_m: 45}
-      - {kind: fresh_snow, from: 0.55, to: 0.85}
+      - {kind: fresh_snow, from: 0.55, to: 0.85, contrast: 0.0, open: false}
       - {kind: dimming, times_s: [0, 60], factors: [1.0, 0.1]}
 
 How each part acts (all of it deterministic, from the world seed):
@@ -31,14 +32,20 @@ How each part acts (all of it deterministic, from the world seed):
   sees one sun).
 - **canopy** / **canopy_patches**: the light reaching every point of a sector of the world (the polar angles about
   the loop's centre that the route crosses between ``from`` and ``to``) is reduced by ``density`` (0.985: 6 stops);
-  patches alternate along the route (``period_m``, ``duty``). **clouds**: bands of cloud shadow (cells of ``size_m``,
-  a share ``cover`` covered) drifting at ``speed_mps`` towards ``direction_deg`` (from north, clockwise); a
-  shadowed point keeps its sky light and ``1 - opacity`` of the direct sun; the sun itself is hidden while the camera
-  is in a cloud's shadow. **dimming**: one factor on all light over time (log-linear between the keys). These are
-  applied to each render at the frame's instant ``t_s`` from the world position of every pixel's hit.
+  patches alternate along the route (``period_m``, ``duty``); ``edge_m`` is the width of the sector's soft edge
+  (default 1.5 m; a forest edge onto a sunlit field is a few tens of centimetres). **clouds**: bands of cloud shadow
+  (cells of ``size_m``, a share ``cover`` covered) drifting at ``speed_mps`` towards ``direction_deg`` (from north,
+  clockwise); a shadowed point keeps its sky light and ``1 - opacity`` of the direct sun; the sun itself is hidden
+  while the camera is in a cloud's shadow. **dimming**: one factor on all light over time (log-linear between the
+  keys). These are applied to each render at the frame's instant ``t_s`` from the world position of every pixel's
+  hit.
 - **glare**: a veil ``glare * 0.01 * E_sun / (angle^2 + 0.01^2)`` around a visible sun within 70 degrees of the
   optical axis (E_sun: the disk's radiance x its solid angle).
-- **fresh_snow**: the ground of the sector becomes smooth, nearly textureless snow.
+- **fresh_snow**: the ground of the sector becomes smooth, nearly textureless snow; ``contrast`` gives it a natural
+  1/f texture of that RMS contrast (wind ripples, sastrugi, tracks: a few per cent), ``open: true`` takes the trees
+  out of the sector (an open field or a frozen lake).
+- **route.turn_deg** / **turn_period_s**: the walker looks around: a yaw of that amplitude (degrees) and period on
+  top of the gait's sway (:class:`~bracketry_emulator.synth.trajectory.LoopTrajectory`).
 
 ``bracketry synth trajectory --scenario FILE`` renders one; :func:`world_from_dataset` rebuilds the exact world of a
 written trajectory from its ``camera_model.json``.
@@ -80,16 +87,16 @@ _SCENE_CACHE: OrderedDict[tuple, Scene] = OrderedDict()
 _TOP_KEYS = {"scenario", "name", "description", "subset", "preset", "seed", "duration_s", "resolution", "fps",
              "brackets_ms", "route", "sun", "weather", "content", "lighting_events"}
 _SECTION_KEYS = {
-    "route": {"length_m", "pace_kmh", "start_fraction", "wobble"},
+    "route": {"length_m", "pace_kmh", "start_fraction", "wobble", "turn_deg", "turn_period_s"},
     "sun": {"hour", "day_of_year", "latitude_deg", "route_heading_deg", "elevation_deg", "azimuth_deg"},
     "weather": {"overcast", "glare", "intensity"},
     "content": {"tree_density", "treeline_scale"},
 }
 _EVENT_KEYS = {
-    "canopy": {"from", "to", "density"},
-    "canopy_patches": {"from", "to", "density", "period_m", "duty"},
+    "canopy": {"from", "to", "density", "edge_m"},
+    "canopy_patches": {"from", "to", "density", "period_m", "duty", "edge_m"},
     "clouds": {"cover", "opacity", "speed_mps", "direction_deg", "size_m"},
-    "fresh_snow": {"from", "to"},
+    "fresh_snow": {"from", "to", "contrast", "open"},
     "dimming": {"times_s", "factors"},
 }
 
@@ -104,6 +111,8 @@ class Route:
     pace_kmh: float = 2.0
     start_fraction: float = 0.0
     wobble: tuple[float, float] = (0.18, 0.08)
+    turn_deg: float = 0.0
+    turn_period_s: float = 7.0
 
 
 @dataclass(frozen=True)
@@ -177,7 +186,8 @@ class Scenario:
         radius = r.length_m / shape.length_m * 10.0
         base = LoopTrajectory(radius_m=radius, wobble=r.wobble, speed_kmh=r.pace_kmh)
         phase = _theta_of_fraction(base, r.start_fraction)
-        return LoopTrajectory(radius_m=radius, wobble=r.wobble, speed_kmh=r.pace_kmh, phase_rad=phase)
+        return LoopTrajectory(radius_m=radius, wobble=r.wobble, speed_kmh=r.pace_kmh, phase_rad=phase,
+                              turn_deg=r.turn_deg, turn_period_s=r.turn_period_s)
 
     def lighting(self) -> Lighting:
         """Sun and sky of the scenario's time of day and weather."""
@@ -188,12 +198,20 @@ class Scenario:
         """What the scenario changes in the preset's content (lighting, trees, treeline, fresh snow)."""
         base = _base_loop(trajectory)
         snow = np.zeros(_N_BINS, np.float32)
+        contrast = np.zeros(_N_BINS, np.float32)
+        open_ground = np.zeros(_N_BINS, np.float32)
         for e in self.events:
             if e["kind"] == "fresh_snow":
-                snow = np.maximum(snow, _sector_weight(base, e["from"], e["to"]))
+                w = _sector_weight(base, e["from"], e["to"])
+                snow = np.maximum(snow, w)
+                contrast = np.where(w > 0, np.maximum(contrast, np.float32(e.get("contrast", 0.0))), contrast)
+                if e.get("open"):
+                    open_ground = np.maximum(open_ground, w)
         return SceneOptions(lighting=self.lighting(), tree_density=self.content.tree_density,
                             treeline_scale=self.content.treeline_scale,
-                            fresh_snow=snow if np.any(snow > 0) else None)
+                            fresh_snow=snow if np.any(snow > 0) else None,
+                            snow_contrast=contrast.astype(np.float32) if np.any(contrast > 0) else None,
+                            open_ground=open_ground if np.any(open_ground > 0) else None)
 
 
 # ---------------------------------------------------------------------------------------------------- parsing
@@ -231,6 +249,15 @@ def _event(where: str, e: Any) -> dict:
             out[k] = _num(f"{where}.{k}", e[k], 0.0, 1.0)
     if kind in ("canopy", "canopy_patches"):
         out["density"] = _num(f"{where}.density", e.get("density", 0.95), 0.0, 0.9999)
+        if "edge_m" in e:
+            out["edge_m"] = _num(f"{where}.edge_m", e["edge_m"], 0.05, 20.0)
+    if kind == "fresh_snow":
+        if "contrast" in e:
+            out["contrast"] = _num(f"{where}.contrast", e["contrast"], 0.0, 0.5)
+        if "open" in e:
+            if not isinstance(e["open"], bool):
+                raise BracketryError(f"{where}.open must be true or false (got {e['open']!r:.40})")
+            out["open"] = e["open"]
     if kind == "canopy_patches":
         out["period_m"] = _num(f"{where}.period_m", e.get("period_m", 8.0), 1.0, 1000.0)
         out["duty"] = _num(f"{where}.duty", e.get("duty", 0.5), 0.05, 0.95)
@@ -282,6 +309,8 @@ def scenario_from_dict(doc: Any, name: str = "scenario") -> Scenario:
     route = Route(length_m=_num("route.length_m", r.get("length_m", 80.0), 20.0, 200.0),
                   pace_kmh=_num("route.pace_kmh", r.get("pace_kmh", 2.0), 0.0, 20.0, lo_open=True),
                   start_fraction=_num("route.start_fraction", r.get("start_fraction", 0.0), 0.0, 1.0),
+                  turn_deg=_num("route.turn_deg", r.get("turn_deg", 0.0), 0.0, 90.0),
+                  turn_period_s=_num("route.turn_period_s", r.get("turn_period_s", 7.0), 0.5, 600.0),
                   wobble=(_num("route.wobble[0]", wobble[0], 0.0, 0.3), _num("route.wobble[1]", wobble[1], 0.0, 0.3)))
     s = _mapping("sun", doc.get("sun"), _SECTION_KEYS["sun"])
     explicit = ("elevation_deg" in s, "azimuth_deg" in s)
@@ -452,12 +481,13 @@ def _window(s: np.ndarray, s0: float, s1: float, length: float, edge: float) -> 
 
 
 def _sector_weight(base: LoopTrajectory, f0: float, f1: float, pseudo: bool = False,
-                   patches: tuple[float, float] | None = None) -> np.ndarray:
-    """Weight (float32 (bins,)) of a route sector between fractions f0 and f1, per polar-angle bin."""
+                   patches: tuple[float, float] | None = None, edge_m: float = _EDGE_M) -> np.ndarray:
+    """Weight (float32 (bins,)) of a route sector between fractions f0 and f1, per polar-angle bin (soft edges of
+    ``edge_m``)."""
     phi = _pseudo_bin_angles() if pseudo else _bin_angles()
     s = _arc_of_angle(base, phi)
     length = base.length_m
-    w = _window(s, f0 * length, f1 * length, length, _EDGE_M)
+    w = _window(s, f0 * length, f1 * length, length, edge_m)
     if patches is not None:
         period, duty = patches
         rel = np.mod(s - f0 * length, period)
@@ -491,7 +521,8 @@ class LightField:
             kind = e["kind"]
             if kind in ("canopy", "canopy_patches"):
                 patches = (e["period_m"], e["duty"]) if kind == "canopy_patches" else None
-                w = _sector_weight(base, e["from"], e["to"], pseudo=True, patches=patches)
+                w = _sector_weight(base, e["from"], e["to"], pseudo=True, patches=patches,
+                                   edge_m=e.get("edge_m", _EDGE_M))
                 canopy *= 1.0 - e["density"] * w
             elif kind == "clouds":
                 n_cells = 16
@@ -691,6 +722,8 @@ def world_from_dataset(path: str | Path):  # -> World
     cam_fields = {f.name for f in dataclasses.fields(CameraModel)}
     cam_args: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) and k != "pcalib" else v) for k, v in info.items()
                 if k in cam_fields}
+    for name in ("dark_current_e_per_s", "blooming", "veiling_glare"):  # a camera written without them had none
+        cam_args.setdefault(name, 0.0)
     camera = CameraModel(**cam_args)
     traj_d = dict(wd.get("trajectory_init") or {})
     if "wobble" in traj_d:

@@ -8,8 +8,8 @@ Layout of a rendered suite::
                                             calibration/, camera_model.json, scenario.yaml: its scenario)
 
 Subsets after the paper's: ``forest``, ``sun-shadow`` (Belair-like), ``glare`` (Campus1-like), ``day-cycle`` (one
-campus loop at six times of day, Campus2-like). Sizes: ``full`` (24 trajectories of 60 s at 640x400) and ``demo``
-(14 of 3 s at 320x200). A suite is cached by (version, size, seed, code digest) in ``user_cache_dir()/synth-suites``;
+campus loop at six times of day, Campus2-like). Sizes: ``full`` (28 trajectories of 60 s at 640x400) and ``demo``
+(10 of 10 s at 320x200). A suite is cached by (version, size, seed, code digest) in ``user_cache_dir()/synth-suites``;
 the same seed gives the same bytes. Bump :data:`SUITE_VERSION` when what a suite holds changes by design.
 """
 
@@ -37,9 +37,11 @@ from bracketry_emulator.synth.scenario import (
 )
 
 #: the suite's version: part of its cache key and of its manifest
-SUITE_VERSION = "1"
+SUITE_VERSION = "2"
 SUBSETS = ("forest", "sun-shadow", "glare", "day-cycle")
 DAY_CYCLE_HOURS = (6.0, 9.0, 12.0, 15.0, 18.0, 20.2)
+#: the hours of the day-cycle walks in the demo-size suite (morning and dusk)
+DEMO_HOURS = (9.0, 20.2)
 
 
 @dataclass(frozen=True)
@@ -53,8 +55,8 @@ class SizeSpec:
     windows_m: tuple[float, ...] | None = None
 
 
-#: the demo's 3 s walks cover 3-4 m: shorter than the paper's shortest window (5 m), so they declare 1-3 m windows
-SIZES = {"demo": SizeSpec((320, 200), 3.0, 0.25, (1.0, 2.0, 3.0)), "full": SizeSpec((640, 400), 60.0, 0.5)}
+#: the demo's 10 s walks cover 8-25 m: most are shorter than the paper's windows (5-50 m), so they declare 2-8 m ones
+SIZES = {"demo": SizeSpec((320, 200), 10.0, 0.25, (2.0, 4.0, 6.0, 8.0)), "full": SizeSpec((640, 400), 60.0, 0.5)}
 
 #: the manifest's ``warmup_steps``: each walk is a stretch of a longer recording, so the benchmark's closed loops first
 #: take this many steps on its first view (~4 s of bracket cycles; AE50 settles from 4 ms to any exposure of the
@@ -84,16 +86,19 @@ def _e(subset: str, name: str, scenario: str, world: int, split: str = "test",
 
 
 _FULL = ("full",)
-#: the suite: 24 trajectories at size full (19 test, 5 train), 14 of them at size demo (11 test, 3 train)
+_DEMO = ("demo", "full")
+#: the suite: 28 trajectories at size full (22 test, 6 train), 10 of them at size demo (8 test, 2 train)
 ENTRIES: tuple[Entry, ...] = (
     _e("forest", "forest_canopy_a", "forest-canopy", 0),
     _e("forest", "forest_canopy_b", "forest-canopy", 1, "train", _FULL, route={"start_fraction": 0.5}),
-    _e("forest", "forest_fresh_snow_a", "forest-fresh-snow", 2),
+    _e("forest", "forest_fresh_snow_a", "forest-fresh-snow", 2, "test", _FULL),
     _e("forest", "forest_dusk_a", "forest-dusk", 3),
     _e("forest", "forest_fast_a", "forest-fast", 4, "train"),
     _e("forest", "forest_canopy_c", "forest-canopy", 5, "test", _FULL, sun={"hour": 14.5}),
     _e("forest", "forest_fresh_snow_b", "forest-fresh-snow", 6, "test", _FULL, route={"start_fraction": 0.6}),
     _e("forest", "forest_fast_b", "forest-fast", 7, "test", _FULL, route={"pace_kmh": 11.0}),
+    _e("forest", "forest_edge_a", "forest-edge", 8),
+    _e("forest", "forest_edge_b", "forest-edge", 9, "train", _FULL, route={"start_fraction": 0.48}),
     _e("sun-shadow", "sun_shadow_a", "sun-shadow", 0),
     _e("sun-shadow", "sun_shadow_b", "sun-shadow", 1, "train",
        lighting_events=[{"kind": "clouds", "cover": 0.6, "opacity": 1.0, "speed_mps": 12, "direction_deg": 150,
@@ -108,11 +113,15 @@ ENTRIES: tuple[Entry, ...] = (
                          "size_m": 60}]),
     _e("glare", "glare_a", "glare", 0),
     _e("glare", "glare_b", "glare", 1, "train", _FULL, sun={"azimuth_deg": 120.0}),
-    _e("glare", "glare_c", "glare", 2, "test", ("demo", "full"), route={"start_fraction": 0.5},
-       sun={"elevation_deg": 5.0}),
+    _e("glare", "glare_c", "glare", 2, "test", _DEMO, route={"start_fraction": 0.5}, sun={"elevation_deg": 5.0}),
     _e("glare", "glare_d", "glare", 3, "test", _FULL, sun={"elevation_deg": 12.0, "azimuth_deg": 300.0}),
+    # no exposure keeps the frozen lake at the demo's 320x200 (ORB-SLAM3 finds no stereo matches on its ice): a walk
+    # that tests no exposure, so the demo's two glare walks are glare_a and glare_c
+    _e("glare", "frozen_lake_a", "frozen-lake", 4, "test", _FULL),
+    _e("glare", "frozen_lake_b", "frozen-lake", 5, "test", _FULL, sun={"elevation_deg": 3.0, "azimuth_deg": 160.0}),
     *(_e("day-cycle", f"day_cycle_{int(h):02d}{round(h % 1 * 60):02d}", "day-cycle", 0,
-         "train" if h == 15.0 else "test", sun={"hour": h}) for h in DAY_CYCLE_HOURS),
+         "train" if h == 15.0 else "test", _DEMO if h in DEMO_HOURS else _FULL, sun={"hour": h})
+      for h in DAY_CYCLE_HOURS),
 )
 
 

@@ -106,8 +106,12 @@ class LoopTrajectory:
         height_m: optical centre height above the ground.
         pitch_deg: downward pitch of the optical axis.
         step_hz: step frequency (vertical bounce at step_hz, roll/sway/yaw at step_hz / 2).
-        bounce_m, roll_deg, sway_m, yaw_deg, nod_deg: gait amplitudes.
+        bounce_m, roll_deg, sway_m, yaw_deg, nod_deg: gait amplitudes of the trunk that carries the backpack
+            (walking: the trunk bobs 2-3 cm per step, sways 2-3 cm and rolls about 2 degrees per stride; the upper
+            trunk, where the rig rides, turns less than the pelvis: about 2 degrees; it pitches about 1 degree).
         phase_rad: start position on the loop.
+        turn_deg, turn_period_s: the walker looking around: a yaw of ``turn_deg`` amplitude with that period, on
+            top of the gait (0: none). A 15-degree look every 7 s turns at up to 13 degrees/s.
     """
 
     radius_m: float = 12.0
@@ -116,18 +120,21 @@ class LoopTrajectory:
     height_m: float = 1.55
     pitch_deg: float = 6.0
     step_hz: float = 1.7
-    bounce_m: float = 0.02
-    roll_deg: float = 1.5
-    sway_m: float = 0.015
-    yaw_deg: float = 1.0
-    nod_deg: float = 0.7
+    bounce_m: float = 0.025
+    roll_deg: float = 2.0
+    sway_m: float = 0.025
+    yaw_deg: float = 2.0
+    nod_deg: float = 1.0
     phase_rad: float = 0.0
+    turn_deg: float = 0.0
+    turn_period_s: float = 7.0
     _s_table: np.ndarray = field(init=False, repr=False)
     _th_table: np.ndarray = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        if self.radius_m <= 1 or self.speed_kmh <= 0 or self.height_m <= 0:
-            raise BracketryError("trajectory: radius_m > 1, speed_kmh > 0 and height_m > 0 required")
+        if self.radius_m <= 1 or self.speed_kmh <= 0 or self.height_m <= 0 or self.turn_period_s <= 0:
+            raise BracketryError("trajectory: radius_m > 1, speed_kmh > 0, height_m > 0 and turn_period_s > 0 "
+                                 "required")
         th = np.linspace(0.0, 2 * np.pi, 20001)
         xy = self.curve(th)
         seg = np.hypot(np.diff(xy[0]), np.diff(xy[1]))
@@ -172,6 +179,8 @@ class LoopTrajectory:
         xy = centre + left * self.sway_m * np.sin(w_stride)
         z = self.height_m + self.bounce_m * np.cos(w_step)
         yaw = heading + np.radians(self.yaw_deg) * np.sin(w_stride + 0.5)
+        if self.turn_deg:
+            yaw += np.radians(self.turn_deg) * np.sin(2 * np.pi * t_s / self.turn_period_s)
         pitch = np.radians(self.pitch_deg + self.nod_deg * np.cos(w_step + 0.3))
         roll = np.radians(self.roll_deg) * np.sin(w_stride)
         R = mat_mul(mat_mul(level_camera(yaw), rot_x(-pitch)), rot_z(roll))

@@ -236,8 +236,9 @@ class World:
         return blur.sub_instants(t_s, exposure_us, motion.max_px(exposure_us * 1e-6), self.blur_px, self.blur_max)
 
     def _gained(self, side: str, radiance: np.ndarray) -> np.ndarray:
+        """The rate of photo-electrons of every pixel: radiance x QE x vignetting, with the lens's veiling glare."""
         self._renderer(side)
-        return radiance * self._gain[side]
+        return self.camera.veil(radiance * self._gain[side])
 
     def rates_e_per_us(self, side: str, intervals: Sequence[tuple[float, float]],
                        t_ref_s: float | None = None) -> list[np.ndarray]:

@@ -14,8 +14,10 @@ from bracketry_emulator.dataset import read_png12
 from emu_synthetic import radiance_map, write_tree
 
 #: the emulator's error on static synthetic stacks: HigherNoSat against a noisy true frame inside the bracket range,
-#: median 21-22 DN (bracketry accuracy static, raw; noise of both frames included); per image we allow 1.5x
-STATIC_ERROR_DN = 22.0
+#: median 35.3 DN (bracketry accuracy static, raw; forest-winter seed 3 at 160x100; noise of both frames included, at
+#: the rig sensor's 2.56 e-/DN mostly shot noise: 21.7 DN with a 7.8 e-/DN, 7 e- read noise camera); per image we
+#: allow 1.5x
+STATIC_ERROR_DN = 35.0
 
 
 @pytest.fixture(scope="module")

@@ -97,5 +97,5 @@ def test_synth_groundtruth_reads_with_evo(tmp_path: Path) -> None:
     assert main(["synth", "trajectory", "--out", str(out), "--resolution", "32x20", "--seconds", "1.1", "-q"]) == 0
     traj = file_interface.read_tum_trajectory_file(str(out / "groundtruth.txt"))
     assert traj.num_poses == 24
-    # 2 km/h walk (plus a little gait sway)
-    assert traj.path_length / (traj.timestamps[-1] - traj.timestamps[0]) == pytest.approx(2.0 / 3.6, rel=0.06)
+    # 2 km/h walk, plus the backpack's gait sway (2.5 cm per stride: 7 % more path over 1 s)
+    assert traj.path_length / (traj.timestamps[-1] - traj.timestamps[0]) == pytest.approx(2.0 / 3.6, rel=0.1)

@@ -84,9 +84,11 @@ def test_synth_point_reprojects_into_other_camera_and_time(world: World, walk: P
     baseline_m = -right["P"][0, 3] / right["P"][0, 0]
     assert baseline_m == pytest.approx(0.18, abs=1e-4)
     rng = np.random.default_rng(0)
-    t_a, T_a = 0.0, gt[0][1]
+    # each ground-truth line is the pose at its frame's mid-exposure (frame 11: the 32 ms bracket, 16 ms after its
+    # trigger; the backpack's gait turns at up to ~20 deg/s, so the render is taken at that instant too)
+    t_a, T_a = World.mid_exposure_s(0.0, 1000.0), gt[0][1]
     k_b = 11
-    t_b, T_b = k_b / 22.0, gt[k_b][1]
+    t_b, T_b = World.mid_exposure_s(k_b / 22.0, 32000.0), gt[k_b][1]
     _, pts_a = _surface_points(world, "left", t_a, 400, rng)
     # right camera at the same time: a pure translation along the left camera's x axis
     frac_right = _check_lands(world, "right", t_a, pts_a - np.array([baseline_m, 0.0, 0.0]), right)
@@ -180,10 +182,11 @@ def test_synth_gait_bounce_and_roll(world: World) -> None:
     t = np.arange(0.0, 6.0, 0.01)
     T = [world.pose(ti) for ti in t]
     heights = np.array([world.world_pose(ti)[1][2] for ti in t])
-    assert 0.03 < np.ptp(heights) < 0.06  # +-2 cm bounce
+    # the backpack's gait (LoopTrajectory's defaults): +-2.5 cm bounce, +-2 degrees of roll
+    assert 0.04 < np.ptp(heights) < 0.06
     # roll: angle of the camera x axis out of the horizontal plane (scene frame)
     roll = np.degrees(np.array([np.arcsin(world.world_pose(ti)[0][2, 0]) for ti in t]))
-    assert 2.0 < np.ptp(roll) < 4.0
+    assert 3.0 < np.ptp(roll) < 5.0
     assert np.allclose(T[0], np.eye(4))
 
 

@@ -93,7 +93,8 @@ def test_synth_poisson_and_gaussian_shot_noise_agree() -> None:
 
 def test_synth_bayer_phase_is_rggb() -> None:
     for qe, lit in (((1.0, 0.0, 0.0), [(0, 0)]), ((0.0, 1.0, 0.0), [(0, 1), (1, 0)]), ((0.0, 0.0, 1.0), [(1, 1)])):
-        world = World("forest-winter", seed=1, resolution=RES, camera=CameraModel(qe_rgb=qe))
+        # blooming off: charge above the full well spills into the neighbours whatever their colour filter
+        world = World("forest-winter", seed=1, resolution=RES, camera=CameraModel(qe_rgb=qe, blooming=0.0))
         img = world.render("left", 3.0, 8000.0, noise=False)
         for r in (0, 1):
             for c in (0, 1):
@@ -104,7 +105,9 @@ def test_synth_bayer_phase_is_rggb() -> None:
 def test_synth_colour_on_the_mosaic(world: World) -> None:
     img = world.render("left", 3.0, 4000.0, noise=False).astype(float)
     g1, g2 = img[0::2, 1::2].mean(), img[1::2, 0::2].mean()
-    assert g1 == pytest.approx(g2, rel=0.02)
+    # the two greens are a row and a column apart: on this view (the backpack's gait held at 3 s) the content alone
+    # makes them differ by 1.9 % (2.2 % with the veil and the blooming)
+    assert g1 == pytest.approx(g2, rel=0.03)
     # the sky is blue: in sky pixels the blue sites (1, 1) outshine the red sites (0, 0)
     sky = ~np.isfinite(world.radiance("left", 3.0).range_m)
     rad = world.radiance("left", 3.0).radiance
