@@ -64,7 +64,7 @@ EMULATOR_FLOORS: dict[str, int] = {
     "bracketry_emulator.defaults": 0, "bracketry_emulator.extensions": 0, "bracketry_emulator.stages": 0,
     "bracketry_emulator.runtime_policy": 0, "bracketry_emulator.trajectory_io": 0, "bracketry_emulator.crf": 0,
     "bracketry_emulator.features": 0, "bracketry_emulator.stats": 0,
-    "bracketry_emulator.dataset": 1, "bracketry_emulator.synth": 1,
+    "bracketry_emulator.dataset": 1, "bracketry_emulator.synth": 1, "bracketry_emulator.option_table": 1,
     "bracketry_emulator.emulation": 2, "bracketry_emulator.vo": 2, "bracketry_emulator.metrics": 2,
     "bracketry_emulator.ae": 3, "bracketry_emulator.accuracy": 3, "bracketry_emulator.slam": 3,
     "bracketry_emulator.report": 3,

@@ -32,19 +32,11 @@ from typing import Any
 from bracketry.errors import BracketryError
 
 from ..dataset import open_dataset
-from ..defaults import (
-    AE_CAMERAS,
-    CAMERAS,
-    DEFAULT_CRF,
-    IMAGES,
-    MAX_WARMUP_STEPS,
-    PARITIES,
-    PNG_COMPRESSIONS,
-    SELECTIONS,
-)
+from ..defaults import CAMERAS, MAX_WARMUP_STEPS, PNG_COMPRESSIONS
 from ..emulation import EmulatorConfig
+from ..option_table import Setting, default, rows
 from ..stages import StageTimes, ae_stage
-from .loop import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US, MethodRun
+from .loop import MethodRun
 from .registry import MethodSpec, method_traits, methods_in_use, resolve_methods
 from .scheduler import LoopSettings, run_scheduled
 from .writers import write_run_files
@@ -53,33 +45,51 @@ from .writers import write_run_files
 @dataclass(frozen=True)
 class LoopConfig:
     """Settings of a closed-loop run (see the module docstring). Exposures in us; ``camera``: the cameras written
-    (left, right or both); ``ae_camera``: the camera whose image the methods see. Defaults and choices:
-    :mod:`bracketry_emulator.defaults`. JSON form: :meth:`to_json`."""
+    (left, right or both); ``ae_camera``: the camera whose image the methods see. Every setting a command takes is a
+    row of :data:`~bracketry_emulator.option_table.SETTINGS` (record ``loop``): its default, choices, unit, help and
+    cache-key rule are declared there once; a row without a field here travels in ``extra`` (:meth:`value`). JSON
+    form: :meth:`to_json`."""
 
     emulator: EmulatorConfig = field(default_factory=EmulatorConfig)
     camera: str = "both"
-    ae_camera: str = "left"
-    init_exposure_us: float = DEFAULT_INIT_EXPOSURE_US
-    min_exposure_us: float = DEFAULT_MIN_EXPOSURE_US
-    max_exposure_us: float = DEFAULT_MAX_EXPOSURE_US
-    seed: int = 0
+    ae_camera: str = default("loop", "ae_camera")
+    init_exposure_us: float = default("loop", "init_exposure_us")
+    min_exposure_us: float = default("loop", "min_exposure_us")
+    max_exposure_us: float = default("loop", "max_exposure_us")
+    seed: int = default("loop", "seed")
     drl_weights: str | None = None
     write_images: bool = True
     png_compression: str = PNG_COMPRESSIONS[0]
     overwrite: bool = False
     max_sequences: int | None = None
     memory_budget_bytes: int = 1 << 30
-    images: str = IMAGES[0]
+    images: str = default("loop", "images")
     #: steps each method takes on the first sequence's view before the run, not recorded (:func:`.loop.iter_loop`)
     warmup_steps: int = 0
+    #: the values of the table's loop rows that have no field of their own: sorted (name, value) pairs
+    extra: tuple[tuple[str, Any], ...] = ()
+
+    def value(self, target: str) -> Any:
+        """The value of a loop row's field ``target`` (``emulator.<f>`` for the emulator's; a row without a field
+        of its own: from ``extra``, else its default)."""
+        if target.startswith("emulator."):
+            return getattr(self.emulator, target.removeprefix("emulator."))
+        if target in _FIELDS:
+            return getattr(self, target)
+        found = dict(self.extra)
+        if target in found:
+            return found[target]
+        return next(s.default_value for s in rows("loop", _table()) if s.target == target)
 
     def validate(self) -> None:
         """Raise BracketryError (one line, naming the ``bracketry emulate`` option) on a bad setting: the one
-        place these settings are checked."""
+        place these settings are checked (each row's choices; the rules that span settings)."""
         if self.camera not in CAMERAS:
             raise BracketryError(f"--camera must be left, right or both, got {self.camera}")
-        if self.ae_camera not in AE_CAMERAS:
-            raise BracketryError(f"--ae-camera must be left or right, got {self.ae_camera}")
+        for s in rows("loop", _table()):
+            v = self.value(s.target)
+            if s.choices and v not in s.choices:
+                raise BracketryError(f"{s.option} must be one of {', '.join(s.choices)}, got {v}")
         lo_ms, hi_ms, init_ms = self.min_exposure_us / 1000, self.max_exposure_us / 1000, self.init_exposure_us / 1000
         if not 0 < lo_ms < hi_ms:
             raise BracketryError(f"--min-exposure-ms {lo_ms:g} must be > 0 and below --max-exposure-ms {hi_ms:g}")
@@ -88,8 +98,6 @@ class LoopConfig:
                                  f"{lo_ms:g}, --max-exposure-ms {hi_ms:g}]")
         if not 0 <= self.warmup_steps <= MAX_WARMUP_STEPS:
             raise BracketryError(f"--warmup-steps must be between 0 and {MAX_WARMUP_STEPS}, got {self.warmup_steps}")
-        if self.images not in IMAGES:
-            raise BracketryError(f"--images must be one of {', '.join(IMAGES)}, got {self.images}")
         if self.png_compression not in PNG_COMPRESSIONS:
             raise BracketryError(f"--png-compression must be one of {', '.join(PNG_COMPRESSIONS)}, got "
                                  f"{self.png_compression}")
@@ -97,42 +105,62 @@ class LoopConfig:
 
     def to_json(self) -> dict[str, Any]:
         """The settings that decide the closed loops' results, as a JSON object (the benchmark's cache keys and
-        ``closedloop_options.json``): selection, crf, parity, ``init_exposure_us``, seed, ``ae_camera``; the
-        exposure bounds only where they are not the defaults, ``blur`` (motion-blur emulation), ``images``
-        (truth runs) and ``warmup_steps`` only when not their defaults.
-        Which files are written and how (cameras, images, PNG encoding, overwrite, memory) and the DRL weights
-        (a method's own input) are not in it; nor the emulator's other settings (:meth:`from_json` gives their
-        defaults, see :meth:`round_trips`)."""
-        doc: dict[str, Any] = {"selection": self.emulator.selection, "crf": str(self.emulator.crf),
-                               "init_exposure_us": self.init_exposure_us, "seed": self.seed,
-                               "ae_camera": self.ae_camera, "parity": self.emulator.parity}
-        if self.emulator.blur:  # only when on: the keys of runs without it stay as they were
-            doc["blur"] = True
-        if self.images != IMAGES[0]:  # likewise
-            doc["images"] = self.images
-        if self.warmup_steps:  # likewise
+        ``closedloop_options.json``): every loop row whose ``key`` is ``always``, and those whose ``key`` is
+        ``changed`` while they differ from their defaults (so the keys of runs made without them stay as they
+        were): selection, crf, parity, ``init_exposure_us``, seed, ``ae_camera``; the exposure bounds, ``blur``,
+        ``images`` and ``warmup_steps`` only when not their defaults. Which files are written and how (cameras,
+        images, PNG encoding, overwrite, memory) are not in it; nor the emulator's settings no row declares
+        (:meth:`from_json` gives their defaults, see :meth:`round_trips`)."""
+        doc: dict[str, Any] = {}
+        for s in rows("loop", _table()):
+            v = self.value(s.target)
+            if s.key == "always" or (s.key == "changed" and v != s.default_value):
+                doc[s.json_name] = str(v) if isinstance(v, Path) else v
+        if self.warmup_steps:  # set per trajectory (a manifest's warmup_steps), not by a row
             doc["warmup_steps"] = self.warmup_steps
-        for name in ("min_exposure_us", "max_exposure_us"):
-            if getattr(self, name) != _DEFAULTS[name]:
-                doc[name] = getattr(self, name)
         return doc
+
+    @classmethod
+    def from_values(cls, values: Mapping[str, Any], **given: Any) -> LoopConfig:
+        """The validated settings of the loop rows' ``values`` ({field: value}, as
+        :func:`~bracketry_emulator.option_table.record_values` gives them; missing: their defaults), with ``given``
+        fields (e.g. ``write_images``, ``emulator`` fields a row does not declare: ``emulator=EmulatorConfig``
+        whose declared fields the values replace). One line (BracketryError) on a bad setting."""
+        from ..emulation.settings import emulator_config
+
+        known = {s.target for s in rows("loop", _table())} | {"warmup_steps"}
+        unknown = set(values) - known
+        if unknown:
+            raise ValueError(f"unknown closed-loop option(s): {', '.join(sorted(unknown))}")
+        base: EmulatorConfig = given.pop("emulator", None) or EmulatorConfig()
+        emu = {f: getattr(base, f) for f in _EMULATOR_FIELDS}
+        own: dict[str, Any] = {}
+        extra: dict[str, Any] = {}
+        for s in rows("loop", _table()):
+            v = _like(s.default_value, values[s.target]) if s.target in values else s.default_value
+            if s.target.startswith("emulator."):
+                emu[s.target.removeprefix("emulator.")] = v
+            elif s.target in _FIELDS:
+                own[s.target] = v
+            else:
+                extra[s.target] = v
+        if "warmup_steps" in values:
+            own["warmup_steps"] = int(values["warmup_steps"])
+        emulator = emulator_config(**emu)
+        cfg = cls(emulator=emulator, **own, extra=tuple(sorted(extra.items())), **given)
+        cfg.validate()
+        return cfg
 
     @classmethod
     def from_json(cls, doc: dict[str, Any], **given: Any) -> LoopConfig:
         """The validated settings of :meth:`to_json`'s form (missing keys: their defaults), with ``given`` fields
-        (e.g. ``drl_weights``, ``write_images``). One line (BracketryError) on a bad setting."""
-        from ..emulation.settings import emulator_config
-
-        unknown = set(doc) - set(_JSON_DEFAULTS)
+        (e.g. ``write_images``). One line (BracketryError) on a bad setting."""
+        by_json = {s.json_name: s.target for s in rows("loop", _table())}
+        by_json["warmup_steps"] = "warmup_steps"
+        unknown = set(doc) - set(by_json)
         if unknown:
             raise ValueError(f"unknown closed-loop option(s): {', '.join(sorted(unknown))}")
-        o = {**_JSON_DEFAULTS, **{k: v for k, v in doc.items() if v is not None}}
-        cfg = cls(emulator=emulator_config(o["selection"], str(o["crf"]), str(o["parity"]), blur=bool(o["blur"])),
-                  ae_camera=o["ae_camera"], init_exposure_us=float(o["init_exposure_us"]), seed=int(o["seed"]),
-                  min_exposure_us=float(o["min_exposure_us"]), max_exposure_us=float(o["max_exposure_us"]),
-                  images=str(o["images"]), warmup_steps=int(o["warmup_steps"]), **given)
-        cfg.validate()
-        return cfg
+        return cls.from_values({by_json[k]: v for k, v in doc.items() if v is not None}, **given)
 
     def round_trips(self) -> bool:
         """Whether :meth:`to_json` holds every setting that decides the results (the rest are how files are
@@ -142,13 +170,24 @@ class LoopConfig:
         return LoopConfig.from_json(self.to_json(), **same) == self
 
 
-_DEFAULTS = {f.name: f.default for f in fields(LoopConfig)}
-#: :meth:`LoopConfig.to_json`'s keys and their defaults
-_JSON_DEFAULTS: dict[str, Any] = {"selection": SELECTIONS[0], "crf": DEFAULT_CRF, "parity": PARITIES[0],
-                                  "init_exposure_us": _DEFAULTS["init_exposure_us"], "seed": _DEFAULTS["seed"],
-                                  "ae_camera": _DEFAULTS["ae_camera"], "min_exposure_us": _DEFAULTS["min_exposure_us"],
-                                  "max_exposure_us": _DEFAULTS["max_exposure_us"], "blur": False,
-                                  "images": IMAGES[0], "warmup_steps": 0}
+def _table() -> tuple[Setting, ...]:
+    """The settings table (read at each use, so a row declared later, e.g. by a test, is seen)."""
+    from .. import option_table
+
+    return option_table.SETTINGS
+
+
+def _like(default_value: Any, value: Any) -> Any:
+    """``value`` in the type of its default (a JSON 4000 for a float setting is 4000.0: one JSON form, one key)."""
+    if isinstance(default_value, float) and isinstance(value, int) and not isinstance(value, bool):
+        return float(value)
+    if isinstance(default_value, str) and isinstance(value, Path):
+        return str(value)
+    return value
+
+
+_FIELDS = {f.name for f in fields(LoopConfig)} - {"emulator", "extra"}
+_EMULATOR_FIELDS = tuple(f.name for f in fields(EmulatorConfig))
 
 
 @dataclass
@@ -221,10 +260,7 @@ def _run_methods(dataset_path: str | Path, method_specs: list[MethodSpec], out_d
         raise BracketryError(f"no complete bracket sequence in {dataset_path}")
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    settings = LoopSettings(cfg.emulator, cfg.ae_camera, write_sides, tuple(dict.fromkeys([*write_sides,
-                            cfg.ae_camera])), cfg.init_exposure_us, cfg.min_exposure_us, cfg.max_exposure_us,
-                            cfg.seed, cfg.drl_weights, cfg.write_images, cfg.png_compression, cfg.overwrite,
-                            truth_dir, cfg.warmup_steps)
+    settings = LoopSettings(cfg, write_sides, tuple(dict.fromkeys([*write_sides, cfg.ae_camera])), truth_dir)
     bar = _progress_bar(progress, len(specs) * len(sequences))
     stages = StageTimes()
     try:

@@ -29,7 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -47,6 +47,9 @@ from .registry import MethodTraits, get_method
 from .truth import TruthCache
 from .writers import ImageSink, LinkingRunWriter, method_folder
 
+if TYPE_CHECKING:
+    from .runner import LoopConfig
+
 #: Sequences held in the shared frame buffer at most (its ring of slots): a worker decodes at most this many sequences
 #: ahead of the slowest one (it waits otherwise); every slot's pages stay mapped in every process once touched.
 RING_SLOTS = 4
@@ -58,27 +61,24 @@ EMULATION_COST = 16
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """What every worker needs to know of a run (picklable; see :class:`~.runner.LoopConfig`).
+    """What every worker needs to know of a run (picklable): the run's closed-loop settings ``loop``
+    (:class:`~.runner.LoopConfig` itself, as the commands built it from the settings table) and what the run found
+    in the dataset: ``write_sides`` the sides written, ``emulate_sides`` every side emulated (write sides + AE
+    camera), ``truth_dir`` a synthetic trajectory whose world renders the images (truth runs, :mod:`.truth`; None:
+    emulated)."""
 
-    Exposures in us; ``ae_camera`` the side whose image the methods see; ``write_sides`` the sides written;
-    ``emulate_sides`` every side emulated (write sides + AE camera)."""
-
-    emulator: EmulatorConfig
-    ae_camera: str
+    loop: LoopConfig
     write_sides: tuple[str, ...]
     emulate_sides: tuple[str, ...]
-    init_exposure_us: float
-    min_exposure_us: float
-    max_exposure_us: float
-    seed: int
-    drl_weights: str | None
-    write_images: bool
-    png_compression: str
-    overwrite: bool
-    #: a synthetic trajectory whose world renders the images (truth runs, :mod:`.truth`); None: emulated
     truth_dir: str | None = None
-    #: steps each method takes on the first sequence's view before the run (:func:`~.loop.iter_loop`)
-    warmup_steps: int = 0
+
+    @property
+    def emulator(self) -> EmulatorConfig:
+        return self.loop.emulator
+
+    @property
+    def ae_camera(self) -> str:
+        return self.loop.ae_camera
 
 
 def partition(traits: dict[str, MethodTraits], n: int) -> list[list[str]]:
@@ -142,7 +142,7 @@ class Worker:
         strategy = decode_strategy(s.emulator.selection, s.emulator.parity, len(s.emulate_sides), ae_i)
         self.source = FrameSource(frames, sequences, s.emulate_sides, strategy, self.emu.ae_choice(s.ae_camera),
                                   reader)
-        self.sink = ImageSink(write_threads if s.write_images else 0, stages=self.stages)
+        self.sink = ImageSink(write_threads if s.loop.write_images else 0, stages=self.stages)
         #: each method's next camera exposure (us): what its next step's source bracket is chosen for
         self.targets: dict[str, float] = {}
         self.runs: dict[str, MethodRun] = {}
@@ -157,18 +157,19 @@ class Worker:
                            else EmulationCache(s.emulator))
         self._ahead: tuple[int, dict[str, dict[int, np.ndarray]]] | None = None  # (sequence, its brackets)
         for spec in specs:
-            method = get_method(spec, seed=s.seed, drl_weights=s.drl_weights, parity=s.emulator.parity)
+            method = get_method(spec, seed=s.loop.seed, drl_weights=s.loop.drl_weights, parity=s.emulator.parity)
             if getattr(method, "looks_ahead", False):
                 self._looking_ahead.add(spec)
-            self.targets[spec] = initial_exposure_us(method, s.init_exposure_us)
+            self.targets[spec] = initial_exposure_us(method, s.loop.init_exposure_us)
             self.runs[spec] = MethodRun(spec)
             self._loops[spec] = iter_loop(method, itertools.count(), functools.partial(self._emulate, spec), name=spec,
-                                          init_exposure_us=s.init_exposure_us, min_exposure_us=s.min_exposure_us,
-                                          max_exposure_us=s.max_exposure_us, warmup_steps=s.warmup_steps,
+                                          init_exposure_us=s.loop.init_exposure_us,
+                                          min_exposure_us=s.loop.min_exposure_us,
+                                          max_exposure_us=s.loop.max_exposure_us, warmup_steps=s.loop.warmup_steps,
                                           warmup=functools.partial(self._first_view, spec))
             self.writers[spec] = LinkingRunWriter(out_dir, method_folder(spec), s.write_sides, s.emulator.depth,
-                                                  s.overwrite, self.sink, s.png_compression,
-                                                  s.emulator.parity, images=s.write_images)
+                                                  s.loop.overwrite, self.sink, s.loop.png_compression,
+                                                  s.emulator.parity, images=s.loop.write_images)
 
     def run(self, seq_indices: list[int], progress: Callable[[int], None], decode_pool: ThreadPoolExecutor) -> None:
         """Step every method of this worker through the given sequences (position = place in the list): all take
@@ -183,7 +184,7 @@ class Worker:
                 self._ahead = None
                 self._ahead_emu.clear()
                 self._brackets = self.source.load(pos, seq_i, self.targets.values())
-                if pos == 0 and self.settings.warmup_steps > 0:  # the warm-up's targets may need any bracket
+                if pos == 0 and self.settings.loop.warmup_steps > 0:  # the warm-up's targets may need any bracket
                     self._brackets = self.source.peek(pos, seq_i)
                 self._seq_i = seq_i
                 nxt = seq_indices[pos + 1] if pos + 1 < len(seq_indices) else None

@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 from bracketry.errors import BracketryError
 from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult, load_cached, run_task
 from bracketry_emulator.metrics.manifest import TrajectorySpec
+from bracketry_emulator.option_table import slurm_walltime as slurm_walltime
 
 if TYPE_CHECKING:
     from bracketry_emulator.ae.runner import LoopConfig
@@ -81,14 +82,6 @@ class WorkerChecks:
     inputs: tuple[str, ...]
     vocabulary: str | None = None
     vocabulary_id: str | None = None
-
-
-def slurm_walltime(seconds: float) -> str:
-    """``HH:MM:SS`` (Slurm's --time) of ``seconds``, rounded up to whole seconds."""
-    import math
-
-    s = math.ceil(seconds)
-    return f"{s // 3600:02d}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
 def make_units(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], loop: LoopConfig, stream: bool) -> list[Unit]:
