@@ -160,12 +160,13 @@ def test_cache_keys_and_loop_json_are_the_ones_before_the_table() -> None:
     spec = TrajectorySpec("t1", Path("/nonexistent/t1"))
     orb = SlamOptions("orbslam3", "/v/voc.txt", "voc.txt:0123456789ab", "realtime", True, 2)
     half = MethodSpec("half", "ae_plugin_demo:HalfAE", (("target", 0.3),))
+    drl = MethodSpec("drl", "drl", (("drl_weights", "/w/actor.pth"),))  # --drl-weights /w/actor.pth
     for name, doc in LOOPS.items():
         loop = LoopConfig.from_json(doc)
         assert json.dumps(loop.to_json(), sort_keys=True) == LOOP_JSON[name]
-        for method in ("ae50", "drl", half):
+        for method in ("ae50", drl, half):
             for slam, repeat in ((None, 0), (orb, 1)):
-                task = make_task(spec, method, Path("/out"), drl_weights="/w/actor.pth", loop=loop, slam=slam,
-                                 repeat=repeat)
+                task = make_task(spec, method, Path("/out"), loop=loop, slam=slam, repeat=repeat)
+                assert type(task).from_json(task.to_json()) == task
                 label = method if isinstance(method, str) else method.name
                 assert task.key == KEYS[(name, label, slam and slam.backend, repeat)], (name, label, repeat)

@@ -37,7 +37,7 @@ from ..emulation import EmulatorConfig
 from ..option_table import Setting, default, rows
 from ..stages import StageTimes, ae_stage
 from .loop import MethodRun
-from .registry import MethodSpec, method_traits, methods_in_use, resolve_methods
+from .registry import MethodSpec, resolve_methods
 from .scheduler import LoopSettings, run_scheduled
 from .writers import write_run_files
 
@@ -57,7 +57,6 @@ class LoopConfig:
     min_exposure_us: float = default("loop", "min_exposure_us")
     max_exposure_us: float = default("loop", "max_exposure_us")
     seed: int = default("loop", "seed")
-    drl_weights: str | None = None
     write_images: bool = True
     png_compression: str = PNG_COMPRESSIONS[0]
     overwrite: bool = False
@@ -165,7 +164,7 @@ class LoopConfig:
     def round_trips(self) -> bool:
         """Whether :meth:`to_json` holds every setting that decides the results (the rest are how files are
         written): else two different configs would share one JSON form (and one cache key)."""
-        out_only = ("drl_weights", "write_images", "png_compression", "overwrite", "memory_budget_bytes")
+        out_only = ("write_images", "png_compression", "overwrite", "memory_budget_bytes")
         same = {k: getattr(self, k) for k in out_only}
         return LoopConfig.from_json(self.to_json(), **same) == self
 
@@ -210,10 +209,12 @@ class RunSummary:
 def run_methods(dataset_path: str | Path, methods: Sequence[str | MethodSpec], out_dir: str | Path, *,
                 workers: int = 0, config: LoopConfig | None = None, progress: bool = True,
                 feeds: dict[str, list[Any]] | None = None,
-                method_options: Mapping[str, Mapping[str, Any]] | None = None, **overrides: Any) -> RunSummary:
-    """Run ``methods`` (ids, see :func:`get_method`, or resolved :class:`~.registry.MethodSpec`) in closed loop on a
-    dataset; see the module docstring. Each method's outputs (folder, columns, ``runs`` keys) carry its name
-    (:func:`~.registry.resolve_methods`; ``method_options``: {method: {keyword: value}} for plugin constructors).
+                method_options: Mapping[str, Mapping[str, Any]] | None = None, drl_weights: str | Path | None = None,
+                **overrides: Any) -> RunSummary:
+    """Run ``methods`` (resolved :class:`~.registry.MethodSpec`, carried to the workers as they are; or ids and
+    ``--methods`` groups, resolved here by :func:`~.registry.resolve_methods` with ``method_options``: {method:
+    {keyword: value}} for plugin constructors and ``drl_weights``: the DRL actor) in closed loop on a dataset; see
+    the module docstring. Each method's outputs (folder, columns, ``runs`` keys) carry its name.
 
     ``workers``: processes (0 = automatic, see :func:`~.scheduler.run_scheduled`; 1 = in-process).
     ``feeds``: {method name: [objects with ``write_step``/``close`` like a RunWriter]} that also get every step's images
@@ -230,18 +231,11 @@ def run_methods(dataset_path: str | Path, methods: Sequence[str | MethodSpec], o
     cfg.validate()
     if not methods:
         raise BracketryError("no AE method given")
-    loader = {"seed": cfg.seed, "drl_weights": cfg.drl_weights, "parity": cfg.emulator.parity}
-    specs = resolve_methods(list(dict.fromkeys(methods)), method_options, **loader)  # names checked, no work yet
-    with methods_in_use(specs):
-        return _run_methods(dataset_path, specs, out_dir, workers, cfg, progress, feeds, loader, t_start)
-
-
-def _run_methods(dataset_path: str | Path, method_specs: list[MethodSpec], out_dir: str | Path, workers: int,
-                 cfg: LoopConfig, progress: bool, feeds: dict[str, list[Any]] | None, loader: dict[str, Any],
-                 t_start: float) -> RunSummary:
+    method_specs = resolve_methods(list(dict.fromkeys(methods)), method_options, drl_weights=drl_weights,
+                                   seed=cfg.seed, parity=cfg.emulator.parity)  # names checked, no work yet
     specs = [m.name for m in method_specs]
     # fail fast (unknown ids, missing weights) and learn what each method declares for scheduling
-    traits = {spec: method_traits(spec, **loader) for spec in specs}
+    traits = {m.name: m.traits(cfg.seed, cfg.emulator.parity) for m in method_specs}
     dataset = open_dataset(dataset_path)
     write_sides = dataset.sides if cfg.camera == "both" else (cfg.camera,)
     for s in (*write_sides, cfg.ae_camera):
@@ -264,7 +258,7 @@ def _run_methods(dataset_path: str | Path, method_specs: list[MethodSpec], out_d
     bar = _progress_bar(progress, len(specs) * len(sequences))
     stages = StageTimes()
     try:
-        runs = run_scheduled(traits, settings, sequences, out, workers=workers,
+        runs = run_scheduled({m.name: m for m in method_specs}, traits, settings, sequences, out, workers=workers,
                              memory_budget_bytes=cfg.memory_budget_bytes, progress=bar.update, feeds=feeds,
                              stages=stages)
     finally:

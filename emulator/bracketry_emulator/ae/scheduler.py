@@ -43,7 +43,7 @@ from .decode_plan import decode_strategy
 from .emulation_cache import EmulationCache, needed_brackets
 from .frame_source import FrameSource
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
-from .registry import MethodTraits, get_method
+from .registry import MethodSpec, MethodTraits
 from .truth import TruthCache
 from .writers import ImageSink, LinkingRunWriter, method_folder
 
@@ -121,8 +121,8 @@ class Worker:
     and forked modes. Its frames come from a :class:`~.frame_source.FrameSource` (what to decode: the run's
     :func:`~.decode_plan.decode_strategy`)."""
 
-    def __init__(self, specs: list[str], settings: LoopSettings, sequences: list[BracketSequence], out_dir: Path,
-                 frames: FrameBuffer, write_threads: int = 1, feeds: dict[str, list[Any]] | None = None,
+    def __init__(self, methods: list[MethodSpec], settings: LoopSettings, sequences: list[BracketSequence],
+                 out_dir: Path, frames: FrameBuffer, write_threads: int = 1, feeds: dict[str, list[Any]] | None = None,
                  reader: int = 0) -> None:
         self.settings = s = settings
         #: this worker's reader number in ``frames`` (:meth:`FrameBuffer.release`)
@@ -156,8 +156,9 @@ class Worker:
         self._ahead_emu = (TruthCache(s.emulator, s.truth_dir) if s.truth_dir is not None
                            else EmulationCache(s.emulator))
         self._ahead: tuple[int, dict[str, dict[int, np.ndarray]]] | None = None  # (sequence, its brackets)
-        for spec in specs:
-            method = get_method(spec, seed=s.loop.seed, drl_weights=s.loop.drl_weights, parity=s.emulator.parity)
+        for m in methods:  # each method created here, in the worker, from the spec it was handed
+            spec = m.name
+            method = m.create(seed=s.loop.seed, parity=s.emulator.parity)
             if getattr(method, "looks_ahead", False):
                 self._looking_ahead.add(spec)
             self.targets[spec] = initial_exposure_us(method, s.loop.init_exposure_us)
@@ -270,13 +271,15 @@ class Worker:
 AUTO_FORK_MIN_SEQUENCES = 8
 
 
-def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, sequences: list[BracketSequence],
+def run_scheduled(methods: dict[str, MethodSpec], traits: dict[str, MethodTraits], settings: LoopSettings,
+                  sequences: list[BracketSequence],
                   out_dir: Path, *, workers: int, memory_budget_bytes: int,
                   progress: Callable[[int], None], feeds: dict[str, list[Any]] | None = None,
                   stages: StageTimes | None = None) -> dict[str, MethodRun]:
     """Every method's closed loop over ``sequences`` (at least one), its images written under ``out_dir``.
 
-    ``traits``: {method id: what it declares}, in run order. ``workers``: processes (0 = min(methods, CPUs, 4)
+    ``methods``: {method name: the method, created by each worker from it}; ``traits``: {method name: what it
+    declares}, in run order. ``workers``: processes (0 = min(methods, CPUs, 4)
     from :data:`AUTO_FORK_MIN_SEQUENCES` sequences on, else 1; 1 = in this process). ``progress(n)`` is called
     after every n method steps. Returns {method id: run} in ``traits`` order. Raises BracketryError (one line) on
     a failing method or worker. ``feeds``: see :class:`Worker`; ``stages``: receives the workers' stage times.
@@ -306,7 +309,7 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
 
     def make(reader: int, write_threads: int = 1) -> Callable[[], Worker]:
         group = groups[reader]
-        return lambda: Worker(group, settings, sequences, out_dir, frames, write_threads,
+        return lambda: Worker([methods[m] for m in group], settings, sequences, out_dir, frames, write_threads,
                               {m: f for m, f in (feeds or {}).items() if m in group}, reader)
 
     runs: dict[str, MethodRun] = {}

@@ -98,27 +98,25 @@ def command(dataset: Path, out_dir: Path, method_option: tuple[str, ...], method
     from bracketry_emulator.runtime_policy import apply_profile
 
     apply_profile("emulate")  # before numpy loads (just below); the forked workers inherit it
-    from bracketry_emulator.ae import LoopConfig, expand_methods, parse_method_options, resolve_methods, run_methods
+    from bracketry_emulator.ae import LoopConfig, parse_method_options, resolve_methods, run_methods
 
     settings = pop_settings(EMULATE, given)
     assert not given, f"options without a row in the settings table: {sorted(given)}"
     chosen = record_values(EMULATE, settings, "methods")
     drl_weights: str | None = chosen.get("drl_weights")
-    specs = expand_methods(chosen["methods"], has_drl_weights=drl_weights is not None,
-                           warn=lambda m: click.echo(m, err=True))
-    plugin_options = parse_method_options(method_option, method_options)
     values = record_values(EMULATE, settings, "loop")
     emu = _emulator_config(dataset, values.pop("emulator.selection"), values.pop("emulator.crf", None),
                            values["emulator.parity"], int(depth), gain_db, noise, fusion_brackets, motion,
                            deghost_sigma)
     cfg = LoopConfig.from_values({**values, "emulator.selection": emu.selection, "emulator.crf": str(emu.crf)},
-                                 emulator=emu, camera=camera, drl_weights=drl_weights, write_images=not no_images,
+                                 emulator=emu, camera=camera, write_images=not no_images,
                                  png_compression=png_compression, overwrite=overwrite, max_sequences=max_sequences)
-    if drl_weights is not None and "drl" in specs:
+    # the methods, resolved once (names checked, plugins created, before any work): what the workers get
+    resolved = resolve_methods(chosen["methods"], parse_method_options(method_option, method_options),
+                               drl_weights=drl_weights, seed=cfg.seed, parity=cfg.emulator.parity,
+                               warn=lambda m: click.echo(m, err=True))
+    if drl_weights is not None and any(m.source == "drl" for m in resolved):
         _check_pth(Path(drl_weights))
-    seed, parity = cfg.seed, cfg.emulator.parity
-    resolved = resolve_methods(specs, plugin_options, seed=seed, parity=parity,
-                               drl_weights=drl_weights)  # names: before any work
     if overwrite:
         remove_earlier_run(out_dir)
     summary = run_methods(dataset, resolved, out_dir, workers=workers, config=cfg, progress=not quiet)

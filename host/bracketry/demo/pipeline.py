@@ -123,10 +123,9 @@ def check_methods(p: DemoPlan) -> list[str]:
     """The names of the plan's methods, checked as the benchmark checks them (unknown ids, plugins that do not
     load or reject an option, unsafe or shared names, --stats-methods): one line before anything is recorded."""
     from bracketry_emulator.ae.registry import resolve_methods
-    from bracketry_emulator.benchmark.orchestrate import parse_methods, select_stats_methods
+    from bracketry_emulator.benchmark.orchestrate import select_stats_methods
 
-    names = [m.name for m in resolve_methods(parse_methods(p.methods, has_drl_weights=p.drl_weights is not None),
-                                              p.method_options, drl_weights=p.drl_weights)]
+    names = [m.name for m in resolve_methods(p.methods, p.method_options, drl_weights=p.drl_weights)]
     if "ae50" not in names:
         raise BracketryError("the demo's statistics compare with ae50: keep it in --methods")
     select_stats_methods(p.stats_methods, names, "ae50", plugins=[])
@@ -261,11 +260,10 @@ def suite(p: DemoPlan, echo: Callable[[str], None], background: subprocess.Popen
 def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None], suite_manifest: Path | None = None) -> Any:
     """The last step: all AE methods in closed loop (one shared-decode pass per trajectory, with a progress bar), VO,
     metrics, statistics and the report, on the recording (and the suite's trajectories when given)."""
-    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, parse_methods, run_benchmark
+    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
     from bracketry_emulator.metrics.manifest import TrajectorySpec, load_manifest
 
-    ids = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
     methods = check_methods(p)  # their names
     slam = slam_options(p.slam, pace=p.slam_pace, echo=echo)  # the default vocabulary is built here the first time
     out = p.out_dir / "benchmark"
@@ -289,7 +287,7 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None], suite_man
         bar.update(1)
 
     try:
-        return run_benchmark(BenchmarkConfig(datasets, ids, out, reference="ae50", workers=p.workers,
+        return run_benchmark(BenchmarkConfig(datasets, p.methods, out, reference="ae50", workers=p.workers,
                                              drl_weights=p.drl_weights, progress=True, slam=slam,
                                              stats_methods=p.stats_methods, method_options=p.method_options),
                              on_done=done)

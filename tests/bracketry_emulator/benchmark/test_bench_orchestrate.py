@@ -129,7 +129,7 @@ def test_bench_cli(datasets, local_run, tmp_path: Path, capsys) -> None:
 
 
 def test_methods_all_leaves_drl_out_without_weights_and_names_the_option() -> None:
-    from bracketry_emulator.benchmark.orchestrate import parse_methods
+    from bracketry_emulator.ae.registry import parse_methods
 
     assert "drl" not in parse_methods("all", has_drl_weights=False)
     # 'all' = the paper's eight (drl with its weights); zhang by name
@@ -141,7 +141,8 @@ def test_methods_all_leaves_drl_out_without_weights_and_names_the_option() -> No
 
 
 def test_methods_paper_and_stats_methods() -> None:
-    from bracketry_emulator.benchmark.orchestrate import parse_methods, select_stats_methods
+    from bracketry_emulator.ae.registry import parse_methods
+    from bracketry_emulator.benchmark.orchestrate import select_stats_methods
 
     paper = parse_methods("paper", has_drl_weights=False)
     assert paper == ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim"]
