@@ -72,11 +72,11 @@ F = TypeVar("F", bound=Callable[..., Any])
 _UNSET: Any = type("Unset", (), {"__repr__": lambda self: "UNSET"})()
 
 #: the keywords --methods takes beside method ids (ae/registry.py parse_methods)
-METHODS_HELP = ("AE methods, comma-separated: ids (fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, oracle, "
-                "constant-<ms> e.g. constant-8), plugins pkg.module:Class or entry points (each named by its "
-                "'name'), or the groups 'all' = 'paper' (the paper's seven: fix, ae30, ae50, ae70, shim, wang, kim; "
-                "drl too with --drl-weights), 'controls' (the non-causal oracle and a grid of constant exposures) "
-                "and 'oracle' (the non-causal control alone).")
+METHODS_HELP = ("AE methods, comma-separated: ids (fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, "
+                "constant-<ms> e.g. constant-8, and 'oracle': the non-causal control), plugins pkg.module:Class or "
+                "entry points (each named by its 'name'), or the groups 'all' = 'paper' (the paper's seven that run "
+                "here: fix, ae30, ae50, ae70, shim, wang, kim; its eighth, drl, only with --drl-weights) and "
+                "'controls' (the oracle and a grid of constant exposures).")
 
 
 @dataclass(frozen=True)
@@ -236,8 +236,7 @@ SETTINGS: tuple[Setting, ...] = (
             "into the user cache (never downloaded).", type=input_file(), commands=(BENCHMARK,), convert=_text),
     Setting("slam_pace", "slam", "--slam-pace",
             "ORB-SLAM3 feed: 'realtime' (the recording's timestamps) or seconds between frames (0 = as fast as it "
-            "tracks).", DEFAULT_SLAM_PACE, key="always", field="pace", commands=(BENCHMARK, DEMO),
-            per_command={DEMO: {"default": "0"}}),
+            "tracks).", DEFAULT_SLAM_PACE, key="always", field="pace", commands=(BENCHMARK, DEMO)),
     Setting("loop_closing", "slam", "--loop-closing",
             "ORB-SLAM3's loop-closing thread; off also turns relocalisation off.", True, type=bool,
             off="--no-loop-closing", key="always", commands=(BENCHMARK,)),

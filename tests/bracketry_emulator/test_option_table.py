@@ -170,3 +170,24 @@ def test_cache_keys_and_loop_json_are_the_ones_before_the_table() -> None:
                 assert type(task).from_json(task.to_json()) == task
                 label = method if isinstance(method, str) else method.name
                 assert task.key == KEYS[(name, label, slam and slam.backend, repeat)], (name, label, repeat)
+
+
+def test_the_commands_agree_on_methods_pace_and_durations() -> None:
+    from bracketry.cli import demo
+    from bracketry.demo.pipeline import DemoPlan, plan
+    from bracketry_emulator.ae.registry import parse_methods
+    from bracketry_emulator.cli import benchmark, emulate
+
+    for command in (emulate.command, benchmark.command, demo.command):
+        opt = next(p for p in command.params if "--methods" in p.opts)
+        assert {"--methods", "-m", "--method"} <= set(opt.opts), command.name  # --method: the old spelling
+        help_text = " ".join((opt.help or "").split())
+        assert all(w in help_text for w in ("'paper'", "'controls'", "'oracle'", "seven")), command.name
+    paper = ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim"]
+    assert parse_methods("paper", has_drl_weights=False) == parse_methods("ALL", has_drl_weights=False) == paper
+    assert parse_methods("ae50,controls,oracle")[:2] == ["ae50", "oracle"]  # the group's oracle named once
+    pace = option_table.setting("slam_pace")
+    assert pace.spec(BENCHMARK)["default"] == pace.spec(option_table.DEMO)["default"] == "realtime"
+    assert DemoPlan(Path("x"), 1.0, (2, 2)).slam_pace == plan(Path("x"), None, True).slam_pace == "realtime"
+    duration = next(p for p in demo.command.params if "--duration-s" in p.opts)
+    assert duration.type.convert("1m", duration, None) == 60.0  # units, as every --duration-s

@@ -48,7 +48,7 @@ from .truth import TruthCache
 from .writers import ImageSink, LinkingRunWriter, method_folder
 
 if TYPE_CHECKING:
-    from .runner import LoopConfig
+    from .loop_config import LoopConfig
 
 #: Sequences held in the shared frame buffer at most (its ring of slots): a worker decodes at most this many sequences
 #: ahead of the slowest one (it waits otherwise); every slot's pages stay mapped in every process once touched.

@@ -82,6 +82,9 @@ class BenchmarkConfig:
     #: steps each method takes on a trajectory's first view before it (:func:`~bracketry_emulator.ae.loop.iter_loop`);
     #: None: what its manifest declares (``warmup_steps:``), else ``loop.warmup_steps``
     warmup_steps: int | None = None
+    #: remove what an earlier benchmark wrote into ``out_dir`` first (:func:`remove_earlier_benchmark`), once the
+    #: input is checked; else its cached runs are reused
+    overwrite: bool = False
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
@@ -112,6 +115,24 @@ class BenchmarkResult:
     report_files: dict[str, Path]
     #: where the time went (:func:`stage_document`)
     timing: dict = field(default_factory=dict)
+
+
+#: what a benchmark writes into its output folder (``--overwrite`` removes these, and only these, first)
+BENCHMARK_OUTPUTS: tuple[str, ...] = ("cache", "runs", "vo", "report", "orbslam", "setup_check", "reference", "truth",
+                                      ".cluster_token")
+
+
+def remove_earlier_benchmark(out_dir: Path) -> None:
+    """``--overwrite``: remove what an earlier benchmark wrote into ``out_dir`` (:data:`BENCHMARK_OUTPUTS`: its runs,
+    cached results and report), so nothing of it is reused or mixed with the new one; other files stay."""
+    import shutil
+
+    for name in BENCHMARK_OUTPUTS:
+        p = out_dir / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
 
 
 def spec_loop(spec: TrajectorySpec, loop: LoopConfig, warmup_steps: int | None = None) -> LoopConfig:
@@ -232,6 +253,8 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     plugin_names = [m.name for m in plugins]
     select_stats_methods(stats_methods, method_ids, c.reference, plugin_names)  # bad names: one line, before work
     out = c.out_dir
+    if c.overwrite:
+        remove_earlier_benchmark(out)
     out.mkdir(parents=True, exist_ok=True)
     slam_path = c.slam_dir.resolve() if c.slam_dir else None
     if slam_path is not None and not slam_path.is_dir():

@@ -7,15 +7,28 @@ from typing import Any
 
 import click
 
-from bracketry.cli.options import EXIT_OK, input_path, method_options_options, output_dir, quiet_option
+from bracketry.cli.options import (
+    EXIT_OK,
+    input_path,
+    method_options_options,
+    output_dir,
+    overwrite_option,
+    quiet_option,
+    resume_option,
+)
 from bracketry.errors import BracketryError
 from bracketry_emulator.option_table import BENCHMARK, options_for, pop_settings, record_values
 
 
 @click.command("benchmark")
 @click.argument("datasets", nargs=-1, required=True, type=input_path())
-@click.option("--out", "out_dir", required=True, type=output_dir(existing="resume"),
-              help="Output folder; an existing one is resumed (its cache is reused), not replaced.")
+@click.option("--out", "out_dir", required=True, type=output_dir(resumable=True),
+              help="Output folder, new or empty; a non-empty one needs --resume (its runs and cache are reused) or "
+                   "--overwrite.")
+@resume_option("Continue the benchmark in a non-empty --out: finished runs come from its cache (an interrupted "
+               "benchmark resumes).")
+@overwrite_option("Benchmark again into a non-empty --out: the earlier benchmark's runs, cache and report are removed "
+                  "first.")
 @options_for(BENCHMARK)
 @method_options_options()
 @quiet_option("No progress bar for the closed loops.")
@@ -43,6 +56,8 @@ def command(datasets: tuple[Path, ...], **given: Any) -> int:
 
     out_dir: Path = given.pop("out_dir")
     quiet: bool = given.pop("quiet")
+    given.pop("resume")  # read by --out's type
+    overwrite: bool = given.pop("overwrite")
     plugin_options = parse_method_options(given.pop("method_option"), given.pop("method_options"))
     settings = pop_settings(BENCHMARK, given)
     assert not given, f"options without a row in the settings table: {sorted(given)}"
@@ -80,7 +95,7 @@ def command(datasets: tuple[Path, ...], **given: Any) -> int:
 
     config = BenchmarkConfig(datasets, methods["methods"], out_dir, **bench, cluster=slurm,
                              drl_weights=methods.get("drl_weights"), progress=not quiet, loop=loop, slam=slam,
-                             method_options=plugin_options)
+                             method_options=plugin_options, overwrite=overwrite)
     if images == "both":  # truth images first refused (one line) for any non-synthetic trajectory, before any work
         from dataclasses import replace
 
@@ -93,7 +108,8 @@ def command(datasets: tuple[Path, ...], **given: Any) -> int:
         from bracketry_emulator.benchmark.truth_agreement import truth_agreement, write_truth_agreement
 
         click.echo("truth images:")
-        truth = run_benchmark(replace(config, out_dir=out_dir / "truth", loop=replace(loop, images="truth")),
+        truth = run_benchmark(replace(config, out_dir=out_dir / "truth", loop=replace(loop, images="truth"),
+                                      overwrite=False),
                               on_done=done, slam_echo=click.echo)
         methods_run = list(dict.fromkeys(r["method"] for r in result.results))
         doc = truth_agreement(result.results, truth.results, methods_run, reference, alpha)

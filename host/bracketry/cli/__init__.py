@@ -37,8 +37,8 @@ COMMANDS: dict[str, tuple[str, str, str, str | None]] = {
     "synth": ("bracketry_emulator.cli.synth", "command", "Render synthetic bracketed HDR stereo data.", "emulator"),
     "calibrate": ("bracketry.cli.calibrate", "command", "Calibrate the rig: stereo geometry (solve, capture), "
                   "response (crf).", None),
-    "calibrate-crf": ("bracketry_emulator.cli.crf", "command", "Calibrate the camera response from a static stack.",
-                      "emulator"),
+    "calibrate-crf": ("bracketry_emulator.cli.crf", "command", "Calibrate the camera response from a static stack "
+                      "(hidden: the old spelling of 'calibrate crf').", "emulator"),
     "emulate": ("bracketry_emulator.cli.emulate", "command", "Emulate images at chosen exposures, run AE methods.",
                 "emulator"),
     "accuracy": ("bracketry_emulator.cli.accuracy", "command", "Measure the emulator's accuracy.", "emulator"),
@@ -50,6 +50,10 @@ COMMANDS: dict[str, tuple[str, str, str, str | None]] = {
              "emulator"),
     "demo": ("bracketry.cli.demo", "command", "Run the whole pipeline on the embedded default.", None),
 }
+
+
+#: old spellings that still run but are not listed in ``--help`` (the command they stand for is)
+HIDDEN: frozenset[str] = frozenset({"calibrate-crf"})
 
 
 def _available(module: str) -> bool:
@@ -80,7 +84,7 @@ class LazyGroup(click.Group):
         return cmd
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
-        rows = [(name, COMMANDS[name][2]) for name in self.list_commands(ctx)]
+        rows = [(name, COMMANDS[name][2]) for name in self.list_commands(ctx) if name not in HIDDEN]
         if rows:
             with formatter.section("Commands"):
                 formatter.write_dl(rows)

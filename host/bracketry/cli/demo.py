@@ -10,7 +10,7 @@ import click
 from bracketry.cli.options import (
     EXIT_OK,
     EXIT_PROBLEMS,
-    Number,
+    Duration,
     method_options_options,
     option,
     output_dir,
@@ -23,8 +23,8 @@ from bracketry_emulator.option_table import DEMO, options_for, pop_settings, rec
 @click.option("--out", "out_dir", type=output_dir(), default=Path("demo-out"),
               show_default=True, help="Output folder, new or empty (recording, dataset, benchmark report).")
 @overwrite_option("Run again into a non-empty --out (the earlier demo's files are replaced).")
-@option("--duration-s", "seconds", aliases=("--seconds",), type=Number(3.0, 600.0), default=None,
-        help="Seconds to record, 3 to 600 (default 20, or 10 with --quick).")
+@option("--duration-s", "seconds", aliases=("--seconds",), type=Duration(600.0, min_s=3.0), default=None,
+        help="How long to record: seconds or e.g. 30s, 2m; 3 s to 10 min (default 20 s, or 10 s with --quick).")
 @click.option("--quick", is_flag=True, help="Small and short (320x200, 10 s of recording): the version CI runs.")
 @options_for(DEMO)
 @method_options_options()

@@ -103,12 +103,14 @@ MAX_DURATION_S = 7 * 24 * 3600.0
 
 
 class Duration(click.ParamType):
-    """Seconds: ``30``, ``2.5``, ``30s``, ``2m``, ``1h`` or ``1m30s`` -> float seconds, > 0 and <= ``max_s``."""
+    """Seconds: ``30``, ``2.5``, ``30s``, ``2m``, ``1h`` or ``1m30s`` -> float seconds, > 0 (and >= ``min_s``) and
+    <= ``max_s``."""
 
     name = "duration"
 
-    def __init__(self, max_s: float = MAX_DURATION_S) -> None:
+    def __init__(self, max_s: float = MAX_DURATION_S, min_s: float = 0.0) -> None:
         self.max_s = max_s
+        self.min_s = min_s
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> float:
         if isinstance(value, (int, float)) and not isinstance(value, bool):
@@ -125,6 +127,8 @@ class Duration(click.ParamType):
                 self.fail(f"{value!r}: expected seconds or e.g. 30s, 2m, 1h, 1m30s", param, ctx)
         if not math.isfinite(total) or total <= 0:
             self.fail(f"{value!r}: must be more than 0 s", param, ctx)
+        if total < self.min_s:
+            self.fail(f"{value!r}: at least {self.min_s:g} s", param, ctx)
         if total > self.max_s:
             self.fail(f"{value!r}: at most {self.max_s:g} s", param, ctx)
         return total
@@ -166,13 +170,15 @@ class OutputPath(click.ParamType):
 
     ``--overwrite`` (declared with :func:`overwrite_option`, which is eager) is read from the context, so the order of
     the options on the command line does not matter. ``dash_stdout``: ``-`` means standard output (no check).
+    ``resumable``: a non-empty folder is also fine with ``--resume`` (:func:`resume_option`, eager too).
     """
 
     name = "path"
 
     def __init__(self, kind: Kind = "file", *, existing: Existing = "refuse", suffixes: tuple[str, ...] = (),
-                 dash_stdout: bool = False) -> None:
+                 dash_stdout: bool = False, resumable: bool = False) -> None:
         self.kind, self.existing, self.suffixes, self.dash_stdout = kind, existing, suffixes, dash_stdout
+        self.resumable = resumable
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Path:
         if isinstance(value, Path):
@@ -182,12 +188,20 @@ class OutputPath(click.ParamType):
         if self.dash_stdout and str(path) == "-":
             return path
         overwrite = bool(ctx is not None and ctx.params.get("overwrite"))
+        resume = self.resumable and bool(ctx is not None and ctx.params.get("resume"))
+        if resume and overwrite:
+            self.fail("--resume and --overwrite exclude each other (continue what the folder holds, or replace it)",
+                      param, ctx)
         what = param.opts[0] if param is not None and param.opts else "output"
         try:
-            return check_output(path, self.kind, overwrite=overwrite, existing=self.existing,
+            return check_output(path, self.kind, overwrite=overwrite, existing="resume" if resume else self.existing,
                                 suffixes=self.suffixes, what=what)
         except BracketryError as exc:
-            self.fail(str(exc).removeprefix(f"{what} "), param, ctx)
+            message = str(exc).removeprefix(f"{what} ")
+            if self.resumable:
+                message = message.replace("(add --overwrite to write into it)",
+                                          "(add --resume to continue what it holds, or --overwrite to replace it)")
+            self.fail(message, param, ctx)
 
 
 def output_file(*, existing: Existing = "refuse", suffixes: tuple[str, ...] = (),
@@ -196,9 +210,9 @@ def output_file(*, existing: Existing = "refuse", suffixes: tuple[str, ...] = ()
     return OutputPath("file", existing=existing, suffixes=suffixes, dash_stdout=dash_stdout)
 
 
-def output_dir(*, existing: Existing = "refuse") -> OutputPath:
-    """The type of an option that names a folder to write into."""
-    return OutputPath("dir", existing=existing)
+def output_dir(*, existing: Existing = "refuse", resumable: bool = False) -> OutputPath:
+    """The type of an option that names a folder to write into (``resumable``: a non-empty one with ``--resume``)."""
+    return OutputPath("dir", existing=existing, resumable=resumable)
 
 
 def input_file() -> click.Path:
@@ -244,6 +258,11 @@ def overwrite_option(help: str = "Replace existing output files (and write into 
                      ) -> Callable[[F], F]:
     """``--overwrite`` (eager, so the output types see it whatever the order; old spelling ``--force`` hidden)."""
     return option("--overwrite", "overwrite", aliases=("--force",), is_flag=True, is_eager=True, help=help)
+
+
+def resume_option(help: str = "Continue in a non-empty output folder, reusing what it holds.") -> Callable[[F], F]:
+    """``--resume`` (eager, so the output types see it whatever the order; see ``output_dir(resumable=True)``)."""
+    return click.option("--resume", "resume", is_flag=True, is_eager=True, help=help)
 
 
 def quiet_option(help: str = "No progress bar.") -> Callable[[F], F]:

@@ -34,6 +34,7 @@ from typing import Any, BinaryIO
 
 from bracketry.errors import BracketryError
 from bracketry.progress import Progress
+from bracketry_emulator.defaults import DEFAULT_SLAM_PACE
 
 
 @dataclass(frozen=True)
@@ -55,19 +56,13 @@ class DemoPlan:
     drl_weights: str | None = None
     #: localisation: "orbslam3" (ORB-SLAM3 stereo) or "builtin" (the built-in VO)
     slam: str = "orbslam3"
-    #: ORB-SLAM3 feed: seconds between frames (0 = as fast as it tracks) or "realtime" (see :data:`DEMO_PACE`)
-    slam_pace: str | float = 0.0
+    #: ORB-SLAM3 feed: "realtime" (the recording's timestamps; the default of every command, declared once in
+    #: bracketry_emulator/option_table.py) or seconds between frames (0 = as fast as it tracks)
+    slam_pace: str | float = DEFAULT_SLAM_PACE
     #: the synthetic suite benchmarked with the recording: a size of ``bracketry synth suite`` ("demo"), or None
     suite: str | None = None
     #: the suite's seed
     suite_seed: int = 0
-
-
-#: The demo feeds ORB-SLAM3 unpaced: every method's run at once, fed by the one closed-loop pass. On this 2-core
-#: machine seven real-time runs at once fall minutes behind their clock (so "real time" would not hold anyway), and
-#: runs kept within real time (two at a time) would need four 40 s rounds; unpaced, a run also costs ~30 % less CPU
-#: (26 vs 37 CPU-s for the default 40 s recording). ``bracketry benchmark`` keeps real time as its default.
-DEMO_PACE = 0.0
 
 
 #: The demo's dataset PNGs are stored (deflate without compression): 0.34 vs 5.7 ms an image to write at 640x400
@@ -107,10 +102,10 @@ def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | N
                               "method_options": dict(method_options or {})}
     if quick:
         return DemoPlan(out_dir, seconds or QUICK_SECONDS, QUICK_RESOLUTION, drl_weights=drl_weights,
-                        slam=slam or "builtin", slam_pace=DEMO_PACE if slam_pace is None else slam_pace,
+                        slam=slam or "builtin", slam_pace=DEFAULT_SLAM_PACE if slam_pace is None else slam_pace,
                         suite=DEMO_SUITE if suite else None, **chosen)
     return DemoPlan(out_dir, seconds or DEFAULT_SECONDS, DEFAULT_RESOLUTION, drl_weights=drl_weights,
-                    slam=slam or "orbslam3", slam_pace=DEMO_PACE if slam_pace is None else slam_pace,
+                    slam=slam or "orbslam3", slam_pace=DEFAULT_SLAM_PACE if slam_pace is None else slam_pace,
                     suite=None if suite is False else DEMO_SUITE, **chosen)
 
 

@@ -112,8 +112,11 @@ def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Pa
 
 def test_bench_cli(datasets, local_run, tmp_path: Path, capsys) -> None:
     # same settings as the library run in the same folder: every task comes from the cache
-    rc = cli_main(["benchmark", str(datasets[0]), "--methods", ",".join(METHODS), "--out", str(local_run.out_dir),
-                   "--windows", "1", "--slam", "builtin"])
+    args = ["benchmark", str(datasets[0]), "--methods", ",".join(METHODS), "--out", str(local_run.out_dir),
+            "--windows", "1", "--slam", "builtin"]
+    assert cli_main(args) == 2  # a full folder: refused without --resume (or --overwrite)
+    assert "--resume" in capsys.readouterr().err
+    rc = cli_main([*args, "--resume"])
     assert rc == 0
     out = capsys.readouterr().out
     assert "cached traj1 / burst: failed at 0.8 s" in out and "report:" in out
