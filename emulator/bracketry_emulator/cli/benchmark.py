@@ -40,9 +40,9 @@ def command(datasets: tuple[Path, ...], **given: Any) -> int:
     in its own process, its output in a log beside the run; a failed run is a line in the report) or the built-in
     VO, RTE/RRE with evo, the distance tracked and the failure metrics. SLAM gets the emulated images in memory
     as the closed loops make them (PNGs only with --write-images or --export-orbslam). Results are cached under
-    OUT/cache, so running the same command again resumes. The report is written to OUT/report (CSV, Markdown,
-    HTML, figures). Exit code 0. With ORB-SLAM3 the vocabulary is checked first and a set-up check (ORB-SLAM3 on
-    the first seconds of a trajectory's middle bracket, no AE) must pass: else one error line, exit 2.
+    OUT/cache, so the same command with --resume continues an interrupted one. The report is written to OUT/report
+    (CSV, Markdown, HTML, figures). Exit code 0. With ORB-SLAM3 the vocabulary is checked first and a set-up check
+    (ORB-SLAM3 on the first seconds of a trajectory's middle bracket, no AE) must pass: else one error line, exit 2.
     """
     import os
 
