@@ -2,6 +2,8 @@
 # One-command, idempotent set-up of a fresh Debian 12 machine for bracketry (rig software, emulator, tests).
 # Installs the Debian packages, creates .venv with the project (editable, all extras) and the MicroPython
 # WebAssembly runtime (npm) under .venv/micropython-wasm. Prints each step; fails loudly naming the failing step.
+# ./setup.sh --rig: the backpack's computer only (Aravis, serial tools, the trigger firmware's toolchain and flasher;
+# .venv with the host extra): no emulator, Slurm, munge, Chromium, torch, QEMU or Node.
 set -Eeuo pipefail
 cd "$(dirname "$0")"
 ROOT=$(pwd)
@@ -9,14 +11,29 @@ STEP="start"
 trap 'echo "setup.sh: FAILED at step: $STEP" >&2' ERR
 step() { STEP="$1"; echo "==> $1"; }
 SUDO=""; if [ "$(id -u)" != 0 ]; then SUDO="sudo"; fi
+ROLE=all
+case "${1:-}" in
+  "") ;;
+  --rig) ROLE=rig ;;
+  *) echo "usage: ./setup.sh [--rig]   (--rig: the backpack's computer only)" >&2; exit 2 ;;
+esac
 
 APT_PACKAGES=(libaravis-0.8-0 gir1.2-aravis-0.8 aravis-tools aravis-tools-cli libgirepository1.0-dev
   libcairo2-dev pkg-config gcc make socat gcc-arm-none-eabi libnewlib-arm-none-eabi qemu-system-arm
   iproute2 util-linux python3-venv python3-dev chromium libdeflate-dev
   libgl1 libegl1 libopengl0 libsm6 libice6 libx11-6 libxext6  # the OpenGL/X11 runtime libraries pyorbslam3 links
   slurm-wlm munge)  # a one-node Slurm the cluster tests start (bracketry benchmark --cluster slurm)
-command -v node >/dev/null 2>&1 || APT_PACKAGES+=(nodejs)
-command -v npm >/dev/null 2>&1 || APT_PACKAGES+=(npm)
+RIG_APT_PACKAGES=(libaravis-0.8-0 gir1.2-aravis-0.8 aravis-tools aravis-tools-cli libgirepository1.0-dev
+  libcairo2-dev pkg-config gcc make socat gcc-arm-none-eabi libnewlib-arm-none-eabi stlink-tools
+  iproute2 util-linux python3-venv python3-dev)
+if [ "$ROLE" = rig ]; then
+  APT_PACKAGES=("${RIG_APT_PACKAGES[@]}")
+else
+  # pdflatex with booktabs (texlive-latex-recommended) and amssymb (texlive-base): the report's LaTeX tables compiled
+  APT_PACKAGES+=(texlive-latex-base texlive-latex-recommended texlive-fonts-recommended)
+  command -v node >/dev/null 2>&1 || APT_PACKAGES+=(nodejs)
+  command -v npm >/dev/null 2>&1 || APT_PACKAGES+=(npm)
+fi
 
 step "Debian packages"
 missing=()
@@ -36,6 +53,22 @@ PY=${PYTHON:-python3}
 "$PY" -c 'import sys; assert sys.version_info >= (3, 11), "Python >= 3.11 needed"'
 [ -x .venv/bin/python ] || "$PY" -m venv .venv
 .venv/bin/python -m pip install -q --upgrade pip 'setuptools>=74.1' wheel
+
+if [ "$ROLE" = rig ]; then
+  step "Python packages (editable install, host extra)"
+  stamp=.venv/.bracketry-installed-rig
+  if [ ! -f "$stamp" ] || [ pyproject.toml -nt "$stamp" ]; then
+    .venv/bin/python -m pip install -q -e '.[host]'
+    touch "$stamp"
+  else
+    echo "    up to date"
+  fi
+  step "bracketry doctor"
+  .venv/bin/bracketry doctor || echo "    (doctor reported missing components; see above)"
+  STEP="done"
+  echo "==> rig set-up complete in ${SECONDS}s (activate with: source $ROOT/.venv/bin/activate)"
+  exit 0
+fi
 
 step "Python packages (editable install with all extras)"
 stamp=.venv/.bracketry-installed

@@ -41,6 +41,7 @@ MARKER_NEEDS: dict[str, tuple[str, ...]] = {
     "socat": ("socat",),
     "chromium": ("Chromium",),
     "orbslam3": ("ORB-SLAM3 (pyorbslam3)",),
+    "latex": ("pdflatex (booktabs, amssymb)",),
 }
 
 
@@ -90,3 +91,13 @@ def build_c_under_asan(sources: list[Path], exe: Path, extra_flags: tuple[str, .
                     "-fsanitize=address,undefined", "-fno-sanitize-recover=all", "-fno-omit-frame-pointer",
                     *map(str, sources), "-o", str(exe)], check=True, timeout=120)
     return exe
+
+
+def tracked_markdown_files(root: Path) -> list[Path]:
+    """The Markdown files git tracks under ``root`` (not the reports a run writes into the working tree)."""
+    try:
+        out = subprocess.run(["git", "-C", str(root), "ls-files", "--cached", "-z", "--", "*.md"], check=True,
+                             capture_output=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("git is not available to list the repository's Markdown files")
+    return sorted({root / p for p in out.decode().split("\0") if p and (root / p).is_file()})

@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
+from bracketry.trigger.qemu import QemuTrigger, build_firmware
 from bracketry_testkit import MARKER_NEEDS, STRICT, require_marker_components, sample_dir
 
 
@@ -45,3 +47,17 @@ def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
         if reporter is not None:
             reporter.write_line(f"BRACKETRY_STRICT=1: {what}; strict mode allows none", red=True)
         session.exitstatus = pytest.ExitCode.TESTS_FAILED
+
+
+@pytest.fixture(scope="session")
+def trigger_elf(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The trigger firmware ELF (firmware/stm32_trigger), built once per session."""
+    return build_firmware(tmp_path_factory.mktemp("stm32_build"))
+
+
+@pytest.fixture
+def trigger_qemu(trigger_elf: Path) -> Iterator[QemuTrigger]:
+    """The trigger firmware running in QEMU netduinoplus2, its serial port on a local TCP socket (``.url``)."""
+    with QemuTrigger(trigger_elf, serial="tcp") as runner:
+        yield runner
+

@@ -51,6 +51,7 @@ LAYER_TABLE: dict[str, str] = {
     "bracketry.recording.mcap_writer": BASE,
     "bracketry.recording.reader": BASE,
     "bracketry.recording.verify": BASE,
+    "bracketry.recording.calibration": BASE,
     "bracketry.calibration": BASE,
     "bracketry.sim": INTEGRATION,
     "bracketry.demo": INTEGRATION,

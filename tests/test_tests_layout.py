@@ -23,7 +23,7 @@ MIRRORS: dict[str, Path | None] = {
     "demo": None,
 }
 #: the only test files allowed at the top of tests/: checks of the whole tree (this one, the layers)
-TOP_LEVEL_TESTS = {"test_tests_layout.py", "test_layers.py"}
+TOP_LEVEL_TESTS = {"test_tests_layout.py", "test_layers.py", "test_docs_commands.py", "test_docs_wording.py"}
 
 
 def _python_files() -> list[Path]:

@@ -44,8 +44,8 @@ CAMERAS: tuple[str, ...] = ("left", "right", "both")
 
 #: localisation backends of the benchmark (benchmark/slam.py); the default first
 SLAM_BACKENDS: tuple[str, ...] = ("orbslam3", "builtin")
-#: ORB-SLAM3's feed: the recording's own timestamps
-DEFAULT_SLAM_PACE = "realtime"
+#: ORB-SLAM3's feed: each frame once its mapping threads are idle (results that do not move with the machine's load)
+DEFAULT_SLAM_PACE = "lockstep"
 #: the benchmark's reference method of the statistics
 DEFAULT_REFERENCE = "ae50"
 #: significance level before the Bonferroni correction

@@ -72,11 +72,10 @@ F = TypeVar("F", bound=Callable[..., Any])
 _UNSET: Any = type("Unset", (), {"__repr__": lambda self: "UNSET"})()
 
 #: the keywords --methods takes beside method ids (ae/registry.py parse_methods)
-METHODS_HELP = ("AE methods, comma-separated: ids (fix, ae30, ae50, ae70, shim, wang, kim, zhang, drl, "
-                "constant-<ms> e.g. constant-8, and 'oracle': the non-causal control), plugins pkg.module:Class or "
-                "entry points (each named by its 'name'), or the groups 'all' = 'paper' (the paper's seven that run "
-                "here: fix, ae30, ae50, ae70, shim, wang, kim; its eighth, drl, only with --drl-weights) and "
-                "'controls' (the oracle and a grid of constant exposures).")
+METHODS_HELP = ("AE methods: 'all' or 'paper': the paper's seven (fix, ae30, ae50, ae70, shim, wang, kim) and drl "
+                "with --drl-weights; 'controls': the oracle and constant exposures; or a comma list of ids (zhang, "
+                "constant-<ms> e.g. constant-8, oracle), plugins pkg.module:Class or entry points (each named by its "
+                "'name').")
 
 
 @dataclass(frozen=True)
@@ -175,7 +174,8 @@ _EXPOSURE_MS = Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True)
 SETTINGS: tuple[Setting, ...] = (
     # -- the AE methods ----------------------------------------------------------------------------------------
     Setting("methods", "methods", "--methods", METHODS_HELP, "all", short="-m", aliases=("--method",),
-            commands=COMMANDS, per_command={EMULATE: {"default": "ae50"}}),
+            commands=COMMANDS, per_command={EMULATE: {"default": "ae50"},
+                                            DEMO: {"help": METHODS_HELP + " ae50 is the demo's reference: keep it."}}),
     Setting("drl_weights", "methods", "--drl-weights",
             "The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth; env "
             "BRACKETRY_DRL_WEIGHTS). Without it 'all' leaves DRL out.", type=input_file(),
@@ -235,8 +235,9 @@ SETTINGS: tuple[Setting, ...] = (
             "ORB-SLAM3 vocabulary (e.g. ORBvoc.txt; env PYORBSLAM3_VOCAB). Default: the project's own, built once "
             "into the user cache (never downloaded).", type=input_file(), commands=(BENCHMARK,), convert=_text),
     Setting("slam_pace", "slam", "--slam-pace",
-            "ORB-SLAM3 feed: 'realtime' (the recording's timestamps) or seconds between frames (0 = as fast as it "
-            "tracks).", DEFAULT_SLAM_PACE, key="always", field="pace", commands=(BENCHMARK, DEMO)),
+            "ORB-SLAM3 feed: 'lockstep' (each frame once ORB-SLAM3's mapping threads are idle: results that do not "
+            "move with the machine's load), 'realtime' (the recording's timestamps) or seconds between frames (0 = as "
+            "fast as it tracks).", DEFAULT_SLAM_PACE, key="always", field="pace", commands=(BENCHMARK, DEMO)),
     Setting("loop_closing", "slam", "--loop-closing",
             "ORB-SLAM3's loop-closing thread; off also turns relocalisation off.", True, type=bool,
             off="--no-loop-closing", key="always", commands=(BENCHMARK,)),

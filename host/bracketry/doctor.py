@@ -133,6 +133,18 @@ def check_sample_data() -> Check:
     return Check("BorealHDR sample data", True, str(root), "")
 
 
+def check_pdflatex() -> Check:
+    """pdflatex with the packages the report's LaTeX tables need (booktabs, amssymb)."""
+    fix = "apt-get install texlive-latex-base texlive-latex-recommended texlive-fonts-recommended (or run ./setup.sh)"
+    if shutil.which("pdflatex") is None:
+        return Check("pdflatex (booktabs, amssymb)", False, "", fix)
+    missing = [sty for sty in ("booktabs.sty", "amssymb.sty") if not (_run(["kpsewhich", sty]) or "").endswith(sty)]
+    if missing:
+        return Check("pdflatex (booktabs, amssymb)", False, "", f"{', '.join(missing)} not found: {fix}")
+    version = re.search(r"TeX Live (\d+)", _run(["pdflatex", "--version"]) or "")
+    return Check("pdflatex (booktabs, amssymb)", True, f"TeX Live {version.group(1)}" if version else "?", "")
+
+
 def run_all() -> list[Check]:
     """Run every check; never raises."""
     return [
@@ -150,5 +162,6 @@ def run_all() -> list[Check]:
         check_binary("Chromium", "chromium", ["--version"], "apt-get install chromium (or run ./setup.sh)",
                      r"Chromium (\S+)"),
         check_orbslam3(),
+        check_pdflatex(),
         check_sample_data(),
     ]

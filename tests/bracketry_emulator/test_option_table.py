@@ -87,7 +87,7 @@ def test_a_setting_declared_once_reaches_both_commands_json_key_and_worker(
     spec = TrajectorySpec("t1", Path("/nonexistent/t1"))
     keys = {make_task(spec, "ae50", Path("/out"), loop=lp).key
             for lp in (LoopConfig(), loop, dataclasses.replace(loop, extra=(("test_gamma", 1.0),)))}
-    assert len(keys) == 3 and make_task(spec, "ae50", Path("/out"), loop=LoopConfig()).key == "d7dbb507f8b3e85e"
+    assert len(keys) == 3 and make_task(spec, "ae50", Path("/out"), loop=LoopConfig()).key == "ef9f8212598781a8"
 
     # the emulate command line -> what the closed-loop worker receives
     workers: list[scheduler.LoopSettings] = []
@@ -126,18 +126,19 @@ def test_every_row_is_taken_by_a_command_and_named_once() -> None:
     assert {s.name for s in option_table.settings_for(EMULATE)} & {s.name for s in option_table.settings_for(BENCHMARK)}
 
 
-#: task -> its cache key as computed by the code before the settings table (the same inputs, captured then): the
-#: keys of every cached run stay valid
+#: task -> its cache key as main's code computes it without the settings table (the same inputs, captured with
+#: CACHE_VERSION 6): the keys of every cached run stay valid
 KEYS = {
-    ("default", "ae50", None, 0): "d7dbb507f8b3e85e", ("default", "ae50", "orbslam3", 1): "2ee757c0bb2107dc",
-    ("default", "drl", None, 0): "63beb708575a3a0b", ("default", "drl", "orbslam3", 1): "7e11470973bf81ea",
-    ("default", "half", None, 0): "6b8992efa48b030d", ("default", "half", "orbslam3", 1): "8108b67b436d2380",
-    ("many", "ae50", None, 0): "4939cb460118178b", ("many", "ae50", "orbslam3", 1): "299f4eaf1a43afac",
-    ("many", "drl", None, 0): "221f2d81af837ae1", ("many", "drl", "orbslam3", 1): "857ad28620659831",
-    ("many", "half", None, 0): "1a29695b6affa128", ("many", "half", "orbslam3", 1): "e690e98016f389b8",
-    ("upstream", "ae50", None, 0): "3b36b4ac42dceb7b", ("upstream", "ae50", "orbslam3", 1): "dcee4982986f47ba",
-    ("upstream", "drl", None, 0): "9193846873fab379", ("upstream", "drl", "orbslam3", 1): "6bd528631c3767b8",
-    ("upstream", "half", None, 0): "7fd3b334f7bfa996", ("upstream", "half", "orbslam3", 1): "9f44f2e6f9213e13",
+    ("default", "ae50", None, 0): "ef9f8212598781a8", ("default", "ae50", "orbslam3", 1): "ec12da9f75adc683",
+    ("default", "drl", None, 0): "e89ee905ef6a1ca7", ("default", "drl", "orbslam3", 1): "f2792c7e047b6d77",
+    ("default", "half", None, 0): "c0495e1ee52ee0b7", ("default", "half", "orbslam3", 1): "5b34cc1ebaa72eb4",
+    ("many", "ae50", None, 0): "7e89dd2c59069cc2", ("many", "ae50", "orbslam3", 1): "55ddeb7e9c8e8f05",
+    ("many", "drl", None, 0): "5f22226f3b720b78", ("many", "drl", "orbslam3", 1): "4a8e3a88abcc085a",
+    ("many", "half", None, 0): "dad418e5ec718785", ("many", "half", "orbslam3", 1): "13ea16e3c75adae4",
+    ("upstream", "ae50", None, 0): "47e77b62aa553433", ("upstream", "ae50", "orbslam3", 1): "5b55f09693d93958",
+    ("upstream", "drl", None, 0): "ebf707047334a72d", ("upstream", "drl", "orbslam3", 1): "e4519616cb99daad",
+    ("upstream", "half", None, 0): "61baff76ebf848f2", ("upstream", "half", "orbslam3", 1): "227064f182a5ab6a",
+    ("default", "ae50", "lockstep", 1): "ce221d63d5c02deb",
 }
 LOOPS = {
     "default": {},
@@ -170,6 +171,8 @@ def test_cache_keys_and_loop_json_are_the_ones_before_the_table() -> None:
                 assert type(task).from_json(task.to_json()) == task
                 label = method if isinstance(method, str) else method.name
                 assert task.key == KEYS[(name, label, slam and slam.backend, repeat)], (name, label, repeat)
+    lockstep = dataclasses.replace(orb, pace="lockstep")
+    assert make_task(spec, "ae50", Path("/out"), slam=lockstep, repeat=1).key == KEYS["default", "ae50", "lockstep", 1]
 
 
 def test_the_commands_agree_on_methods_pace_and_durations() -> None:
@@ -182,12 +185,12 @@ def test_the_commands_agree_on_methods_pace_and_durations() -> None:
         opt = next(p for p in command.params if "--methods" in p.opts)
         assert {"--methods", "-m", "--method"} <= set(opt.opts), command.name  # --method: the old spelling
         help_text = " ".join((opt.help or "").split())
-        assert all(w in help_text for w in ("'paper'", "'controls'", "'oracle'", "seven")), command.name
+        assert all(w in help_text for w in ("'paper'", "'controls'", "oracle", "seven")), command.name
     paper = ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim"]
     assert parse_methods("paper", has_drl_weights=False) == parse_methods("ALL", has_drl_weights=False) == paper
     assert parse_methods("ae50,controls,oracle")[:2] == ["ae50", "oracle"]  # the group's oracle named once
     pace = option_table.setting("slam_pace")
-    assert pace.spec(BENCHMARK)["default"] == pace.spec(option_table.DEMO)["default"] == "realtime"
-    assert DemoPlan(Path("x"), 1.0, (2, 2)).slam_pace == plan(Path("x"), None, True).slam_pace == "realtime"
+    assert pace.spec(BENCHMARK)["default"] == pace.spec(option_table.DEMO)["default"] == "lockstep"
+    assert DemoPlan(Path("x"), 1.0, (2, 2)).slam_pace == plan(Path("x"), None, True).slam_pace == "lockstep"
     duration = next(p for p in demo.command.params if "--duration-s" in p.opts)
     assert duration.type.convert("1m", duration, None) == 60.0  # units, as every --duration-s

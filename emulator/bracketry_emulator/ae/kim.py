@@ -40,6 +40,14 @@ Deliberate deviations in the metric (both modes keep the authors' constants):
 - Quirk FIXED: their Sobel has an unsigned 16-bit output (negative gradients clipped to 0) and the square overflows
   in uint16; we use float gradients.
 - Reproduced: the per-pixel entropy term from the global histogram (the paper uses a local-window entropy).
+- Clipped pixels FIXED: a pixel at code 0 or 255 (black or saturated) gets entropy 0, as the paper's local-window
+  entropy is in a clipped area, and weight 0 after the weights are normalised over the whole image: it carries no
+  information, so it neither adds gradient nor takes the mask's penalty, and the share of the weight it holds is
+  lost to the metric. From the global histogram a clipped area holding a share p of the image gets -p log2 p, the
+  largest entropy term of all for p near 1/e: it set the top of the min-max normalisation, so the textured pixels
+  fell under the saturation mask and took its penalty, and on a bright scene the metric rose with saturation (the GP
+  then explored towards longer exposures: 4 -> 1 -> 14.7 ms on the bright snow view of
+  tests/bracketry_emulator/ae/test_ae_kim_climbs.py, where AE50 settles at 0.25 ms).
 - Speed: gray area-downscaled to ``work_width`` = 480 columns (Kim's T-RO paper itself works on 94x60 images).
 """
 
@@ -72,6 +80,7 @@ def kim_metric(gray8: np.ndarray, alpha: float = 16.0, tau: float = 4.0, mask_be
     p = hist / hist.sum()
     with np.errstate(divide="ignore", invalid="ignore"):
         ent_of_code = np.where(p > 0, -p * np.log2(p), 0.0)
+    ent_of_code[[0, 255]] = 0.0  # clipped codes carry no information (module docstring: "Clipped pixels")
     h = ent_of_code[codes]
     f = img.astype(np.float32)
     gx = cv2.Sobel(f, cv2.CV_32F, 1, 0, ksize=3).astype(np.float64)
@@ -80,6 +89,7 @@ def kim_metric(gray8: np.ndarray, alpha: float = 16.0, tau: float = 4.0, mask_be
     mu, sigma = float(h.mean()), float(h.std())
     w = np.exp(-((h - mu) ** 2) / (2 * sigma**2)) if sigma > 0 else np.ones_like(h)
     w /= w.sum()
+    w[(codes == 0) | (codes == 255)] = 0.0  # ... and neither reward nor penalty: their share of the weight is lost
     hmin, hmax = float(h.min()), float(h.max())
     hn = (h - hmin) / (hmax - hmin) if hmax > hmin else np.zeros_like(h)
     act = 2.0 / (1.0 + np.exp(-alpha * hn + tau)) - 1.0

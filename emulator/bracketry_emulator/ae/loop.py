@@ -76,6 +76,8 @@ class Step:
             ``exposure_us / 10**(gain_db / 20)``.
         next_gain_db: float | None, the gain the method set for the next step (dB, after clamping;
             ``next_exposure_us`` is then exposure x gain); None: it returned an exposure only.
+        saturated_share, dark_share: float, the shares of the step's image at or above :data:`SATURATED_CODE` and
+            below :data:`DARK_CODE` (:func:`image_shares`; NaN when not measured).
     """
 
     step: int
@@ -87,12 +89,31 @@ class Step:
     ae_s: float
     gain_db: float = 0.0
     next_gain_db: float | None = None
+    saturated_share: float = float("nan")
+    dark_share: float = float("nan")
 
     @property
     def next_camera_exposure_us(self) -> float:
         """The exposure (us) the next step's camera takes when the method set the gain (``next_exposure_us`` /
         10^(next_gain_db / 20)); else ``next_exposure_us`` (the emulator splits it)."""
         return gain_exposure_us(self.next_exposure_us, self.next_gain_db)
+
+
+#: 12-bit code from which a pixel counts as saturated (8-bit 252 and up: the image's top few levels, where the
+#: response has clipped and no gradient survives)
+SATURATED_CODE = 4032
+#: 12-bit code below which a pixel counts as dark (8-bit below 10: within twice FAST's smallest threshold, 5, of
+#: black, where noise is most of what a corner test sees)
+DARK_CODE = 160
+
+
+def image_shares(image: np.ndarray) -> tuple[float, float]:
+    """(saturated share, dark share) of a uint16 HxW 12-bit mosaic: the fractions of its pixels at or above
+    :data:`SATURATED_CODE` and below :data:`DARK_CODE` (floats in [0, 1]; NaN for an empty image)."""
+    n = image.size
+    if n == 0:
+        return float("nan"), float("nan")
+    return (float(np.count_nonzero(image >= SATURATED_CODE)) / n, float(np.count_nonzero(image < DARK_CODE)) / n)
 
 
 def initial_exposure_us(method: AEMethod, default_us: float = DEFAULT_INIT_EXPOSURE_US) -> float:
@@ -162,7 +183,7 @@ def iter_loop(method: AEMethod, sequences: Iterable[S], emulate: Callable[..., F
         frame = take(emulate, seq)
         nxt, nxt_gain, ae_s = answer(frame, target, k, {})
         yield Step(k, frame.sequence_index, frame.timestamp_ns, target, nxt, frame.source_exposure_us, ae_s,
-                   frame.gain_db, nxt_gain)
+                   frame.gain_db, nxt_gain, *image_shares(frame.image))
         target, gain = nxt, nxt_gain
 
 

@@ -2,8 +2,8 @@
 
 Layout in ``out_dir``: ``<method>/`` (the emulation output layout of :class:`~..emulation.RunWriter`: images_left|
 right/, times_images_*.txt, steps.csv; plus ``ae.csv``: step, timestamp_ns, exposure_ms, next_exposure_ms,
-source_exposure_ms, ae_ms, and ``summary.json``), ``exposures.csv`` (one column per method), ``summary.json`` and
-``exposure_times.png`` (exposure versus time of every method).
+source_exposure_ms, ae_ms, gain_db, saturated_share, dark_share, and ``summary.json``), ``exposures.csv`` (one column
+per method), ``summary.json`` and ``exposure_times.png`` (exposure versus time of every method).
 """
 
 from __future__ import annotations
@@ -117,13 +117,16 @@ class LinkingRunWriter(RunWriter):
 
 
 def write_method_files(folder: Path, run: MethodRun, mode: str) -> None:
-    """``ae.csv`` (one row per step; exposures in ms, AE cost in ms, the analog gain the image stands for in dB)
-    and ``summary.json`` of one method."""
+    """``ae.csv`` (one row per step; exposures in ms, AE cost in ms, the analog gain the image stands for in dB, the
+    saturated and dark shares of the step's image: :func:`~.loop.image_shares`) and ``summary.json`` of one
+    method."""
     with open(folder / "ae.csv", "w") as f:
-        f.write("step,timestamp_ns,exposure_ms,next_exposure_ms,source_exposure_ms,ae_ms,gain_db\n")
+        f.write("step,timestamp_ns,exposure_ms,next_exposure_ms,source_exposure_ms,ae_ms,gain_db,saturated_share,"
+                "dark_share\n")
         for s in run.steps:
             f.write(f"{s.step},{s.timestamp_ns},{s.exposure_us / 1000:.6f},{s.next_exposure_us / 1000:.6f},"
-                    f"{s.source_exposure_us / 1000:.6f},{s.ae_s * 1000:.3f},{s.gain_db:.4f}\n")
+                    f"{s.source_exposure_us / 1000:.6f},{s.ae_s * 1000:.3f},{s.gain_db:.4f},"
+                    f"{s.saturated_share:.6f},{s.dark_share:.6f}\n")
     (folder / "summary.json").write_text(json.dumps({**run.summary(), "mode": mode}, indent=2) + "\n")
 
 

@@ -269,14 +269,33 @@ def slurm_job_settings(opts: SlurmOptions) -> dict[str, Any]:
     return kw
 
 
+def import_slurm_cluster() -> Any:
+    """``dask_jobqueue.SLURMCluster``, imported without writing into the user's home: dask-jobqueue's import copies
+    its ``jobqueue.yaml`` into dask's config folder (``~/.config/dask`` unless ``DASK_CONFIG``); that folder is a
+    temporary one during the import (its defaults are loaded from the package all the same)."""
+    import tempfile
+
+    import dask.config
+
+    with tempfile.TemporaryDirectory(prefix="bracketry-dask-") as tmp:
+        path = dask.config.PATH
+        dask.config.PATH = tmp
+        try:
+            from dask_jobqueue import SLURMCluster
+        finally:
+            dask.config.PATH = path
+    return SLURMCluster
+
+
 @contextlib.contextmanager
 def slurm_cluster(opts: SlurmOptions) -> Iterator[tuple[Any, str, int]]:
     """(client, scheduler address, cores per job) of a SLURMCluster with at most ``opts.jobs`` jobs (adaptive);
     every job is cancelled when the block ends (normally or not)."""
     try:
         import dask
-        from dask_jobqueue import SLURMCluster
         from distributed import Client
+
+        SLURMCluster = import_slurm_cluster()
     except ImportError as exc:
         raise BracketryError("--cluster slurm needs dask-jobqueue (install the emulator extra)") from exc
     kw = slurm_job_settings(opts)

@@ -362,6 +362,11 @@ def _reference(spec: TrajectorySpec, out: Path) -> Path | None:
     ``out/reference/``; None when it has none (then its ``groundtruth.txt``, if any, is the reference)."""
     from bracketry_emulator.metrics.reference import write_camera_reference
 
+    if spec.is_zip():
+        from bracketry_emulator.dataset.ziptree import left_image_times_ns
+
+        return write_camera_reference(spec.side_files(), out / "reference" / f"{spec.name}.txt",
+                                      left_image_times_ns(spec.path))
     return write_camera_reference(spec.path, out / "reference" / f"{spec.name}.txt")
 
 

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from bracketry.errors import BracketryError
-from bracketry_emulator.defaults import SLAM_BACKENDS
+from bracketry_emulator.defaults import DEFAULT_SLAM_PACE, SLAM_BACKENDS
 from bracketry_emulator.option_table import default, rows
 
 BACKENDS = SLAM_BACKENDS
@@ -25,13 +25,15 @@ BACKENDS = SLAM_BACKENDS
 
 @dataclass(frozen=True)
 class SlamOptions:
-    """The benchmark's SLAM options; defaults chosen from the measurements in ARCHITECTURE.md (real-time feed, loop
+    """The benchmark's SLAM options; defaults chosen from the measurements in ARCHITECTURE.md (lockstep feed, loop
     closing on).
 
     ``backend``: one of :data:`BACKENDS`. ``vocabulary``: DBoW2 text file (orbslam3; resolved before the runs, see
     :func:`resolve_options`). ``vocabulary_id``: ``<file name>:<sha256 prefix>`` of that file (the cache key follows
-    its content). ``pace``: ``"realtime"`` (the recording's own timestamps) or seconds between fed frames (0 =
-    unpaced). ``loop_closing``: ORB-SLAM3's loop-closing thread (off also turns relocalisation off). ``repeats``: runs
+    its content). ``pace``: ``"lockstep"`` (each frame once ORB-SLAM3's mapping threads are idle: results that do not
+    depend on the machine's load, :mod:`bracketry_emulator.slam.quiescence`), ``"realtime"`` (the recording's own
+    timestamps) or seconds between fed frames (0 = unpaced). ``loop_closing``: ORB-SLAM3's loop-closing thread (off
+    also turns relocalisation off). ``repeats``: runs
     per (trajectory, method); the report gives their median and spread.
     """
 
@@ -70,23 +72,38 @@ class SlamOptions:
 
     @property
     def pace_s(self) -> float | None:
-        """Seconds between fed frames; None: real time."""
+        """Seconds between fed frames; None: real time; 0: unpaced (and lockstep: no wall-clock pace)."""
+        if self.pace == "lockstep":
+            return 0.0
         return None if self.pace == "realtime" else float(self.pace)
 
     @property
+    def lockstep(self) -> bool:
+        """ORB-SLAM3 fed in lockstep with its mapping threads."""
+        return self.backend == "orbslam3" and self.pace == "lockstep"
+
+    @property
     def paced(self) -> bool:
-        """ORB-SLAM3 fed at a pace (its runs mostly wait)."""
-        return self.backend == "orbslam3" and self.pace != 0.0
+        """ORB-SLAM3 fed at a wall-clock pace (its runs mostly wait; a lockstep run mostly computes)."""
+        return self.backend == "orbslam3" and self.pace not in (0.0, "lockstep")
+
+
+#: the feeds that are words (the others are seconds between frames)
+PACE_WORDS = ("lockstep", "realtime")
 
 
 def parse_pace(text: str | float | None) -> str | float:
-    """``realtime`` or a non-negative number of seconds -> the option value; anything else: one-line error."""
-    if text is None or text == "realtime":
-        return "realtime"
+    """``lockstep``, ``realtime`` or a non-negative number of seconds -> the option value (None: the default,
+    :data:`~bracketry_emulator.defaults.DEFAULT_SLAM_PACE`); anything else: one-line error."""
+    if text is None:
+        return DEFAULT_SLAM_PACE
+    if text in PACE_WORDS:
+        return str(text)
     try:
         v = float(text)
     except (TypeError, ValueError):
-        raise BracketryError(f"bad --slam-pace {text!r} (use 'realtime' or seconds per frame, e.g. 0.12)") from None
+        raise BracketryError(f"bad --slam-pace {text!r} (use 'lockstep', 'realtime' or seconds per frame, "
+                             "e.g. 0.12)") from None
     if not np.isfinite(v) or v < 0:
         raise BracketryError(f"bad --slam-pace {text!r} (seconds per frame must be >= 0)")
     return v
@@ -139,17 +156,30 @@ def describe(opts: SlamOptions | dict | None) -> str:
     o = opts if isinstance(opts, SlamOptions) else SlamOptions.from_json(opts) if opts else SlamOptions.builtin()
     if o.backend == "builtin":
         return "built-in stereo VO (OpenCV, ORB-SLAM2-like front end, 5-frame map, no relocalisation)"
-    pace = "real time" if o.pace_s is None else ("unpaced" if o.pace_s == 0 else f"{o.pace_s:g} s per frame")
-    return (f"ORB-SLAM3 stereo (pyorbslam3), fed at {pace}, loop closing {'on' if o.loop_closing else 'off'}, "
-            f"ORB 3000 features / scale 1.2 / 13 levels / FAST 15-5, ThDepth 35, vocabulary {o.vocabulary_id}, "
+    pace = ("in lockstep (each frame once local mapping and loop closing are idle)" if o.lockstep else
+            "at real time" if o.pace_s is None else ("unpaced" if o.pace_s == 0 else f"at {o.pace_s:g} s per frame"))
+    return (f"ORB-SLAM3 stereo (pyorbslam3), fed {pace}, loop closing {'on' if o.loop_closing else 'off'}, "
+            f"ORB {orb_sizing_text()}, ThDepth 35, vocabulary {o.vocabulary_id}, "
             f"{o.repeats} repeat(s) per run")
+
+
+def orb_sizing_text() -> str:
+    """How ORB-SLAM3's extractor is sized (:data:`~bracketry_emulator.slam.settings.ORB_SIZING`), for the report."""
+    from bracketry_emulator.slam.settings import ORB_SIZING, field_orb_settings
+
+    if ORB_SIZING == "paper":
+        return "3000 features / scale 1.2 / 13 levels / FAST 15-5 (the paper's)"
+    big, small = field_orb_settings(640, 400), field_orb_settings(320, 200)
+    return (f"sized for the paper's view ({big.n_features} features / {big.n_levels} levels at 640x400, "
+            f"{small.n_features} / {small.n_levels} at 320x200; scale 1.2, FAST 15-5)")
 
 
 def orbslam3_options(opts: SlamOptions) -> Any:
     """How the ORB-SLAM3 child runs with these options (:class:`~bracketry_emulator.slam.orbslam3.OrbSlam3Options`)."""
     from bracketry_emulator.slam.orbslam3 import OrbSlam3Options
 
-    return OrbSlam3Options(str(opts.vocabulary), pace_s=opts.pace_s, loop_closing=opts.loop_closing)
+    return OrbSlam3Options(str(opts.vocabulary), pace_s=opts.pace_s, lockstep=opts.lockstep,
+                           loop_closing=opts.loop_closing)
 
 
 def run_slam(opts: SlamOptions, run_dir: Path, calibration_dir: str, vo_dir: Path,
@@ -180,7 +210,8 @@ def combine_repeats(runs: list[dict]) -> dict:
     """One result per (trajectory, method) from its repeats: medians, spreads (max - min) and the runs' values.
 
     Failed repeats (``error``) are left out of the medians; with none left the result carries the first error.
-    The per-frame lists and windows come from the repeat whose RTE is closest to the median.
+    The per-frame lists and windows come from the repeat whose RTE is closest to the median; ``failure_runs`` lists
+    ``{"repeat", "time_s", "cause"}`` of every repeat that lost track (:mod:`~.failure_analysis`).
     """
     ok = [r for r in runs if not r.get("error")]
     if not ok:
@@ -202,5 +233,7 @@ def combine_repeats(runs: list[dict]) -> dict:
             out[f"{k}_runs"] = [float(v) for v in vals]
             out[f"{k}_spread"] = float(np.ptp(fin)) if len(fin) else float("nan")
     out["success"] = sum(bool(r["success"]) for r in ok) * 2 > len(ok)  # the majority of the repeats
+    out["failure_runs"] = [{"repeat": int(r.get("repeat", 0)), "time_s": float(r["time_before_failure_s"]),
+                            "cause": str(r["failure_cause"])} for r in ok if r.get("failure_cause")]
     out.update(repeats=len(runs), repeats_ok=len(ok), errors=[r["error"] for r in runs if r.get("error")])
     return out

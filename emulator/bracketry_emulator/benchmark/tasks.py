@@ -39,8 +39,9 @@ if TYPE_CHECKING:
 
 #: bumped when the code's results change under the same settings (4: Kim's default mode, fusion's default
 #: bracket set 'longer', targets beyond the longest bracket recorded as gain, time before failure counted in steps;
-#: 5: the step period is the dataset's bracket cycle, the same for every method), so no older result is reused
-CACHE_VERSION = 5
+#: 5: the step period is the dataset's bracket cycle, the same for every method; 6: Kim's metric gives clipped
+#: pixels no weight, the oracle scores against its last 3 frames), so no older result is reused
+CACHE_VERSION = 6
 
 
 def _default_loop() -> LoopConfig:
@@ -313,6 +314,10 @@ def complete_task(task: BenchmarkTask, run_dir: Path, info: dict | None, error: 
                          error=error or "the SLAM run failed", stages=stages.as_dict())
     with stages.time("metrics"):
         metrics = evaluate_run(vo_dir, task.groundtruth, task.windows_m, cycle_period_s(task.dataset))
+        from bracketry_emulator.benchmark.failure_analysis import run_failure_cause
+
+        metrics["failure_cause"] = (None if metrics["success"] else
+                                    run_failure_cause(vo_dir, run_dir, task.groundtruth, task.calibration))
     paced = info.get("pace_s", 0.0) != 0.0 and "max_late_s" in info  # how far a paced run fell behind its clock
     result = RunResult(**base, metrics=metrics, slam=info["backend"],
                        s_per_frame=info.get("s_per_frame", info.get("track_s_median", float("nan"))),  # ORB-SLAM3

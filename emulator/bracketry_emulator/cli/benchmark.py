@@ -33,7 +33,8 @@ from bracketry_emulator.option_table import BENCHMARK, options_for, pop_settings
 @method_options_options()
 @quiet_option("No progress bar for the closed loops.")
 def command(datasets: tuple[Path, ...], **given: Any) -> int:
-    """Benchmark AE methods on DATASET... (trajectory folders or manifest YAMLs naming subsets).
+    """Benchmark AE methods on DATASET... (trajectory folders, trajectory .zip archives read in place, or manifest
+    YAMLs naming subsets).
 
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
     in one pass that decodes each bracket sequence once; then per (trajectory, method) ORB-SLAM3 stereo (each run
@@ -88,7 +89,12 @@ def command(datasets: tuple[Path, ...], **given: Any) -> int:
         m = r.metrics
         state = "cached" if r.cached else "done"
         outcome = "success" if m["success"] else f"failed at {m['time_before_failure_s']:.1f} s"
-        rte = f"RTE refused: {m['rte_refused']}" if m.get("rte_refused") else f"RTE {m['rte_pct']:.2f} %"
+        if m.get("rte_refused"):
+            rte = f"RTE refused: {m['rte_refused']}"
+        elif str(m.get("reference", "")).startswith("no reference"):
+            rte = "RTE - (no reference)"
+        else:
+            rte = f"RTE {m['rte_pct']:.2f} %"
         click.echo(f"{state:6s} {r.trajectory} / {r.method}{rep}: {outcome}, "
                    f"{rte}, coverage {100 * m['coverage_mean']:.1f} %, "
                    f"matches {m['matches_mean']:.0f}")

@@ -89,7 +89,7 @@ def command(dataset: Path, out_dir: Path, method_option: tuple[str, ...], method
             depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
             deghost_sigma: float | None, workers: int, max_sequences: int | None, no_images: bool,
             png_compression: str, overwrite: bool, quiet: bool, **given: Any) -> int:
-    """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world or MCAP).
+    """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world, a .zip of either, or MCAP).
 
     Every method starts at --init-exposure-ms; at each bracket sequence its current target is emulated for the
     cameras, the images are written, and the method picks the next target from the --ae-camera image. Each decoded

@@ -3,7 +3,7 @@
 Python API::
 
     from bracketry_emulator.dataset import open_dataset
-    ds = open_dataset("path/to/backpack_2023-09-25-15-05-03")   # or its parent, a synthetic world, a .mcap
+    ds = open_dataset("path/to/backpack_2023-09-25-15-05-03")   # or its parent, a synthetic world, a .zip, a .mcap
     for seq in ds.sequences():                                  # complete, time-ordered, left/right matched
         brackets = seq.load("left")                             # {exposure_us: uint16 HxW RGGB Bayer codes}
 
@@ -30,14 +30,18 @@ def open_dataset(path: str | Path, sides: tuple[str, ...] | None = None, *, tole
 
     Args:
         path: a BorealHDR recording folder (holding camera_left/, camera_right/), its parent when it holds exactly
-            one recording (as the BorealHDR sample root), a synthetic world folder, or an MCAP file (or a folder of
-            ``*.mcap`` split files).
+            one recording (as the BorealHDR sample root), a synthetic world folder, a ``.zip`` holding one of these
+            (read in place, :mod:`.ziptree`), or an MCAP file (or a folder of ``*.mcap`` split files).
         sides: camera sides to use, default every side present ("left", "right").
         tolerance_ns: largest timestamp difference for matching left and right frames of one shot.
     """
     p = Path(path)
     if not p.exists():
         raise DatasetError(f"dataset not found: {p}")
+    if p.is_file() and p.suffix.lower() == ".zip":
+        from .ziptree import open_zip
+
+        return open_zip(p, sides, tolerance_ns=tolerance_ns)
     if p.is_file() or (p.is_dir() and any(p.glob("*.mcap")) and not is_borealhdr_tree(p)):
         from .mcap_reader import open_mcap
 

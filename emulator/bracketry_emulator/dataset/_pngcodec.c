@@ -42,6 +42,8 @@ typedef struct {
     size_t file_cap;
     uint8_t *raw;
     size_t raw_cap;
+    uint8_t *member; /* a deflated zip member as read, before inflating */
+    size_t member_cap;
     struct libdeflate_decompressor *inflater;
 } scratch_t;
 
@@ -55,6 +57,7 @@ static void scratch_free(void *p)
     }
     free(s->file);
     free(s->raw);
+    free(s->member);
     if (s->inflater != NULL) {
         libdeflate_free_decompressor(s->inflater);
     }
@@ -402,18 +405,89 @@ static int unpack(scratch_t *s, const header_t *hdr, size_t idat_len, uint8_t *o
     return OK;
 }
 
-static PyObject *decode(PyObject *self, PyObject *args)
+/* Copies a PNG held in memory into the scratch file buffer and checks it, without the GIL (as ``load``). */
+static int load_bytes(const uint8_t *data, size_t n, scratch_t *s, header_t *hdr, size_t *idat_len)
 {
-    PyObject *path_obj = NULL, *out_obj = NULL;
-    (void)self;
-    if (!PyArg_ParseTuple(args, "O&O", PyUnicode_FSConverter, &path_obj, &out_obj)) {
-        return NULL;
+    if (reserve(&s->file, &s->file_cap, n + 1) != 0) {
+        return NO_MEMORY;
     }
-    const char *path = PyBytes_AS_STRING(path_obj);
+    memcpy(s->file, data, n);
+    return parse(s->file, n, hdr, idat_len);
+}
+
+/* Inflates a raw deflate stream (a zip member) of ``size`` bytes whose CRC-32 is ``crc`` into the scratch file buffer
+   and checks it, without the GIL (as ``load``). Anything that does not inflate to exactly ``size`` bytes of that CRC
+   falls back (the caller reads the member another way and reports what is wrong). */
+static int load_deflated(const uint8_t *data, size_t n, size_t size, uint32_t crc, scratch_t *s, header_t *hdr,
+                         size_t *idat_len)
+{
+    if (reserve(&s->file, &s->file_cap, size + 1) != 0) {
+        return NO_MEMORY;
+    }
+    size_t actual = 0;
+    if (libdeflate_deflate_decompress(s->inflater, data, n, s->file, size, &actual) != LIBDEFLATE_SUCCESS
+        || actual != size || (uint32_t)libdeflate_crc32(0, s->file, size) != crc) {
+        return FALLBACK;
+    }
+    return parse(s->file, size, hdr, idat_len);
+}
+
+/* Reads exactly n bytes at ``offset`` of ``fd``; FALLBACK when the file ends before (a truncated archive). */
+static int read_at(int fd, uint8_t *dst, size_t n, off_t offset, int *err)
+{
+    size_t got = 0;
+    while (got < n) {
+        ssize_t r = pread(fd, dst + got, n - got, offset + (off_t)got);
+        if (r < 0) {
+            if (errno == EINTR) {
+                continue;
+            }
+            *err = errno;
+            return OS_ERROR;
+        }
+        if (r == 0) {
+            return FALLBACK;
+        }
+        got += (size_t)r;
+    }
+    return OK;
+}
+
+/* Reads a zip member's data (``n`` bytes at ``offset`` of ``fd``) into the scratch file buffer, inflating it when
+   ``inflated`` >= 0 (a deflated member of that size and CRC-32), and checks the PNG, without the GIL. */
+static int load_member(int fd, off_t offset, size_t n, Py_ssize_t inflated, uint32_t crc, scratch_t *s,
+                       header_t *hdr, size_t *idat_len, int *err)
+{
+    if (inflated < 0) {
+        if (reserve(&s->file, &s->file_cap, n + 1) != 0) {
+            return NO_MEMORY;
+        }
+        int rc = read_at(fd, s->file, n, offset, err);
+        return rc != OK ? rc : parse(s->file, n, hdr, idat_len);
+    }
+    if (reserve(&s->member, &s->member_cap, n + 1) != 0) {
+        return NO_MEMORY;
+    }
+    int rc = read_at(fd, s->member, n, offset, err);
+    return rc != OK ? rc : load_deflated(s->member, n, (size_t)inflated, crc, s, hdr, idat_len);
+}
+
+/* decode(path, out) when ``data`` and ``member`` are NULL, decode_bytes(data, out) (``inflated`` < 0) or a deflated
+   ``data`` (``inflated`` >= 0), decode_member(...) when ``member`` is given: ``path_obj`` (a bytes object, or NULL)
+   names the file for OSError. */
+typedef struct {
+    int fd;           /* >= 0: a zip member at ``offset``, ``size`` bytes (``inflated`` / ``crc`` as below) */
+    off_t offset;
+    size_t size;
+} member_t;
+
+static PyObject *decode_any(PyObject *path_obj, const Py_buffer *data, Py_ssize_t inflated, uint32_t crc,
+                            const member_t *member, PyObject *out_obj)
+{
+    const char *path = path_obj != NULL ? PyBytes_AS_STRING(path_obj) : NULL;
     Py_buffer out = {0};
     int given = out_obj != Py_None, have_out = given;
     if (given && PyObject_GetBuffer(out_obj, &out, PyBUF_WRITABLE | PyBUF_C_CONTIGUOUS) != 0) {
-        Py_DECREF(path_obj);
         return NULL;
     }
     header_t hdr = {0, 0, 0};
@@ -425,7 +499,13 @@ static PyObject *decode(PyObject *self, PyObject *args)
     size_t dst_len = have_out ? (size_t)out.len : 0;
     Py_BEGIN_ALLOW_THREADS
     scratch_t *s = scratch_get();
-    rc = s == NULL ? NO_MEMORY : load(path, s, &hdr, &idat_len, &err);
+    rc = s == NULL ? NO_MEMORY
+         : member != NULL ? load_member(member->fd, member->offset, member->size, inflated, crc, s, &hdr, &idat_len,
+                                        &err)
+         : data != NULL && inflated >= 0
+             ? load_deflated((const uint8_t *)data->buf, (size_t)data->len, (size_t)inflated, crc, s, &hdr, &idat_len)
+         : data != NULL ? load_bytes((const uint8_t *)data->buf, (size_t)data->len, s, &hdr, &idat_len)
+                        : load(path, s, &hdr, &idat_len, &err);
     if (rc == OK && have_out
         && (out.ndim != 2 || out.shape == NULL || out.shape[0] != (Py_ssize_t)hdr.height
             || out.shape[1] != (Py_ssize_t)hdr.width || out.itemsize != hdr.depth / 8)) {
@@ -458,12 +538,37 @@ static PyObject *decode(PyObject *self, PyObject *args)
         result = Py_NewRef(Py_None);
     } else if (rc == OS_ERROR) {
         errno = err;
-        result = PyErr_SetFromErrnoWithFilenameObject(PyExc_OSError, path_obj);
+        result = path_obj != NULL ? PyErr_SetFromErrnoWithFilenameObject(PyExc_OSError, path_obj)
+                                  : PyErr_SetFromErrno(PyExc_OSError);
     } else if (!PyErr_Occurred()) {
         PyErr_NoMemory();
     }
     Py_XDECREF(fresh);
+    return result;
+}
+
+static PyObject *decode(PyObject *self, PyObject *args)
+{
+    PyObject *path_obj = NULL, *out_obj = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "O&O", PyUnicode_FSConverter, &path_obj, &out_obj)) {
+        return NULL;
+    }
+    PyObject *result = decode_any(path_obj, NULL, -1, 0, NULL, out_obj);
     Py_DECREF(path_obj);
+    return result;
+}
+
+static PyObject *decode_bytes(PyObject *self, PyObject *args)
+{
+    Py_buffer data = {0};
+    PyObject *out_obj = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "y*O", &data, &out_obj)) {
+        return NULL;
+    }
+    PyObject *result = decode_any(NULL, &data, -1, 0, NULL, out_obj);
+    PyBuffer_Release(&data);
     return result;
 }
 
@@ -603,6 +708,25 @@ static PyObject *encode_stored(PyObject *self, PyObject *args)
     return result;
 }
 
+static PyObject *decode_member(PyObject *self, PyObject *args)
+{
+    int fd = -1;
+    long long offset = 0;
+    Py_ssize_t size = 0, inflated = -1;
+    unsigned long crc = 0;
+    PyObject *out_obj = NULL;
+    (void)self;
+    if (!PyArg_ParseTuple(args, "iLnnkO", &fd, &offset, &size, &inflated, &crc, &out_obj)) {
+        return NULL;
+    }
+    if (fd < 0 || offset < 0 || size < 0) {
+        PyErr_SetString(PyExc_ValueError, "fd, offset and size must be >= 0");
+        return NULL;
+    }
+    member_t member = {fd, (off_t)offset, (size_t)size};
+    return decode_any(NULL, NULL, inflated, (uint32_t)crc, &member, out_obj);
+}
+
 static PyMethodDef methods[] = {
     {"decode", decode, METH_VARARGS,
      "decode(path, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
@@ -610,6 +734,14 @@ static PyMethodDef methods[] = {
      "when its shape is (height, width) and its item size the sample size; native byte order), else (also when\n"
      "``out`` is None) into a new bytearray. ``buffer`` is the one written. None when the file is anything else or\n"
      "not valid in every respect (the caller falls back to another decoder). OSError when it cannot be read."},
+    {"decode_bytes", decode_bytes, METH_VARARGS,
+     "decode_bytes(data, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
+     "``decode`` of a whole PNG file held in ``data`` (a bytes-like object, e.g. a member read from a zip)."},
+    {"decode_member", decode_member, METH_VARARGS,
+     "decode_member(fd, offset, size, inflated, crc32, out) -> (height, width, bit_depth, or_of_samples, buffer) | None\n\n"
+     "``decode`` of a zip member's PNG: its ``size`` bytes of data at ``offset`` of the open file ``fd``, stored\n"
+     "(``inflated`` -1) or deflated (``inflated``: its size, ``crc32``: its CRC-32). None also when the file ends\n"
+     "before the data or the data does not inflate to ``inflated`` bytes of that CRC."},
     {"encode_stored", encode_stored, METH_VARARGS,
      "encode_stored(image, height, width, bpp, head, blocks) -> bytes\n\n"
      "A whole PNG file: ``head`` (signature and IHDR chunk), one IDAT chunk holding the zlib stream of stored\n"

@@ -7,11 +7,12 @@ raw RGGB Bayer 12-bit codes). The calibration folder is ``<root>/calibration`` o
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
 
 from .grouping import group_sequences
 from .imageio import PngLoader
-from .model import Dataset, DatasetError, Frame
+from .model import BracketSequence, Dataset, DatasetError, Frame
 
 SIDE_FOLDERS = {"left": "camera_left", "right": "camera_right"}
 
@@ -60,25 +61,37 @@ def find_calibration_dir(root: Path) -> Path | None:
     return None
 
 
-def open_tree(root: Path, sides: tuple[str, ...] | None = None, *, tolerance_ns: int = 2_000_000) -> Dataset:
-    """Open a BorealHDR tree or synthetic world folder (``root`` holds camera_left/ and/or camera_right/)."""
-    wanted = sides or tuple(s for s, folder in SIDE_FOLDERS.items() if (root / folder).is_dir())
-    problems: list[str] = []
+def side_sequences(wanted: tuple[str, ...], present: tuple[str, ...], scan: Callable[[str], list[Frame]],
+                   where: Callable[[str], str], source: str, problems: list[str], tolerance_ns: int
+                   ) -> list[BracketSequence]:
+    """The bracket sequences of the camera sides ``wanted`` (a folder tree's or a zip's: ``scan`` lists a side's
+    frames, ``where`` names its folder in messages, ``source`` the tree or archive); grouping problems are appended
+    to ``problems``. Raises DatasetError (one line) for an unknown or missing side, a side without frames and no
+    complete sequence."""
     frames_by_side: dict[str, list[Frame]] = {}
     for side in wanted:
         if side not in SIDE_FOLDERS:
             raise DatasetError(f"unknown camera side {side!r} (use left or right)")
-        side_dir = root / SIDE_FOLDERS[side]
-        if not side_dir.is_dir():
-            raise DatasetError(f"missing folder {side_dir}")
-        frames_by_side[side] = scan_side(side_dir, side, problems)
+        if side not in present:
+            raise DatasetError(f"missing folder {where(side)}")
+        frames_by_side[side] = scan(side)
         if not frames_by_side[side]:
-            raise DatasetError(f"no PNG frames under {side_dir}")
+            raise DatasetError(f"no PNG frames under {where(side)}")
     sequences, group_problems = group_sequences(frames_by_side, tolerance_ns=tolerance_ns)
     problems.extend(group_problems)
     if not sequences:
         detail = f" ({problems[0]})" if problems else ""
-        raise DatasetError(f"no complete bracket sequence in {root}{detail}")
+        raise DatasetError(f"no complete bracket sequence in {source}{detail}")
+    return sequences
+
+
+def open_tree(root: Path, sides: tuple[str, ...] | None = None, *, tolerance_ns: int = 2_000_000) -> Dataset:
+    """Open a BorealHDR tree or synthetic world folder (``root`` holds camera_left/ and/or camera_right/)."""
+    present = tuple(s for s, folder in SIDE_FOLDERS.items() if (root / folder).is_dir())
+    wanted = sides or present
+    problems: list[str] = []
+    sequences = side_sequences(wanted, present, lambda side: scan_side(root / SIDE_FOLDERS[side], side, problems),
+                               lambda side: str(root / SIDE_FOLDERS[side]), str(root), problems, tolerance_ns)
     gt = root / "groundtruth.txt"
     return Dataset(path=root, kind="synthetic" if gt.is_file() else "borealhdr", sides=tuple(wanted),
                    calibration_dir=find_calibration_dir(root), groundtruth_path=gt if gt.is_file() else None,

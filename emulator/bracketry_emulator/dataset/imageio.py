@@ -45,8 +45,7 @@ def read_png(path: Path, out: np.ndarray | None = None) -> np.ndarray | None:
 
 def _read_png(path: Path, out: np.ndarray | None) -> tuple[np.ndarray | None, int | None]:
     """(:func:`read_png`, the bitwise OR of every sample when the extension decoded it, else None)."""
-    fits = out is not None and out.ndim == 2 and out.dtype in (np.uint8, np.uint16) and out.flags.c_contiguous \
-        and out.flags.writeable
+    fits = _fits(out)
     decode = png_decoder()
     got = decode(str(path), out if fits else None) if decode is not None else None
     if got is not None:
@@ -76,14 +75,60 @@ def read_png12(path: Path, out: np.ndarray | None = None) -> np.ndarray:
         img, or_samples = _read_png(path, out)
     except OSError as exc:
         raise DatasetError(f"cannot read {path}: {exc.strerror or exc}") from exc
+    return _checked12(img, or_samples, str(path))
+
+
+def _checked12(img: np.ndarray | None, or_samples: int | None, source: str) -> np.ndarray:
+    """``img`` when it is a uint16 HxW image of 12-bit codes, else DatasetError naming ``source``."""
     if img is None:
-        raise DatasetError(f"corrupt or unreadable PNG: {path}")
+        raise DatasetError(f"corrupt or unreadable PNG: {source}")
     if img.ndim != 2 or img.dtype != np.uint16:
-        raise DatasetError(f"expected a single-channel 16-bit PNG, got {img.dtype} shape {img.shape}: {path}")
+        raise DatasetError(f"expected a single-channel 16-bit PNG, got {img.dtype} shape {img.shape}: {source}")
     # a sample above 4095 has a bit above the 12th set: the OR of the samples is above 4095 exactly then
     if (or_samples if or_samples is not None else int(img.max(initial=0))) > MAX_CODE_12BIT:
-        raise DatasetError(f"values above 4095 (not 12-bit LSB-aligned codes): {path}")
+        raise DatasetError(f"values above 4095 (not 12-bit LSB-aligned codes): {source}")
     return img
+
+
+def read_png12_bytes(data: bytes, source: str, out: np.ndarray | None = None) -> np.ndarray:
+    """:func:`read_png12` of a whole PNG file held in memory (e.g. a zip member); ``source`` names it in errors.
+
+    Decoded by the ``_pngcodec`` extension's ``decode_bytes`` where it was built (and the PNG is one it decodes),
+    else by OpenCV's ``imdecode``. Returns np.ndarray uint16 HxW (``out`` when it has the image's shape)."""
+    codec = png_codec()
+    decode = getattr(codec, "decode_bytes", None)  # None: not built, or built from an older _pngcodec.c
+    got = decode(data, out if _fits(out) else None) if decode is not None else None
+    if got is not None:
+        h, w, depth, or_samples, buf = got
+        img = out if buf is out else np.frombuffer(buf, np.uint16 if depth == 16 else np.uint8).reshape(h, w)
+        return _checked12(img, or_samples, source)
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED) if data else None
+    if img is not None and out is not None and img.shape == out.shape and img.dtype == out.dtype:
+        out[...] = img
+        img = out
+    return _checked12(img, None, source)
+
+
+def read_png12_member(fd: int, offset: int, size: int, inflated: int, crc32: int, source: str,
+                      out: np.ndarray | None = None) -> np.ndarray | None:
+    """:func:`read_png12` of a PNG held in a zip member: its ``size`` bytes of data at ``offset`` of the open file
+    ``fd``, stored (``inflated`` -1) or deflated (``inflated``: the PNG's size, ``crc32``: its CRC-32), read (and
+    inflated, and checked against the CRC) by the ``_pngcodec`` extension's ``decode_member`` without a copy in
+    Python. None when the extension cannot (not built; the archive ends early; the data or its CRC is wrong; a PNG
+    it does not decode): the caller then reads the member another way (and reports what is wrong)."""
+    decode = getattr(png_codec(), "decode_member", None)
+    got = decode(fd, offset, size, inflated, crc32, out if _fits(out) else None) if decode is not None else None
+    if got is None:
+        return None
+    h, w, depth, or_samples, buf = got
+    img = out if buf is out else np.frombuffer(buf, np.uint16 if depth == 16 else np.uint8).reshape(h, w)
+    return _checked12(img, or_samples, source)
+
+
+def _fits(out: np.ndarray | None) -> bool:
+    """True when ``out`` can be decoded into (2-D, uint8/uint16, C-contiguous, writeable)."""
+    return out is not None and out.ndim == 2 and out.dtype in (np.uint8, np.uint16) and out.flags.c_contiguous \
+        and out.flags.writeable
 
 
 class PngLoader:

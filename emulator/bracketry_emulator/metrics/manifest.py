@@ -60,15 +60,32 @@ class TrajectorySpec:
     #: the synth code digest of the rendered suite it belongs to (a manifest's ``suite.code``; None: not declared)
     suite_code: str | None = None
 
+    def is_zip(self) -> bool:
+        """True when the trajectory is a zip archive read in place (``dataset.ziptree``)."""
+        return self.path.suffix.lower() == ".zip" and self.path.is_file()
+
+    def side_files(self) -> Path:
+        """The folder of the trajectory's own files (groundtruth.txt, reference.yaml, calibration/): the trajectory
+        folder, or for a zip archive the folder its side files are copied to."""
+        if self.is_zip():
+            from bracketry_emulator.dataset.ziptree import side_files
+
+            return side_files(self.path)
+        return self.path
+
     def groundtruth_path(self) -> Path | None:
         """The TUM reference of this trajectory, or None when it has none."""
-        cand = self.groundtruth or self.path / "groundtruth.txt"
+        cand = self.groundtruth or self.side_files() / "groundtruth.txt"
         return cand if cand.is_file() else None
 
     def calibration_dir(self) -> Path | None:
         """The folder with the left/right camera_info YAMLs."""
         if self.calibration is not None:
             return self.calibration
+        if self.is_zip():
+            from bracketry_emulator.dataset.ziptree import calibration_dir, locate
+
+            return calibration_dir(locate(self.path), self.side_files())
         for cand in (self.path / "calibration", self.path.parent / "calibration"):
             if cand.is_dir():
                 return cand
@@ -149,8 +166,12 @@ def expand_datasets(paths: list[str | Path]) -> list[TrajectorySpec]:
             specs.extend(load_manifest(p))
         elif p.is_dir():
             specs.append(TrajectorySpec(p.resolve().name, p.resolve(), "all"))
+        elif p.is_file() and p.suffix.lower() == ".zip":
+            from bracketry_emulator.dataset.ziptree import locate
+
+            specs.append(TrajectorySpec(locate(p).name, p.resolve(), "all"))
         else:
-            raise BracketryError(f"dataset not found (need a folder or a manifest .yaml): {p}")
+            raise BracketryError(f"dataset not found (need a folder, a trajectory .zip or a manifest .yaml): {p}")
     seen: dict[str, int] = defaultdict(int)
     unique = []
     for s in specs:

@@ -5,14 +5,16 @@ A trajectory folder may carry ``reference.yaml`` next to its images::
 
     file: gnss_ins.csv            # relative to the folder
     format: euroc                 # tum | kitti | euroc (default: from the file)
-    times: poses_times.txt        # kitti only: one time per pose line (seconds, or ns when integers > 1e12)
+    times: poses_times.txt        # kitti only: one time per pose line (seconds, or ns when integers > 1e12);
+                                  # without it, line k is the pose at the k-th left image (time order)
     extrinsic:                    # pose of the LEFT CAMERA in the reference's sensor frame (T_sensor_camera)
       matrix: [[...], [...], [...], [...]]      # a 4x4 matrix, or
       translation: [x, y, z]                    # translation (m) + quaternion (x, y, z, w)
       quaternion: [qx, qy, qz, qw]
 
 Formats: TUM ``t_s tx ty tz qx qy qz qw`` (space-separated); KITTI 12 numbers per line (a 3x4 ``[R | t]``, no time:
-``times`` gives them); EuRoC CSV ``t_ns, px, py, pz, qw, qx, qy, qz[, ...]`` (header lines start with ``#``). All
+``times`` gives them, else the trajectory's left images do, one pose per image in time order); EuRoC CSV
+``t_ns, px, py, pz, qw, qx, qy, qz[, ...]`` (header lines start with ``#``). All
 poses are sensor-to-world. The camera's pose is ``T_world_sensor(t) @ T_sensor_camera``, interpolated at each image
 time: linear in translation, spherical-linear in rotation (SE(3) per component); image times outside the reference's
 time span get no pose (and so no RTE pairs).
@@ -78,9 +80,12 @@ def guess_format(path: Path) -> str:
     return {8: "tum", 12: "kitti"}.get(n, "tum")
 
 
-def read_reference(path: str | Path, fmt: str | None = None, times: str | Path | None = None
-                   ) -> tuple[np.ndarray, np.ndarray]:
-    """(times_s float64 N, poses float64 Nx4x4 sensor-to-world) of a TUM / KITTI / EuRoC file."""
+def read_reference(path: str | Path, fmt: str | None = None, times: str | Path | None = None,
+                   frame_times_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(times_s float64 N, poses float64 Nx4x4 sensor-to-world) of a TUM / KITTI / EuRoC file.
+
+    KITTI poses carry no time: ``times`` (a file, one time per pose) gives them, else ``frame_times_s`` (float64 N,
+    seconds: the trajectory's left image times in order, one per pose line)."""
     p = Path(path)
     if not p.is_file():
         raise BracketryError(f"reference file not found: {p}")
@@ -102,11 +107,17 @@ def read_reference(path: str | Path, fmt: str | None = None, times: str | Path |
         d = _rows(p, None)
         if d.shape[1] != 12:
             raise BracketryError(f"{p}: KITTI lines need 12 numbers (3x4 [R | t])")
-        if times is None:
+        if times is not None:
+            tv = _rows(Path(times), None)[:, 0]
+            if len(tv) != len(d):
+                raise BracketryError(f"{times}: {len(tv)} times for {len(d)} KITTI poses")
+        elif frame_times_s is not None:
+            tv = np.asarray(frame_times_s, np.float64)
+            if len(tv) != len(d):
+                raise BracketryError(f"{p}: {len(d)} KITTI poses for {len(tv)} left images of the trajectory (one "
+                                     f"pose per left image in time order; else give 'times:' in {REFERENCE_FILE})")
+        else:
             raise BracketryError(f"{p}: a KITTI reference needs its times file ('times:' in {REFERENCE_FILE})")
-        tv = _rows(Path(times), None)[:, 0]
-        if len(tv) != len(d):
-            raise BracketryError(f"{times}: {len(tv)} times for {len(d)} KITTI poses")
         t = tv * 1e-9 if np.all(tv > 1e12) else tv
         M = d.reshape(-1, 3, 4)
         poses = np.tile(np.eye(4), (len(d), 1, 1))
@@ -177,15 +188,19 @@ def image_times_ns(folder: str | Path) -> list[int]:
     return sorted(int(s) for s in stems if s.isdigit())
 
 
-def write_camera_reference(folder: str | Path, out_file: str | Path) -> Path | None:
-    """Turn the folder's ``reference.yaml`` into a TUM left-camera reference at its image times (None: no yaml)."""
+def write_camera_reference(folder: str | Path, out_file: str | Path, times_ns: list[int] | None = None
+                           ) -> Path | None:
+    """Turn the folder's ``reference.yaml`` into a TUM left-camera reference at its image times (None: no yaml).
+
+    ``times_ns``: the trajectory's left image times (default: :func:`image_times_ns` of ``folder``; a zip
+    archive's come from the archive)."""
     from bracketry_emulator.trajectory_io import write_tum
 
     spec = load_reference_spec(folder)
     if spec is None:
         return None
-    t, poses = read_reference(spec["file"], spec["format"], spec["times"])
-    times = np.array(image_times_ns(folder), np.float64) * 1e-9
+    times = np.array(image_times_ns(folder) if times_ns is None else sorted(times_ns), np.float64) * 1e-9
+    t, poses = read_reference(spec["file"], spec["format"], spec["times"], frame_times_s=times)
     if len(times) == 0:
         raise BracketryError(f"{folder}: no images to interpolate the reference at")
     qt, cam = camera_reference(t, poses, spec["extrinsic"], times)

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 
+from bracketry_emulator.metrics.failure_causes import CAUSES, failure_rows
 from bracketry_emulator.metrics.manifest import success_counts
 from bracketry_emulator.stats.controls import (
     BEST_CONSTANT,
@@ -15,8 +16,9 @@ from bracketry_emulator.stats.controls import (
     constant_ms,
     control_roles,
 )
-from bracketry_emulator.stats.mannwhitney import METRICS, SYMBOL, Comparison, verdict_table
-from bracketry_emulator.stats.paired import friedman, wilcoxon_to_reference, worst_rank
+from bracketry_emulator.stats.mannwhitney import METRICS, SYMBOL, Comparison, compare_to_reference, verdict_table
+from bracketry_emulator.stats.paired import PairedComparison, friedman, wilcoxon_to_reference, worst_rank
+from bracketry_emulator.stats.stability import name_seed, shown_symbol, verdict_stability
 
 RESULT_COLUMNS = ("trajectory", "subset", "method", "slam", "repeats", "n_frames", "success", "time_before_failure_s",
                   "duration_s", "tracked_fraction", "tracked_distance_fraction", "n_segments", "coverage_mean",
@@ -108,20 +110,44 @@ def success_table(results: list[dict], methods: list[str]) -> list[list[str]]:
 
 def stats_tables(results: list[dict], methods: list[str], reference: str, alpha: float
                  ) -> tuple[list[list[str]], list[list[str]], dict[str, dict[str, Comparison]]]:
-    """(verdict table with ▲ better / ▼ worse / ≡ equal, p-value table, raw comparisons)."""
+    """(verdict table with ▲ better / ▼ worse / ≡ equal / ? unstable and each verdict's stability, p-value table
+    with the stability, raw comparisons). Stability: :mod:`~bracketry_emulator.stats.stability` (bootstrap
+    resamples of the trajectories)."""
     table = verdict_table(per_metric_values(results, methods), reference, alpha)
     others = [m for m in methods if m != reference]
-    verdicts = [["metric", *others]]
+    verdicts = [["metric", *stability_header(others)]]
     pvalues = [["metric", "method", "n", "median", f"median {reference}", "p two-sided", "p one-sided",
-                "alpha (Bonferroni)", "verdict"]]
+                "alpha (Bonferroni)", "verdict", "stability"]]
     for key, comps in table.items():
-        label = METRICS[key][0]
-        verdicts.append([label, *[SYMBOL[comps[m].verdict] for m in others]])
+        label, higher = METRICS[key]
+
+        def test(sample: dict[str, dict[str, float]], ref: str, higher: bool = higher) -> dict[str, Comparison]:
+            return compare_to_reference({m: list(v.values()) for m, v in sample.items()}, ref, higher, alpha)
+
+        share = verdict_stability(per_trajectory_values(results, methods, key), reference,
+                                  {m: comps[m].verdict for m in others}, test, name_seed("mann-whitney", key))
+        verdicts.append([label, *[c for m in others for c in (shown_symbol(comps[m].verdict, share[m]),
+                                                              _fmt(share[m], 2))]])
         for m in others:
             c = comps[m]
             pvalues.append([label, m, str(c.n), _fmt(c.median), _fmt(c.median_ref), _fmt(c.p_two_sided, 4),
-                            _fmt(c.p_one_sided, 4), _fmt(c.alpha_corrected, 4), c.verdict])
+                            _fmt(c.p_one_sided, 4), _fmt(c.alpha_corrected, 4), c.verdict, _fmt(share[m], 2)])
     return verdicts, pvalues, table
+
+
+#: the header suffix of a verdict table's stability columns (``verdicts.csv``: each method's verdict, then its share)
+STABILITY_SUFFIX = " stability"
+
+
+def stability_header(methods: list[str]) -> list[str]:
+    """The columns of a verdict table: each method, then its verdict's stability."""
+    return [c for m in methods for c in (m, m + STABILITY_SUFFIX)]
+
+
+def verdict_symbols(rows: list[list[str]]) -> list[list[str]]:
+    """A verdict table without its stability columns (metrics as rows, compared methods as columns, symbols)."""
+    keep = [j for j, c in enumerate(rows[0]) if not c.endswith(STABILITY_SUFFIX)]
+    return [[r[j] for j in keep] for r in rows]
 
 
 #: error metrics a run that never tracked has no value of: in the paired test it ranks worst (not left out, which
@@ -151,15 +177,22 @@ def paired_tables(results: list[dict], methods: list[str], reference: str, alpha
     """(Wilcoxon signed-rank vs ``reference`` per metric and method, Friedman across ``methods`` per metric)."""
     others = [m for m in methods if m != reference]
     wil = [["metric", "method", "pairs", f"median difference vs {reference}", "p two-sided", "effect r (rank-biserial)",
-            "alpha (Bonferroni)", "verdict"]]
+            "alpha (Bonferroni)", "verdict", "stability"]]
     fri = [["metric", "trajectories", "methods", "chi2", "p", "Kendall W", "mean ranks (1 = smallest)"]]
     for key, (label, higher) in METRICS.items():
         values = per_trajectory_values(results, methods, key, impute_failures=True)
         comps = wilcoxon_to_reference(values, reference, higher, alpha)
+
+        def test(sample: dict[str, dict[str, float]], ref: str, higher: bool = higher
+                 ) -> dict[str, PairedComparison]:
+            return wilcoxon_to_reference(sample, ref, higher, alpha, n_tests=len(others), method="approx")
+
+        share = verdict_stability(values, reference, {m: comps[m].verdict for m in others}, test,
+                                  name_seed("wilcoxon", key))
         for m in others:
             c = comps[m]
             wil.append([label, m, str(c.n_pairs), _fmt(c.median_difference), _fmt(c.p_two_sided, 4),
-                        _fmt(c.effect_r, 2), _fmt(c.alpha_corrected, 4), c.verdict])
+                        _fmt(c.effect_r, 2), _fmt(c.alpha_corrected, 4), c.verdict, _fmt(share[m], 2)])
         f = friedman(values, methods)
         ranks = ", ".join(f"{m} {_fmt(v, 2)}" for m, v in f.mean_ranks.items())
         fri.append([label, str(f.n_blocks), str(len(f.methods)), _fmt(f.statistic, 2), _fmt(f.p_value, 4),
@@ -169,14 +202,16 @@ def paired_tables(results: list[dict], methods: list[str], reference: str, alpha
 
 def paired_verdicts_table(wilcoxon_rows: list[list[str]], methods: list[str], reference: str) -> list[list[str]]:
     """The Wilcoxon signed-rank verdicts of :func:`paired_tables` shaped as the Mann-Whitney verdict table (metrics
-    as rows, compared methods as columns, ▲ ▼ ≡ –): the paired test, which sees a difference that every trajectory
-    shows in the same direction even when it is small against the spread between trajectories."""
+    as rows, compared methods as columns, ▲ ▼ ≡ – and ? for an unstable one, each followed by its stability): the
+    paired test, which sees a difference that every trajectory shows in the same direction even when it is small
+    against the spread between trajectories."""
     others = [m for m in methods if m != reference]
-    by_metric: dict[str, dict[str, str]] = {}
-    for label, method, *_rest, verdict in wilcoxon_rows[1:]:
-        by_metric.setdefault(label, {})[method] = SYMBOL[verdict]
-    return [["metric", *others], *[[label, *[v.get(m, SYMBOL["n/a"]) for m in others]]
-                                   for label, v in by_metric.items()]]
+    by_metric: dict[str, dict[str, tuple[str, str]]] = {}
+    for label, method, *_rest, verdict, share in wilcoxon_rows[1:]:
+        by_metric.setdefault(label, {})[method] = (shown_symbol(verdict, float(share)), share)
+    na = (SYMBOL["n/a"], "nan")
+    return [["metric", *stability_header(others)],
+            *[[label, *[c for m in others for c in v.get(m, na)]] for label, v in by_metric.items()]]
 
 
 #: metric key -> (axis label with unit, scale to that unit) of the box plots and the medians table
@@ -264,3 +299,37 @@ def relabel(rows: list[list[str]], labels: dict[str, str], header: bool = False)
     if header:
         return [[labels.get(c, c) for c in rows[0]], *rows[1:]]
     return [rows[0], *[[labels.get(r[0], r[0]), *r[1:]] for r in rows[1:]]]
+
+
+#: the columns of ``failure_causes.csv``: one row per run that lost track (its first loss)
+FAILURE_CAUSE_COLUMNS = ("trajectory", "method", "repeat", "time_s", "cause")
+#: the paper's reading of its own failures, per method (BorealHDR benchmark, Results): what the cause table sits
+#: beside; beyond these, glare failed every method on Campus1 and blur grows at the longest brackets
+PAPER_FAILURE_READING = {
+    "kim": "abrupt exposure changes (its exploration steps)",
+    "wang": "abrupt exposure changes (its jumps); saturation once converged too high",
+    "shim": "short exposures: least blur",
+}
+
+
+def failure_causes_rows(results: list[dict]) -> list[list[str]]:
+    """``failure_causes.csv``: :data:`FAILURE_CAUSE_COLUMNS`, one row per run that lost track (every failed repeat
+    of a combined result; :func:`~bracketry_emulator.metrics.failure_causes.failure_rows`)."""
+    rows = [list(FAILURE_CAUSE_COLUMNS)]
+    for r in results:
+        for f in failure_rows(r):
+            rows.append([str(r["trajectory"]), str(r["method"]), str(int(f["repeat"])), _fmt(float(f["time_s"]), 2),
+                         str(f["cause"])])
+    return rows
+
+
+def cause_table(results: list[dict], methods: list[str]) -> list[list[str]]:
+    """Failed runs per cause (columns, :data:`~bracketry_emulator.metrics.failure_causes.CAUSES`) and method (rows),
+    with the runs that lost track and the paper's reading of that method's failures (:data:`PAPER_FAILURE_READING`;
+    ``-`` when it gives none)."""
+    rows = [["method", *CAUSES, "lost", "the paper's reading"]]
+    for m in methods:
+        causes = [f["cause"] for r in results if r["method"] == m for f in failure_rows(r)]
+        rows.append([m, *[str(causes.count(c)) for c in CAUSES], str(len(causes)),
+                     PAPER_FAILURE_READING.get(m, "-")])
+    return rows

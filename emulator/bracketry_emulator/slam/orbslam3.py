@@ -52,12 +52,15 @@ class OrbSlam3Options:
     """How ORB-SLAM3 runs.
 
     vocabulary: DBoW2 text file. pace_s: wall-clock seconds between fed frames (0 = as fast as possible, None = the
-    recording's own timestamps, i.e. real time). loop_closing: the loop-closing thread (also relocalisation).
+    recording's own timestamps, i.e. real time). lockstep: each frame fed once ORB-SLAM3's local mapping and loop
+    closing threads are idle (:mod:`.quiescence`; ``pace_s`` is then not used). loop_closing: the loop-closing
+    thread (also relocalisation).
     timeout_s: the child is killed after this long.
     """
 
     vocabulary: str
     pace_s: float | None = None
+    lockstep: bool = False
     loop_closing: bool = True
     th_depth: float = 35.0
     timeout_s: float = 3600.0

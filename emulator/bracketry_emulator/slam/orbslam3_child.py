@@ -2,9 +2,10 @@
 
 Reads the run's pairs (a run folder's PNGs, or the closed loop's images through the FIFO ``frames_fifo``, see
 :mod:`.frame_stream`), rectifies them as the built-in VO does (same row correction), feeds ORB-SLAM3 at the requested
-pace (or, ``backend: builtin``, tracks them with the built-in VO), and writes ``frames.csv``,
-``CameraTrajectory<n>.txt``, ``settings.yaml`` and, last, ``slam.json`` (its presence tells the parent the run
-finished). Exit code 0 on success, 1 with a one-line message otherwise.
+pace or in lockstep (each frame once ORB-SLAM3's own threads are idle, :mod:`.quiescence`) (or, ``backend: builtin``,
+tracks them with the built-in VO), and writes ``frames.csv``, ``CameraTrajectory<n>.txt``, ``settings.yaml`` and,
+last, ``slam.json`` (its presence tells the parent the run finished). Exit code 0 on success, 1 with a one-line
+message otherwise.
 """
 
 from __future__ import annotations
@@ -101,6 +102,11 @@ def _track(request: dict) -> dict:
 
     import pyorbslam3
 
+    from bracketry_emulator.slam.quiescence import LockstepStats, thread_ids, wait_idle
+
+    own_threads = thread_ids()  # ours (and the frame reader's): every thread born after them is ORB-SLAM3's
+    lockstep = bool(opts.get("lockstep"))
+    waits = LockstepStats()
     t_load = time.perf_counter()
     slam = pyorbslam3.Slam(opts["vocabulary"], str(settings_file), pyorbslam3.Sensor.STEREO)
     load_s = time.perf_counter() - t_load
@@ -126,12 +132,15 @@ def _track(request: dict) -> dict:
         xy = extractor.detect_xy(gl, mask)  # our keypoints at the paper's settings: count and coverage only
         kp.append(len(xy))
         cov.append(grid_coverage(xy, gl.shape[1], gl.shape[0], 20))
-        due = t_start + ((t_ns - times_ns[0]) * 1e-9 if pace is None else k * float(pace))
-        wait = due - time.perf_counter()
-        if wait > 0:
-            time.sleep(wait)
+        if lockstep:  # each frame meets the map its predecessors left: ORB-SLAM3's own threads idle
+            wait_idle(own_threads, waits)
         else:
-            late_s = max(late_s, -wait)
+            due = t_start + ((t_ns - times_ns[0]) * 1e-9 if pace is None else k * float(pace))
+            wait = due - time.perf_counter()
+            if wait > 0:
+                time.sleep(wait)
+            else:
+                late_s = max(late_s, -wait)
         t0 = time.perf_counter()
         res = slam.track_stereo(np.ascontiguousarray(gl), np.ascontiguousarray(gr), t_ns * 1e-9)
         track_s.append(time.perf_counter() - t0)
@@ -152,12 +161,15 @@ def _track(request: dict) -> dict:
         write_tum(out / f"CameraTrajectory{seg}.txt", [times_ns[i] * 1e-9 for i in idx],
                   [p for p in (poses[i] for i in idx) if p is not None])
     summary = {"backend": "orbslam3", "pyorbslam3": _version(), "vocabulary": opts["vocabulary"],
-               "pace_s": pace, "loop_closing": opts["loop_closing"], "settings": str(settings_file),
+               "pace_s": pace, "lockstep": lockstep, "loop_closing": opts["loop_closing"],
+               "settings": str(settings_file),
                "fps_settings": max(1, round(fps)), "n_frames": len(times_ns), "vocabulary_load_s": load_s,
                "track_s_median": float(np.median(track_s)) if track_s else float("nan"),
                "track_s_mean": float(np.mean(track_s)) if track_s else float("nan"),
                "raw_states": {s: raw_states.count(s) for s in sorted(set(raw_states))},
-               "max_late_s": late_s, "source": "stream" if request.get("frames_fifo") else "png"}
+               "max_late_s": late_s,
+               **({"lockstep_wait_s": waits.wait_s, "lockstep_timeouts": waits.timeouts} if lockstep else {}),
+               "source": "stream" if request.get("frames_fifo") else "png"}
     return summary
 
 

@@ -15,6 +15,21 @@ What ORB-SLAM3's ``Settings`` parser demands, learnt the hard way:
   side (960x600 keeps the paper's 13 levels; 320x240 gets 8);
 * ``loopClosing: 0`` turns the loop-closing thread off, and with it relocalisation (keyframes reach the
   place-recognition database only through that thread).
+
+The ORB extractor is the paper's by default; :data:`ORB_SIZING` ``field`` sizes it for what the paper's setup sees
+(:func:`field_orb_settings`). The
+authors ran ORB-SLAM2 on 1920x1200 images with 3000 features, scale factor 1.2, 13 levels, FAST 15/5
+(norlab-ulaval/ORB_SLAM2, branch TFR2024, ``Main/stereo/calib_files/stereo-september-2023.yaml``). Its extractor
+spreads the 3000 over the levels geometrically (level l gets a share proportional to 1.2^-l), so each level is one
+angular scale of the scene. Our 640x400 and 320x200 images resolve only the paper's levels from log_1.2(1920 / W)
+on (6.0 and 9.8): :func:`field_orb_settings` keeps the features the paper spent at those scales (794 at 640 px,
+242 at 320 px, 1345 at 960 px) instead of its 3000 on a far smaller image (9 to 36 times its density per pixel) or
+its density per pixel (83 at 320x200). Floor: :data:`MIN_FIELD_FEATURES` = 750, 1.5 x the 500 keypoints a frame
+needs for ORB-SLAM's stereo initialisation (``Tracking::StereoInitialization``), so that an ordinary view whose
+extractor fills two thirds of its budget still initialises. Scale factor 1.2 and FAST 15/5 are the paper's (a
+per-level step and thresholds in 8-bit levels, neither depends on the image size); the levels run as far as the
+pyramid keeps :data:`MIN_TOP_LEVEL_PX` px on the short side (11 at 640x400, 7 at 320x200), near the paper's
+coarsest level (135 of 1200 px, 11 % of the short side; ours 16 % and 34 %).
 """
 
 from __future__ import annotations
@@ -27,6 +42,14 @@ from bracketry_emulator.features.orb import OrbSettings
 
 #: smallest short side (px) of ORB-SLAM3's coarsest pyramid level that we let it use
 MIN_TOP_LEVEL_PX = 64
+#: how ORB-SLAM3's extractor is sized: "field" (the paper's features at the scales our image resolves,
+#: :func:`field_orb_settings`) or "paper" (its 3000 features and 13 levels whatever the image size)
+ORB_SIZING = "paper"
+#: the paper's image width (px) and ORB extractor (ORB-SLAM2 on 1920x1200)
+PAPER_WIDTH_PX = 1920
+PAPER_ORB = OrbSettings(n_features=3000, scale_factor=1.2, n_levels=13, ini_th_fast=15, min_th_fast=5)
+#: fewest features of the field sizing: 1.5 x the 500 keypoints of ORB-SLAM's stereo initialisation
+MIN_FIELD_FEATURES = 750
 
 
 def pyramid_levels(width_px: int, height_px: int, levels: int, scale: float) -> int:
@@ -36,6 +59,29 @@ def pyramid_levels(width_px: int, height_px: int, levels: int, scale: float) -> 
     while n < levels and short / scale ** n >= MIN_TOP_LEVEL_PX:
         n += 1
     return n
+
+
+def field_orb_settings(width_px: int, height_px: int, paper: OrbSettings = PAPER_ORB,
+                       paper_width_px: int = PAPER_WIDTH_PX) -> OrbSettings:
+    """The ORB extractor for a ``width_px`` x ``height_px`` image (module docstring): the paper's features at the
+    scales the image resolves, at least :data:`MIN_FIELD_FEATURES` (never more than the paper's); its scale factor
+    and FAST thresholds; levels capped by :func:`pyramid_levels`."""
+    r = 1.0 / paper.scale_factor
+    first_level = max(0.0, np.log(paper_width_px / width_px) / np.log(paper.scale_factor))
+    share = (r ** first_level - r ** paper.n_levels) / (1.0 - r ** paper.n_levels)
+    n = int(min(paper.n_features, max(MIN_FIELD_FEATURES, round(paper.n_features * share))))
+    levels = pyramid_levels(width_px, height_px, paper.n_levels, paper.scale_factor)
+    return OrbSettings(n_features=n, scale_factor=paper.scale_factor, n_levels=levels,
+                       ini_th_fast=paper.ini_th_fast, min_th_fast=paper.min_th_fast)
+
+
+def slam_orb_settings(width_px: int, height_px: int, sizing: str = ORB_SIZING) -> OrbSettings:
+    """ORB-SLAM3's extractor for this image size under ``sizing`` (:data:`ORB_SIZING`)."""
+    if sizing == "paper":
+        return PAPER_ORB
+    if sizing == "field":
+        return field_orb_settings(width_px, height_px)
+    raise ValueError(f"unknown ORB sizing {sizing!r} (field or paper)")
 
 
 @dataclass(frozen=True)
@@ -68,9 +114,9 @@ def settings_yaml(cam: OrbSlamCamera, fps: float, loop_closing: bool = True, th_
     """The settings file text for ORB-SLAM3 stereo on images of ``cam``.
 
     ``fps``: the bracket-cycle rate (frames per second of one camera's stream at the emulated exposure).
-    ``orb``: the ORB extractor (default: the paper's 3000 features, scale 1.2, 13 levels, FAST 15/5).
+    ``orb``: the ORB extractor (default: :func:`slam_orb_settings` of the image size).
     """
-    o = orb or OrbSettings()
+    o = orb or slam_orb_settings(cam.width_px, cam.height_px)
     n_levels = pyramid_levels(cam.width_px, cam.height_px, o.n_levels, o.scale_factor)
     T = np.eye(4)
     T[0, 3] = cam.baseline_m

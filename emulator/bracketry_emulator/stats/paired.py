@@ -88,10 +88,14 @@ def rank_biserial(x: np.ndarray, y: np.ndarray) -> float:
 
 
 def wilcoxon_to_reference(values: dict[str, dict[str, float]], reference: str, higher_is_better: bool,
-                          alpha: float = 0.05, n_tests: int | None = None) -> dict[str, PairedComparison]:
+                          alpha: float = 0.05, n_tests: int | None = None, method: str = "auto"
+                          ) -> dict[str, PairedComparison]:
     """Wilcoxon signed-rank of every method against ``reference`` (see the module text).
 
-    ``n_tests``: the Bonferroni count (default: the number of compared methods).
+    ``n_tests``: the Bonferroni count (default: the number of compared methods). ``method``: scipy's p-value method
+    (``auto``: exact without ties, a permutation test with ties on small samples, about a second a call;
+    ``approx``: the normal approximation with the tie correction, for the many calls of a bootstrap,
+    :mod:`.stability`).
     """
     if reference not in values:
         raise KeyError(f"reference method {reference!r} has no values")
@@ -110,7 +114,7 @@ def wilcoxon_to_reference(values: dict[str, dict[str, float]], reference: str, h
         if not np.any(diff != 0):
             out[m] = PairedComparison(m, len(x), med, 1.0, float("nan"), alpha_c, EQUAL)
             continue
-        p = float(wilcoxon(diff, alternative="two-sided").pvalue)
+        p = float(wilcoxon(diff, alternative="two-sided", method=method).pvalue)
         r = rank_biserial(diff, np.zeros_like(diff))
         if p >= alpha_c:
             verdict = EQUAL

@@ -246,7 +246,9 @@ def manifest_doc(size: str, seed: int) -> dict:
 
 
 def _link_tree(src: Path, dst: Path) -> None:
-    """Hard-link (or copy, across file systems) every file of ``src`` into ``dst``."""
+    """Copy every file of ``src`` (the cache) into ``dst``: copies, never hard links, so writing into a suite folder
+    cannot change the cache nor any later suite made from it (``os.copy_file_range`` under ``shutil.copy2`` shares
+    extents where the file system can; a demo-size suite is about 140 MB)."""
     for root, _dirs, files in os.walk(src):
         rel = Path(root).relative_to(src)
         (dst / rel).mkdir(parents=True, exist_ok=True)
@@ -254,10 +256,7 @@ def _link_tree(src: Path, dst: Path) -> None:
             target = dst / rel / f
             if target.exists():
                 target.unlink()
-            try:
-                os.link(Path(root) / f, target)
-            except OSError:
-                shutil.copy2(Path(root) / f, target)
+            shutil.copy2(Path(root) / f, target)
 
 
 def make_suite(out: Path, size: str, seed: int = 0, overwrite: bool = False, use_cache: bool = True,

@@ -22,8 +22,15 @@ import numpy as np
 from bracketry.cameras.aravis_gi import CameraError, glib_error_message, load_aravis
 from bracketry.cameras.frame_ids import FrameIdUnwrapper
 from bracketry.cameras.pixels import PIXEL_FORMAT_NAMES, payload_to_image
-from bracketry.cameras.profiles import CameraSettings, ConfigReport, apply_writes, probe_features, profile_writes
-from bracketry.cameras.triggering import ExposureReadbacks
+from bracketry.cameras.profiles import (
+    CameraSettings,
+    ConfigReport,
+    apply_writes,
+    probe_features,
+    profile_kind,
+    profile_writes,
+)
+from bracketry.cameras.triggering import ExposureReadbacks, TriggerStamps
 from bracketry.errors import BracketryError
 from bracketry.ipv4 import unicast_ipv4
 
@@ -58,6 +65,9 @@ class Frame:
         counter_value: the CounterValue chunk (trigger counter), None without chunks.
         exposure_us_register: the exposure register read back at this frame's software trigger (set by the recording
             session once the frame is paired with its pulse, from ``GigECamera.exposure_readbacks``), None otherwise.
+        trigger_seq: the pulse its own trigger stamp shows (set by the recording session from
+            ``GigECamera.trigger_stamps`` for a camera that stamps frames with its trigger's receive time, see
+            ``bracketry.cameras.triggering``), None when unknown.
     """
 
     side: str
@@ -75,6 +85,7 @@ class Frame:
     exposure_us_reported: float | None = None
     counter_value: int | None = None
     exposure_us_register: float | None = None
+    trigger_seq: int | None = None
 
 
 @dataclass
@@ -148,6 +159,9 @@ class GigECamera:
         self._counter_names: tuple[str, ...] = ()
         #: exposure register read back at each software trigger, by trigger_seq (``SoftwareTrigger`` fills it)
         self.exposure_readbacks = ExposureReadbacks()
+        #: host time of each software trigger sent, by trigger_seq (``SoftwareTrigger`` fills it)
+        self.trigger_stamps = TriggerStamps()
+        self._first_stream = True  # no stream started on this connection yet (see ``start``)
 
     def _take_control(self, wait_s: float) -> None:
         """Hold the GigE Vision control privilege (writes and streaming need it), waiting up to ``wait_s`` seconds.
@@ -235,6 +249,20 @@ class GigECamera:
         """Fire one software trigger (TriggerSource Software)."""
         self._device.execute_command("TriggerSoftware")
 
+    def read_lost_triggers(self) -> int | None:
+        """Software triggers the camera lost so far (its profile's ``lost_triggers_register``, one GVCP read; poll at
+        ~1 Hz), None when its profile keeps no such count or the read failed."""
+        if self._settings is None:
+            return None
+        register = profile_kind(self._settings.profile).lost_triggers_register
+        if register is None:
+            return None
+        try:
+            return int(self._device.read_register(register))
+        except Exception as exc:
+            log.debug("camera %s: lost-trigger count unreadable: %s", self.side, glib_error_message(exc))
+            return None
+
     def read_temperature_c(self) -> float | None:
         """DeviceTemperature in °C, or None when the camera has none (poll at ~1 Hz, not per frame)."""
         if self._device.get_feature("DeviceTemperature") is None:
@@ -268,6 +296,7 @@ class GigECamera:
             self._stream.push_buffer(Aravis.Buffer.new_allocate(payload))
         self._unwrapper = FrameIdUnwrapper()
         self.exposure_readbacks.clear()  # a new stream's pulses are numbered from 0 again
+        self.trigger_stamps.clear()
         self._last_missing = 0
         self._stats = StreamStats()
         self._running.set()
@@ -276,6 +305,13 @@ class GigECamera:
                                         daemon=True)
         self._thread.start()
         try:
+            if self._first_stream:
+                # an acquisition a controller killed mid-recording left running keeps streaming to that controller's
+                # port: stopped first (once, on the first stream of this connection), the acquisition started now
+                # streams to the destination written above
+                self._first_stream = False
+                with contextlib.suppress(Exception):
+                    self._camera.stop_acquisition()
             self._camera.start_acquisition()
         except Exception as exc:
             self.stop()

@@ -18,6 +18,7 @@ any address works (127.0.0.1 in the host namespace too). Through the relay:
 - each frame is stamped with its trigger's time (kernel receive time of the TriggerSoftware write, host real time)
   and rendered with the exposure the camera had at the trigger, not at the fill (the fake fills at its next poll);
 - a trigger arriving before the previous one was filled is held until it was, so triggers never merge;
+- a trigger the fake never filled is counted (``relay.triggers_lost``, read by clients in ``REG_TRIGGERS_LOST``);
 - GVSP packet loss is decided per packet by ``fake_relay.packet_lost(seed, serial, block_id, packet_id, ratio)``
   (the fake's own ``gvsp-lost-ratio``, from GLib's global unseeded RNG, stays 0): same seed, same lost packets.
 
@@ -43,7 +44,7 @@ from typing import Any
 import numpy as np
 
 from bracketry.cameras.aravis_gi import CameraError, glib_error_message, load_aravis
-from bracketry.cameras.fake_relay import GVCP_PORT, FakeCameraRelay
+from bracketry.cameras.fake_relay import GVCP_PORT, REG_TRIGGER_MODE, REG_TRIGGER_SOURCE, FakeCameraRelay
 from bracketry.cameras.pixels import PIXEL_FORMAT_CODES
 
 ImageSource = Callable[[int, int, int], np.ndarray]
@@ -193,7 +194,18 @@ class FakeCameraServer:
 
     def _fill(self, buffer: int, _user: int, exposure_us: int, _gain: int, pixel_format: int) -> None:
         relay = self.relay
-        trigger = relay.take_trigger() if relay is not None else None
+        try:
+            self._fill_frame(relay, buffer, exposure_us, pixel_format)
+        finally:
+            if relay is not None:
+                relay.fill_done()
+
+    def _software_triggered(self) -> bool:
+        """The fake acquires in software-trigger mode (its frames are filled for triggers only)."""
+        return bool(self._read_register(REG_TRIGGER_MODE) == 1 and self._read_register(REG_TRIGGER_SOURCE) == 1)
+
+    def _fill_frame(self, relay: FakeCameraRelay | None, buffer: int, exposure_us: int, pixel_format: int) -> None:
+        trigger = relay.take_trigger(self._software_triggered()) if relay is not None else None
         lib = self._lib
         if trigger is not None:  # stamped and exposed at its trigger, not now
             exposure_us = trigger.exposure_us

@@ -20,6 +20,15 @@ What the relay adds to the fake's behaviour:
   new acquisition starts (the last trigger before an AcquisitionStop that came first) is dropped then, so it never
   holds the new acquisition's triggers (the camera would deliver nothing for ``trigger_expiry_s``: 2 s, the daemon's
   stall limit).
+- **Lost triggers counted.** A trigger forwarded to the fake waits for the fill in progress, however long it lasts
+  (its expiry counts only from the end of that fill, ``fill_done``): a fill lasting seconds (a starved host, frames
+  not yet rendered) neither expires the trigger behind it nor lets the next one merge with it. A trigger the fake
+  never fills (expired, or dropped when a new acquisition starts) is counted in ``triggers_lost`` (a fill no trigger
+  of the relay's was waiting for, whose frame carries the fake's own stamp, in ``fills_untriggered``); a client reads
+  ``triggers_lost`` in the
+  camera's register ``REG_TRIGGERS_LOST`` (the relay answers it; the ``aravis_fake`` profile names it), so a lost
+  software trigger reaches the recording as its own kind (``RigStatus.lost_triggers_*``, ``bracketry verify``),
+  never as a silent drop.
 - **Seeded packet loss.** When a loss ratio is set (> 0 when the client writes the stream destination), the client's
   stream destination writes (SCDA 0x0D18, SCP 0x0D00 port bits) are rewritten so the fake streams to the relay
   (read-backs show the client's values); the relay forwards each GVSP packet to the client unless
@@ -47,6 +56,9 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from bracketry.cameras.profiles import FAKE_LOST_TRIGGERS_REGISTER
+from bracketry.cameras.triggering import PRIMING_EXPOSURE_US
+
 log = logging.getLogger(__name__)
 
 GVCP_PORT = 3956
@@ -56,6 +68,10 @@ REG_SCP, REG_SCDA = 0x0D00, 0x0D18
 #: the Aravis fake camera's registers (arvfakecamera.h; the same addresses in its GenICam XML)
 REG_EXPOSURE_US, REG_ACQUISITION, REG_TRIGGER_MODE, REG_TRIGGER_SOURCE, REG_TRIGGER_SOFTWARE = (
     0x120, 0x124, 0x300, 0x304, 0x30C)
+#: the relay's own register: software triggers the fake camera lost (``FakeCameraRelay.triggers_lost``), read-only. In
+#: the fake's memory (0x10000 bytes, arvfakecamera.h) but named by none of its features, so a read reaches the fake and
+#: the relay puts its count into the answer.
+REG_TRIGGERS_LOST = FAKE_LOST_TRIGGERS_REGISTER
 _SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)  # Linux; not exported by every Python build
 _MAX_CLIENTS = 32
 
@@ -98,11 +114,15 @@ class FakeCameraRelay:
         fake_gvcp: where the fake's GVCP socket now listens (address, port).
         read_register: reads one of the fake's registers (its ``read_register``), thread-safe.
         serial, seed, lost_ratio: the packet-loss rule (``packet_lost``).
-        trigger_expiry_s: a forwarded trigger not filled after this long is dropped (the fake rejected it).
+        trigger_expiry_s: a forwarded trigger the fake, not filling, left unfilled this long is dropped and counted
+            lost (the fake rejected it).
+        clock_s: the relay's monotonic clock in seconds (tests inject one).
     """
 
     def __init__(self, address: str, fake_gvcp: tuple[str, int], read_register: Callable[[int], int], *,
-                 serial: str, seed: int, lost_ratio: float = 0.0, trigger_expiry_s: float = 2.0) -> None:
+                 serial: str, seed: int, lost_ratio: float = 0.0, trigger_expiry_s: float = 2.0,
+                 clock_s: Callable[[], float] = time.monotonic) -> None:
+        self._clock_s = clock_s
         self.address = address
         self.fake_gvcp = fake_gvcp
         self.read_register = read_register
@@ -116,8 +136,12 @@ class FakeCameraRelay:
         self.triggers_expired = 0
         #: triggers still unfilled when the next acquisition started, dropped then (module docstring)
         self.triggers_dropped_at_start = 0
+        #: fills of an acquisition in software-trigger mode that found no trigger of the relay's waiting
+        self.fills_untriggered = 0
         self._lock = threading.Lock()
         self._outstanding: _Forwarded | None = None  # forwarded to the fake, not filled yet (at most one)
+        self._filling = False  # a fill is in progress (between take_trigger and fill_done)
+        self._lost = 0  # see triggers_lost
         self._held: deque[tuple[socket.socket, bytes, Trigger]] = deque()
         self._recent_triggers: deque[tuple[tuple[str, int], int]] = deque(maxlen=64)  # (client, req_id)
         self._reads: dict[tuple[tuple[str, int], int], list[int]] = {}  # pending READREG: addresses
@@ -176,19 +200,47 @@ class FakeCameraRelay:
         assert self._gvsp is not None
         return int(self._gvsp.getsockname()[1])
 
+    @property
+    def triggers_lost(self) -> int:
+        """Software triggers of pulses the fake never filled (expired, or dropped at a new acquisition); the priming
+        trigger (``PRIMING_EXPOSURE_US``, fired only to absorb the fake's loss of the first trigger of an
+        acquisition) is not counted."""
+        with self._lock:
+            return self._lost
+
+    def _lose(self, fwd: _Forwarded) -> None:  # lock held
+        if fwd.trigger.exposure_us != PRIMING_EXPOSURE_US:
+            self._lost += 1
+
     # ------------------------------------------------------------------------------------------------ the fill side
-    def take_trigger(self) -> Trigger | None:
-        """Called by the fake's fill (its thread): the trigger this frame is for (None: a frame not triggered through
-        the relay). Forwards the next held trigger, if any."""
+    def take_trigger(self, software_triggered: bool = False) -> Trigger | None:
+        """Called by the fake's fill (its thread) as it starts: the trigger this frame is for (None: a frame not
+        triggered through the relay; counted lost when ``software_triggered``, the fake acquiring in software-trigger
+        mode). Forwards the next held trigger, if any; it waits for :meth:`fill_done` before it can expire."""
         with self._lock:
             fwd, self._outstanding = self._outstanding, None
+            self._filling = True
+            if fwd is None and software_triggered:
+                self.fills_untriggered += 1
+                log.warning("fake camera %s: a frame filled for no trigger of the relay's (a lost trigger)",
+                            self.serial)
             self._release_held()
         return fwd.trigger if fwd is not None else None
+
+    def fill_done(self) -> None:
+        """Called by the fake's fill as it ends: a trigger forwarded during the fill waited for it, its expiry counts
+        from now."""
+        with self._lock:
+            self._filling = False
+            if self._outstanding is not None:
+                self._outstanding = _Forwarded(self._outstanding.trigger, self._clock_s())
+        with contextlib.suppress(OSError):
+            self._wake_w.send(b"f")  # the loop's expiry timeout starts over
 
     def _release_held(self) -> None:  # lock held
         if self._held and self._outstanding is None:
             upstream, packet, trigger = self._held.popleft()
-            self._outstanding = _Forwarded(trigger, time.monotonic())
+            self._outstanding = _Forwarded(trigger, self._clock_s())
             with contextlib.suppress(OSError):
                 upstream.send(packet)
 
@@ -197,8 +249,8 @@ class FakeCameraRelay:
         while not self._stopping:
             timeout = None
             with self._lock:
-                if self._outstanding is not None:
-                    timeout = max(0.0, self._outstanding.at_s + self.trigger_expiry_s - time.monotonic())
+                if self._outstanding is not None and not self._filling:
+                    timeout = max(0.0, self._outstanding.at_s + self.trigger_expiry_s - self._clock_s())
             for key, _ in self._sel.select(timeout):
                 if key.data is None:
                     with contextlib.suppress(OSError):
@@ -208,12 +260,22 @@ class FakeCameraRelay:
                     key.data(key.fileobj)
                 except OSError as exc:  # e.g. ECONNREFUSED from the fake's port while it stops
                     log.debug("fake relay %s: %s", self.serial, exc)
-            with self._lock:
-                fwd = self._outstanding
-                if fwd is not None and time.monotonic() - fwd.at_s > self.trigger_expiry_s:
-                    self.triggers_expired += 1
-                    self._outstanding = None
-                    self._release_held()
+            self.expire(self._clock_s())
+
+    def expire(self, now_s: float) -> bool:
+        """Drop the forwarded trigger if the fake, not filling, left it unfilled for ``trigger_expiry_s`` up to
+        ``now_s`` (the relay's clock): it is lost (counted), the next held one is forwarded. True when dropped."""
+        with self._lock:
+            fwd = self._outstanding
+            if fwd is None or self._filling or now_s - fwd.at_s <= self.trigger_expiry_s:
+                return False
+            self.triggers_expired += 1
+            self._lose(fwd)
+            log.warning("fake camera %s: trigger of %d ns not filled within %.1f s: lost", self.serial,
+                        fwd.trigger.t_ns, self.trigger_expiry_s)
+            self._outstanding = None
+            self._release_held()
+            return True
 
     def _upstream_for(self, client: tuple[str, int]) -> socket.socket:
         up = self._upstream.pop(client, None)
@@ -279,6 +341,7 @@ class FakeCameraRelay:
         with self._lock:
             if self._outstanding is not None:
                 self.triggers_dropped_at_start += 1
+                self._lose(self._outstanding)
                 self._outstanding = None
                 self._release_held()
 
@@ -307,7 +370,7 @@ class FakeCameraRelay:
         trigger = Trigger(t_ns, int(self.read_register(REG_EXPOSURE_US)))
         with self._lock:
             if self._outstanding is None:
-                self._outstanding = _Forwarded(trigger, time.monotonic())
+                self._outstanding = _Forwarded(trigger, self._clock_s())
                 return False
             self._held.append((up, packet, trigger))
             self.triggers_held += 1
@@ -333,7 +396,9 @@ class FakeCameraRelay:
         for i, addr in enumerate(addresses):
             if 8 + 4 * i + 4 > len(out):
                 break
-            if addr == REG_SCDA and self._client_scda is not None:
+            if addr == REG_TRIGGERS_LOST:
+                struct.pack_into(">I", out, 8 + 4 * i, self.triggers_lost & 0xFFFF_FFFF)
+            elif addr == REG_SCDA and self._client_scda is not None:
                 out[8 + 4 * i:12 + 4 * i] = self._client_scda
             elif addr == REG_SCP and self._client_scp is not None:
                 value = struct.unpack_from(">I", out, 8 + 4 * i)[0]

@@ -61,16 +61,23 @@ class ProfileKind:
 
     ``trigger``: ``line`` (the trigger device's pulse reaches a GPIO line) or ``software`` (no trigger line: the host
     fires TriggerSoftware at each TRIGGER event, see ``bracketry.cameras.triggering``); ``transport``: whether the
-    rig config's packet size and delay apply (the fake camera serves on loopback at its own packet size).
+    rig config's packet size and delay apply (the fake camera serves on loopback at its own packet size);
+    ``lost_triggers_register``: the register holding how many software triggers the camera lost (None: it keeps no
+    such count; the fake camera's relay does, ``bracketry.cameras.fake_relay.REG_TRIGGERS_LOST``).
     """
 
     trigger: str
     transport: bool
+    lost_triggers_register: int | None = None
 
+
+#: ``bracketry.cameras.fake_relay.REG_TRIGGERS_LOST`` (the fake camera's relay answers it)
+FAKE_LOST_TRIGGERS_REGISTER = 0xFF00
 
 PROFILE_KINDS: dict[str, ProfileKind] = {
     "basler_ace2": ProfileKind(trigger="line", transport=True),
-    "aravis_fake": ProfileKind(trigger="software", transport=False),
+    "aravis_fake": ProfileKind(trigger="software", transport=False,
+                               lost_triggers_register=FAKE_LOST_TRIGGERS_REGISTER),
 }
 
 

@@ -14,17 +14,26 @@ trigger_seq). The recording session attaches it to that camera's frame of that p
 when the camera sent no ExposureTime chunk. Cameras on trigger lines are not read per pulse (their chunk is the
 read-back).
 
+Trigger stamps: :class:`SoftwareTrigger` also notes, per camera, the host time (``time.time_ns()``) right before each
+TriggerSoftware command went out and right after it was acknowledged, keyed by trigger_seq, into the camera's
+:class:`TriggerStamps` (``camera.trigger_stamps``). A camera that stamps its frame with the receive time of its
+trigger on the same clock (the Aravis fake behind its relay, ``bracketry.cameras.fake_relay``) thereby tells which
+pulse a frame is for: the k-th command went out after the (k-1)-th was acknowledged, so the stamps of consecutive
+triggers never overlap (:meth:`TriggerStamps.pulse_of`). The recording session sets ``Frame.trigger_seq`` from it
+and the pairer takes it as it is: a trigger the host fired late is still its own pulse's, never a missed pulse.
+
 Threads: ``fire`` runs on one thread at a time (the daemon's event pump, or a harness's loop); ``remove``,
 ``failed`` and ``frames_expected`` may be called from another thread.
 """
 
 from __future__ import annotations
 
+import bisect
 import logging
 import threading
 import time
 from collections import OrderedDict
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from typing import Protocol
 
 from bracketry.cameras.profiles import profile_kind
@@ -74,6 +83,75 @@ class ExposureReadbacks:
             return len(self._values)
 
 
+#: trigger_seq under which the priming trigger's stamps are kept (a frame stamped by it is for no pulse)
+PRIMING_SEQ = -1
+
+
+class TriggerStamps:
+    """One camera's software triggers as the host sent them: trigger_seq -> (``sent_ns``: host time right before the
+    TriggerSoftware command went out, ``acked_ns``: right after it was acknowledged, or None while it is not), the
+    latest ``keep``. Thread-safe: written on the trigger's thread, read on the pairing thread.
+
+    The commands go out one after the other (the next only once the previous one was acknowledged), so a camera's
+    receive time of trigger k lies in ``[sent_ns(k), acked_ns(k)]`` and those intervals do not overlap.
+    """
+
+    def __init__(self, keep: int = EXPOSURE_READBACKS_KEPT) -> None:
+        self.keep = keep
+        self._lock = threading.Lock()
+        self._sent: list[int] = []  # sent_ns, ascending
+        self._seqs: list[int] = []
+        self._acked: list[int | None] = []
+
+    def sent(self, trigger_seq: int, t_ns: int) -> None:
+        """The TriggerSoftware command of ``trigger_seq`` goes out now (host time ``t_ns``)."""
+        with self._lock:
+            if self._sent and t_ns < self._sent[-1]:  # the host clock stepped back: earlier stamps mean nothing now
+                self._sent, self._seqs, self._acked = [], [], []
+            self._sent.append(int(t_ns))
+            self._seqs.append(int(trigger_seq))
+            self._acked.append(None)
+            if len(self._sent) > 2 * self.keep:
+                del self._sent[:-self.keep], self._seqs[:-self.keep], self._acked[:-self.keep]
+
+    def acked(self, trigger_seq: int, t_ns: int) -> None:
+        """The command of ``trigger_seq`` returned (acknowledged, or failed) at host time ``t_ns``."""
+        with self._lock:
+            if self._seqs and self._seqs[-1] == trigger_seq:
+                self._acked[-1] = int(t_ns)
+
+    def pulse_of(self, stamp_ns: int) -> int | None:
+        """The trigger_seq of the trigger received at host time ``stamp_ns`` (a frame's stamp): the last one sent
+        at or before it, unless it was acknowledged before it (then no trigger of ours was received then: None);
+        None too before every stamp kept."""
+        with self._lock:
+            i = bisect.bisect_right(self._sent, stamp_ns) - 1
+            if i < 0:
+                return None
+            acked = self._acked[i]
+            if acked is not None and stamp_ns > acked:
+                return None
+            return self._seqs[i]
+
+    def clear(self) -> None:
+        """Forget every stamp (a new acquisition numbers its pulses from 0 again)."""
+        with self._lock:
+            self._sent, self._seqs, self._acked = [], [], []
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._sent)
+
+
+def frame_pulse(frame: object, stamps: TriggerStamps | None) -> int | None:
+    """The trigger_seq ``frame``'s own trigger stamp shows (``cam_timestamp_ns`` looked up in the camera's
+    ``stamps``), None when it shows none (no stamps, no timestamp, or a stamp outside every trigger's)."""
+    stamp_ns = int(getattr(frame, "cam_timestamp_ns", 0) or 0)
+    if stamps is None or stamp_ns <= 0:
+        return None
+    return stamps.pulse_of(stamp_ns)
+
+
 class TriggeredCamera(Protocol):
     """What a camera trigger adapter needs of a camera (``bracketry.cameras.camera.GigECamera``)."""
 
@@ -81,8 +159,8 @@ class TriggeredCamera(Protocol):
 
     def software_trigger(self) -> None: ...
 
-    # optional (``GigECamera`` has both; a camera without them is fired without read-back):
-    # ``read_exposure_us() -> float`` and ``exposure_readbacks: ExposureReadbacks``
+    # optional (``GigECamera`` has them; a camera without them is fired without read-back or stamps):
+    # ``read_exposure_us() -> float``, ``exposure_readbacks: ExposureReadbacks``, ``trigger_stamps: TriggerStamps``
 
 
 class CameraTrigger(Protocol):
@@ -154,13 +232,17 @@ class SoftwareTrigger:
     ``min_interval_s`` apart (a camera busy with the previous frame would ignore a closer one). After every camera's
     TriggerSoftware, each camera's exposure register is read back into its ``exposure_readbacks`` under the pulse's
     trigger_seq (after the triggers, so the read does not spread the cameras' exposure starts; a failed read is
-    logged and leaves no value).
+    logged and leaves no value). Each TriggerSoftware command is stamped into the camera's ``trigger_stamps``
+    (module doc); ``clock_ns`` is the host clock of those stamps (``time.time_ns``, the clock the fake camera stamps
+    its frames with; tests inject one).
     """
 
     initial_alignment = "host_time"
 
     def __init__(self, cameras: Mapping[str, TriggeredCamera], *,
-                 min_interval_s: float = SOFTWARE_TRIGGER_MIN_INTERVAL_S) -> None:
+                 min_interval_s: float = SOFTWARE_TRIGGER_MIN_INTERVAL_S,
+                 clock_ns: Callable[[], int] | None = None) -> None:
+        self._clock_ns = clock_ns or (lambda: time.time_ns())
         self._lock = threading.Lock()
         self._cameras = dict(cameras)
         self._failed: set[str] = set()
@@ -178,9 +260,23 @@ class SoftwareTrigger:
             readbacks = getattr(cam, "exposure_readbacks", None)
             if readbacks is not None:
                 readbacks.clear()  # this acquisition's pulses are numbered from 0 again
+            stamps = _stamps(cam)
+            if stamps is not None:
+                stamps.clear()
             cam.set_exposure_us(exposure_us)
-            cam.software_trigger()
+            self._trigger_one(cam, PRIMING_SEQ)
         time.sleep(settle_s)
+
+    def _trigger_one(self, cam: TriggeredCamera, trigger_seq: int) -> None:
+        """One camera's TriggerSoftware, stamped (sent, acknowledged) into its ``trigger_stamps``."""
+        stamps = _stamps(cam)
+        if stamps is not None:
+            stamps.sent(trigger_seq, self._clock_ns())
+        try:
+            cam.software_trigger()
+        finally:
+            if stamps is not None:
+                stamps.acked(trigger_seq, self._clock_ns())
 
     def _live(self, sides: Iterable[str] | None = None) -> dict[str, TriggeredCamera]:
         wanted = None if sides is None else set(sides)
@@ -196,7 +292,7 @@ class SoftwareTrigger:
         cams = self._live(sides)
         for step in ("set_exposure_us", "software_trigger"):
             if step == "software_trigger":
-                self.fired_at_ns = time.time_ns()
+                self.fired_at_ns = self._clock_ns()
             for side, cam in cams.items():
                 if side in self._failed:
                     continue
@@ -204,7 +300,7 @@ class SoftwareTrigger:
                     if step == "set_exposure_us":
                         cam.set_exposure_us(event.exposure_us)
                     else:
-                        cam.software_trigger()
+                        self._trigger_one(cam, event.trigger_seq)
                 except Exception as exc:
                     with self._lock:
                         self._failed.add(side)
@@ -239,6 +335,11 @@ class SoftwareTrigger:
     def frames_expected(self) -> int:
         with self._lock:
             return self._fired
+
+
+def _stamps(cam: object) -> TriggerStamps | None:
+    stamps = getattr(cam, "trigger_stamps", None)
+    return stamps if isinstance(stamps, TriggerStamps) else None
 
 
 def camera_trigger(cameras: Mapping[str, TriggeredCamera], profiles: Mapping[str, str]) -> CameraTrigger:

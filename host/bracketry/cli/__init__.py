@@ -52,10 +52,6 @@ COMMANDS: dict[str, tuple[str, str, str, str | None]] = {
 }
 
 
-#: old spellings that still run but are not listed in ``--help`` (the command they stand for is)
-HIDDEN: frozenset[str] = frozenset({"calibrate-crf"})
-
-
 def _available(module: str) -> bool:
     try:
         return importlib.util.find_spec(module) is not None
@@ -63,11 +59,15 @@ def _available(module: str) -> bool:
         return False
 
 
+#: old names that still run but are not listed (``calibrate-crf`` is ``calibrate crf``)
+HIDDEN_ALIASES = frozenset({"calibrate-crf"})
+
+
 class LazyGroup(click.Group):
     """A click group whose subcommands are imported only when used."""
 
     def list_commands(self, ctx: click.Context) -> list[str]:
-        return [name for name, (mod, *_rest) in COMMANDS.items() if _available(mod)]
+        return [name for name, (mod, *_rest) in COMMANDS.items() if _available(mod) and name not in HIDDEN_ALIASES]
 
     def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
         entry = COMMANDS.get(cmd_name)
@@ -84,7 +84,7 @@ class LazyGroup(click.Group):
         return cmd
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
-        rows = [(name, COMMANDS[name][2]) for name in self.list_commands(ctx) if name not in HIDDEN]
+        rows = [(name, COMMANDS[name][2]) for name in self.list_commands(ctx)]
         if rows:
             with formatter.section("Commands"):
                 formatter.write_dl(rows)

@@ -35,7 +35,8 @@ def command(recording: Path, fmt: str, out: Path, workers: int, keep_unpaired: b
     record, like verify does.
 
     borealhdr: camera_left|camera_right/<exposure_ms>/<timestamp_ns>.png (16-bit raw Bayer codes), left and right
-    sharing their trigger's timestamp; a frame whose partner of the other camera was lost is not written unless
+    sharing their trigger's timestamp, and calibration/ when the recording carries a calibration (rig.calibration);
+    a frame whose partner of the other camera was lost is not written unless
     --keep-unpaired (the count is printed). rosbag1: a ROS 1 bag with the images, our metadata and the upstream
     /stereo/cameraN/metadata topic read by check_bag_bracketing.py.
     """
@@ -65,6 +66,9 @@ def command(recording: Path, fmt: str, out: Path, workers: int, keep_unpaired: b
             click.echo(f"exported {written} images to {dst}"
                        + (f"; {summary.skipped_no_event} frames without trigger event skipped"
                           if summary.skipped_no_event else ""))
+            click.echo(f"calibration: {summary.calibration} (the one the recording carries)" if summary.calibration
+                       else f"calibration: none (the recording carries none, so {dst} has no calibration/; set "
+                            "rig.calibration in the rig config, or add calibration/ from bracketry calibrate solve)")
             if summary.duplicates:
                 click.echo(f"warning: {summary.duplicates} frame(s) with the time and exposure of a frame already "
                            "exported (a camera delivered two frames for one trigger): the first kept", err=True)

@@ -103,7 +103,7 @@ MAX_DURATION_S = 7 * 24 * 3600.0
 
 
 class Duration(click.ParamType):
-    """Seconds: ``30``, ``2.5``, ``30s``, ``2m``, ``1h`` or ``1m30s`` -> float seconds, > 0 (and >= ``min_s``) and
+    """Seconds: ``30``, ``2.5``, ``30s``, ``2m``, ``1h`` or ``1m30s`` -> float seconds, > 0, >= ``min_s`` and
     <= ``max_s``."""
 
     name = "duration"

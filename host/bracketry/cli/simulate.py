@@ -13,7 +13,7 @@ from typing import Any
 
 import click
 
-from bracketry.cli.options import SEED, Duration, Integer, Number, option, output_dir, overwrite_option
+from bracketry.cli.options import SEED, Duration, Integer, Number, input_dir, option, output_dir, overwrite_option
 from bracketry.errors import BracketryError
 from bracketry.sim.clock import MONOTONIC, Clock
 
@@ -50,13 +50,21 @@ def parse_resolution(text: str) -> tuple[int, int]:
               help="Seconds of distinct world frames (later frames repeat them) [default: --duration-s + 5].")
 @click.option("--keep-frames", is_flag=True,
               help="Keep the rendered frames in OUT/dev/frames (default: in memory, removed at the end).")
+@click.option("--calibration", type=input_dir(), default=None,
+              help="Stereo calibration folder (bracketry calibrate solve --out) the rig config names "
+                   "(rig.calibration): every recording carries it and export writes it as calibration/.")
 def command(seconds: float, out_dir: Path, overwrite: bool, trigger: str, resolution: str, fps: float, preset: str,
             seed: int, no_world: bool, monitor_port: int | None, world_seconds: float | None,
-            keep_frames: bool) -> int:
+            keep_frames: bool, calibration: Path | None) -> int:
     """Run the simulated backpack: fake GigE cameras, trigger, panel firmware and the daemon under test."""
     if seconds < 1.0:
         raise BracketryError("--duration-s must be at least 1 s")
     res = parse_resolution(resolution)
+    if calibration is not None:
+        from bracketry.recording.calibration import read_calibration
+
+        read_calibration(calibration)  # not a calibration: one line before anything starts
+        calibration = calibration.resolve()
     from bracketry.sim.rig import in_private_netns, reexec_in_netns
 
     if not in_private_netns():
@@ -75,13 +83,14 @@ def command(seconds: float, out_dir: Path, overwrite: bool, trigger: str, resolu
                                     preset, "--seed", str(seed), *(["--no-world"] if no_world else []),
                                     *(["--monitor", str(monitor_port)] if monitor_port is not None else []),
                                     *(["--world-seconds", str(world_seconds)] if world_seconds else []),
-                                    *(["--keep-frames"] if keep_frames else [])])
+                                    *(["--keep-frames"] if keep_frames else []),
+                                    *(["--calibration", str(calibration)] if calibration else [])])
         finally:
             if bridge is not None:
                 bridge.terminate()
                 bridge.wait(timeout=10)
     return run(out_dir, seconds, trigger, res, fps, preset, seed, not no_world, monitor_port, world_seconds,
-               keep_frames)
+               keep_frames, calibration)
 
 
 def _end_with_sigterm(proc: subprocess.Popen) -> None:
@@ -177,7 +186,7 @@ def _read_frame_ids(rig: Any) -> None:
 
 def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: float, preset: str, seed: int,
         world: bool, monitor_port: int | None = None, world_seconds: float | None = None,
-        keep_frames: bool = False) -> int:
+        keep_frames: bool = False, calibration: Path | None = None) -> int:
     """The simulation inside the private network namespace."""
     import time
 
@@ -190,7 +199,7 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     started_ns, started_mono_s = time.time_ns(), time.monotonic()
     opts = SimOptions(out_dir=out_dir, resolution=res, fps=fps, world_seconds=world_seconds or seconds + 5.0,
                       trigger=trigger, preset=preset, seed=seed, world=world, keep_frames=keep_frames,
-                      echo=lambda s: click.echo(s, err=True), monitor_port=monitor_port)
+                      echo=lambda s: click.echo(s, err=True), monitor_port=monitor_port, calibration=calibration)
     rig = SimulatedRig(opts)
     render_done_ns = None
     render_progress = None

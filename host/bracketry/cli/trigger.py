@@ -87,7 +87,8 @@ duration_option = option("--duration-s", "duration_s", aliases=("--duration",), 
 @duration_option
 def simulate(link_path: Path, drift_ppm: float, pulse_jitter_us: float, reply_jitter_us: float, drop_prob: float,
              seed: int, reboot_every_s: float | None, duration_s: float | None) -> int:
-    """Run the behavioural trigger simulator on a pty linked at --link."""
+    """Run the behavioural trigger simulator on a pty linked at --link (SIGUSR1: 256 bytes of seeded line noise on
+    the wire, a serial-garbage fault)."""
     from bracketry.trigger.simulator import SimConfig, simulate_on_pty
 
     check_output(link_path, "file", what="--link")
@@ -98,6 +99,7 @@ def simulate(link_path: Path, drift_ppm: float, pulse_jitter_us: float, reply_ji
     except (OSError, FileExistsError) as exc:
         raise BracketryError(f"cannot create the simulated port at {link_path}: {exc}") from None
     click.echo(f"trigger simulator running: connect to {path}", err=False)
+    signal.signal(signal.SIGUSR1, lambda _signum, _frame: sim.send_garbage())
     try:
         if reboot_every_s is not None and reboot_every_s > 0:
             deadline = None if duration_s is None else time.monotonic() + duration_s

@@ -163,6 +163,12 @@ class RigConfig:
                                    help="A new MCAP file starts after this many minutes or at split_size_mb, "
                                         "whichever first")
     status_socket: Path = setting(default=Path("/run/bracketry/status.sock"), help="The daemon's status socket")
+    calibration: Path | None = setting(
+        default=None, example="/data/bracketry/calibration/2026-06-01",
+        help="Stereo calibration folder (what `bracketry calibrate solve --out` writes: left.yaml, right.yaml, ...), "
+             "a path relative to this file's folder or absolute; read when a recording starts and carried by each "
+             "of its files, so `bracketry export --format borealhdr` writes it as the tree's calibration/ (none: "
+             "recordings carry no calibration)")
     source: Path | None = None
     monitor: MonitorConfig | None = table(
         default=None, help="The browser monitor (remove the table to turn it off). Anything but a loopback address "
@@ -227,12 +233,27 @@ def parse_config(data: dict[str, Any], source: str = "<config>") -> RigConfig:
         auto = {"bayer": all(f.startswith("Bayer") for f in formats),
                 **({"white_dn": 255} if all(f.endswith("8") for f in formats) else {})}
         monitor = MonitorConfig(**{**auto, **c.settings(data["monitor"], "monitor", MonitorConfig)})
+    if rig.get("calibration") is not None:
+        rig["calibration"] = _calibration_folder(c, rig["calibration"], source)
     config = RigConfig(**rig, cameras=tuple(sorted(cameras, key=lambda cam: SIDES.index(cam.side))),
                        trigger=trigger, panel=panel, monitor=monitor,
                        source=Path(source) if source != "<config>" else None)
     if config.stop_free_mb > config.min_free_mb:
         c.fail("rig.stop_free_mb", f"({config.stop_free_mb}) must not exceed rig.min_free_mb ({config.min_free_mb})")
     return config
+
+
+def _calibration_folder(c: Checker, folder: Path, source: str) -> Path:
+    """``rig.calibration`` resolved against the config file's folder, checked to hold a calibration."""
+    from bracketry.recording.calibration import read_calibration
+
+    if not folder.is_absolute() and source != "<config>":
+        folder = Path(source).parent / folder
+    try:
+        read_calibration(folder)
+    except BracketryError as exc:
+        c.fail("rig.calibration", str(exc))
+    return folder
 
 
 def load_config(path: str | Path) -> RigConfig:

@@ -42,6 +42,7 @@ from bracketry.daemon.sdnotify import Notifier
 from bracketry.daemon.segments import SegmentOptions, SegmentRecorder
 from bracketry.daemon.sensors import (
     Camera,
+    LoopWatch,
     OpenCamera,
     OpenTrigger,
     SensorSupervisor,
@@ -58,6 +59,9 @@ if TYPE_CHECKING:
     from bracketry.monitor.server import MonitorServer
 
 log = logging.getLogger("bracketry.daemon")
+
+#: the supervisor's step period (shorter when systemd's watchdog asks for it), seconds
+SUPERVISOR_PERIOD_S = 1.0
 
 
 @dataclass
@@ -101,6 +105,8 @@ class RigDaemon:
         self.segmenter = SegmentRecorder(current, self.state, self.sensors, self.pump, self._camera_trigger,
                                          SegmentOptions(o.calibration, o.metadata))
         self.view = RigView(current, self.state, self, o.status_socket, o.backoff_s)
+        #: gaps in the supervisor loop: the daemon's own starvation, told from a silent device
+        self.loop_watch = LoopWatch(SUPERVISOR_PERIOD_S)
 
     def _current_config(self) -> RigConfig:
         return self.config
@@ -265,9 +271,10 @@ class RigDaemon:
 
     # ------------------------------------------------------------------------------------------------ supervision
     def _supervise(self) -> None:
-        period_s = 1.0
+        period_s = SUPERVISOR_PERIOD_S
         if self.notifier.watchdog_interval_s:
             period_s = min(period_s, self.notifier.watchdog_interval_s)
+        self.loop_watch.period_s = period_s
         while not self._stop.wait(period_s):
             try:
                 self.supervise_once()
@@ -276,8 +283,12 @@ class RigDaemon:
             self.notifier.watchdog()
 
     def supervise_once(self, now_s: float | None = None) -> None:
-        """One supervisor step: disk and recorder, trigger, cameras, reconnection, panel."""
+        """One supervisor step: disk and recorder, trigger, cameras, reconnection, panel. A step long after the
+        previous one (the daemon itself starved, ``LoopWatch``) declares no device fault for the time it lost."""
         now = time.monotonic() if now_s is None else now_s
+        starved_s = self.loop_watch.step(now)
+        if starved_s > 0.0:
+            self.state.count("daemon_starved")
         free = free_mb(self.config.output_dir)
         self.state.set_free_disk_mb(free)
         with self._lock:
@@ -290,27 +301,28 @@ class RigDaemon:
                 log.error("recorder failed: %s", error)
                 self.stop_recording()
                 self.state.set_message("WRITE ERROR")
-            self._check_trigger()
-            self._check_cameras(now)
+            self._check_trigger(starved_s)
+            self._check_cameras(now, starved_s)
             self._reconnect()
             self.view.check_panel()
+        self.loop_watch.done(time.monotonic() if now_s is None else now_s)
 
-    def _check_trigger(self) -> None:
-        if self.sensors.check_trigger() is None:
+    def _check_trigger(self, starved_s: float) -> None:
+        if self.sensors.check_trigger(starved_s) is None:
             return
         self.segmenter.preview_stop()  # its trigger is gone: the previews start again when it is back
         if self.recording:
             self.segmenter.segment_stop()
             self.state.set_message("TRIGGER LOST")
 
-    def _check_cameras(self, now: float) -> None:
+    def _check_cameras(self, now: float, starved_s: float) -> None:
         """A camera of the open acquisition that stalled leaves it: the segment closes without it and a new one
         starts with what works (or the previews restart); idle cameras are checked over GVCP."""
         progress = self.segmenter.progress()
         if progress is None:
             self.sensors.check_idle_cameras(now)
             return
-        side = self.sensors.check_stalls(progress, now)
+        side = self.sensors.check_stalls(progress, now, starved_s)
         if side is None:
             return
         cam = self.sensors.camera_lost(side, "no frames")

@@ -33,8 +33,10 @@ from bracketry.daemon.config import RigConfig
 from bracketry.daemon.disk import free_mb
 from bracketry.daemon.sensors import Camera, Progress, TriggerDevice
 from bracketry.daemon.state import RigState, SensorState
+from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet
+from bracketry.recording.calibration import read_calibration
 from bracketry.recording.recorder import Recorder, RecorderConfig
 from bracketry.recording.session import DiscardSink, RecordingSession, SessionStartError
 
@@ -137,6 +139,7 @@ class SegmentRecorder:
         self.rec_name: str | None = None
         self.segment_index = 0
         self.segments: list[dict[str, Any]] = []  # summaries of the closed segments
+        self.calibration_files: dict[str, str] = {}  # the open recording's calibration (rig.calibration)
         self.preview_tap: Callable[[PairedSet], None] | None = None  # previews only with a tap (the monitor's hub)
         self.closing = False  # no preview session between the recording's end and the sensors' shutdown
         self._open: Acquisition | None = None
@@ -154,13 +157,13 @@ class SegmentRecorder:
         return self._open is not None
 
     def progress(self) -> Progress | None:
-        """Frames and pulses per camera of the open acquisition (None when none is open)."""
+        """Frames and pulses per camera of the open acquisition (None when none is open). Frames are counted as they
+        arrive from each camera (``RecordingSession.frames_received``), not once paired: a pairing thread behind on
+        a loaded host is not a silent camera."""
         o = self._open
         if o is None:
             return None
-        counters = o.session.pairer.counters
-        return Progress(o.session_id, {s: c.frames for s, c in counters.items()}, dict(o.pulses),
-                        o.camera_trigger.failed)
+        return Progress(o.session_id, o.session.received(), dict(o.pulses), o.camera_trigger.failed)
 
     def open_session(self) -> RecordingSession | None:
         o = self._open
@@ -195,6 +198,7 @@ class SegmentRecorder:
         cfg = self._config()
         cfg.output_dir.mkdir(parents=True, exist_ok=True)
         self.rec_name = time.strftime("rec_%Y%m%d_%H%M%S")
+        self.calibration_files = self._read_calibration(cfg)
         self.recording = True
         self.segment_index = 0
         self.state.set_recording(str(cfg.output_dir / self.rec_name))
@@ -202,6 +206,20 @@ class SegmentRecorder:
         if not started:
             self.state.set_message("REC WAITING")
         return started
+
+    @staticmethod
+    def _read_calibration(cfg: RigConfig) -> dict[str, str]:
+        """The files of ``rig.calibration`` every segment of the recording carries ({} without one; a folder that
+        became unreadable since the config was checked: logged, the recording goes on without it)."""
+        if cfg.calibration is None:
+            return {}
+        try:
+            files = read_calibration(cfg.calibration)
+        except BracketryError as exc:
+            log.error("recording without its calibration: %s", exc)
+            return {}
+        log.info("calibration %s attached to the recording", cfg.calibration)
+        return files
 
     @_locked
     def end(self) -> dict[str, Any] | None:
@@ -247,7 +265,8 @@ class SegmentRecorder:
         metadata = {"rig_brackets_us": ",".join(map(str, cfg.brackets_us)), "rig_period_us": str(cfg.period_us),
                     "segment": str(index), "sides": ",".join(rcfg.sides), **self.options.metadata}
         recorder = Recorder(seg_dir, f"{self.rec_name}_seg{index:02d}", rcfg, metadata=metadata,
-                            calibration=self.options.calibration).start()
+                            calibration=self.options.calibration,
+                            calibration_files=self.calibration_files).start()
         try:
             acquisition = self._start_session(cameras, recorder)
         except SessionStartError:

@@ -3,8 +3,10 @@
 It owns the open devices (the trigger client and the cameras, opened through the two ``open_*`` seams), one
 reconnection backoff per device, and the fault checks: a trigger that stopped answering or rebooted, an idle camera
 that no longer answers GVCP, a recording camera that stalled (:class:`StallWatch`, a pure state machine over the open
-acquisition's frame and pulse counts). It never touches a recording: it reports what it found, and the daemon
-(``bracketry.daemon.rig``) decides what happens to the open segment.
+acquisition's frame and pulse counts). The daemon's own starvation (:class:`LoopWatch`: gaps in its supervisor loop)
+is told from a silent device: the time the daemon was not run counts towards no device's fault. It never touches a
+recording: it reports what it found, and the daemon (``bracketry.daemon.rig``) decides what happens to the open
+segment.
 
 Threads: every method but the read-only properties runs under the daemon's action lock (buttons, the status socket,
 the monitor's actions and the 1 Hz supervisor thread); the supervisor's own lock guards its fields for readers
@@ -173,13 +175,57 @@ class Backoff:
 
 @dataclass(frozen=True)
 class Progress:
-    """Where the open acquisition stands: ``frames`` each camera delivered (paired), ``pulses`` meant for it,
+    """Where the open acquisition stands: ``frames`` each camera delivered (received), ``pulses`` meant for it,
     ``failed`` the cameras that failed a trigger."""
 
     session_id: int
     frames: Mapping[str, int]
     pulses: Mapping[str, int]
     failed: frozenset[str]
+
+
+#: a supervisor step that comes more than this many periods after the previous one shows the daemon itself starved
+STARVED_GAP_PERIODS = 2.0
+
+
+class LoopWatch:
+    """Gaps in the daemon's own supervisor loop (pure: the caller gives the time of each step).
+
+    The loop waits ``period_s`` after each step; a step that starts more than ``starved_periods`` periods after the
+    previous one ended shows that the daemon itself was starved (a loaded host did not run it), not that a device fell
+    silent: for that window the daemon saw nothing, so nothing seen missing in it is a device's fault (a step that
+    itself took long, e.g. restarting a segment, is the daemon at work, not starved). :meth:`step` returns the time
+    the daemon lost in the window (the gap less one period; 0.0 for a step on time), which the fault checks leave
+    out. ``starved_windows``, ``starved_s`` and ``longest_gap_s`` sum it up.
+    """
+
+    def __init__(self, period_s: float = 1.0, starved_periods: float = STARVED_GAP_PERIODS) -> None:
+        self.period_s, self.starved_periods = period_s, starved_periods
+        self._last_s: float | None = None  # end of the previous step
+        self.starved_windows = 0
+        self.starved_s = 0.0
+        self.longest_gap_s = 0.0
+
+    def done(self, now_s: float) -> None:
+        """The step that began with :meth:`step` ended at ``now_s``: the wait for the next one starts."""
+        self._last_s = now_s
+
+    def step(self, now_s: float) -> float:
+        """A supervisor step begins at ``now_s`` (monotonic seconds); returns the seconds the daemon was starved
+        since the previous step ended (0.0 when it came on time)."""
+        last, self._last_s = self._last_s, now_s
+        if last is None:
+            return 0.0
+        gap = now_s - last
+        self.longest_gap_s = max(self.longest_gap_s, gap)
+        if gap <= self.starved_periods * self.period_s:
+            return 0.0
+        lost = gap - self.period_s
+        self.starved_windows += 1
+        self.starved_s += lost
+        log.warning("daemon starved: supervisor step %.2f s after the previous one ended (period %.2f s): no device "
+                    "fault is declared for those %.2f s", gap, self.period_s, lost)
+        return lost
 
 
 class StallWatch:
@@ -195,11 +241,15 @@ class StallWatch:
         self._session_id: int | None = None
         self._marks: dict[str, tuple[float, int, int]] = {}  # side -> (t_s, frames, pulses) at its last new frame
 
-    def observe(self, progress: Progress, sides: Iterable[str], now_s: float) -> tuple[dict[str, float], str | None]:
+    def observe(self, progress: Progress, sides: Iterable[str], now_s: float,
+                starved_s: float = 0.0) -> tuple[dict[str, float], str | None]:
         """Frame rates (frames/s since the previous mark, for sides with one) and the first stalled side or None
-        (sides after it are not looked at)."""
+        (sides after it are not looked at). ``starved_s``: seconds since the previous call the daemon itself was
+        not run (``LoopWatch.step``): they do not count towards ``stall_s``."""
         if progress.session_id != self._session_id:
             self._session_id, self._marks = progress.session_id, {}
+        if starved_s > 0.0:
+            self._marks = {side: (t + starved_s, n, p) for side, (t, n, p) in self._marks.items()}
         fps: dict[str, float] = {}
         for side in sides:
             frames = progress.frames.get(side, 0)
@@ -381,8 +431,10 @@ class SensorSupervisor:
                 self._trigger.configure(period_us, brackets_us)
 
     # ------------------------------------------------------------------------------------------------ checks
-    def check_trigger(self) -> str | None:
-        """A trigger that stopped answering or rebooted goes ERR; returns why (None when it is fine or down)."""
+    def check_trigger(self, starved_s: float = 0.0) -> str | None:
+        """A trigger that stopped answering or rebooted goes ERR; returns why (None when it is fine or down). A
+        trigger silent while the daemon itself was starved (``starved_s`` > 0, see :class:`LoopWatch`) is looked at
+        again at the next step: its heartbeats may be waiting to be read."""
         with self._lock:
             device = self._trigger
             if device is None:
@@ -390,16 +442,21 @@ class SensorSupervisor:
             lost = device.peer_lost
             if not lost and device.reboots == self._trigger_reboots_seen:
                 return None
+            if lost and starved_s > 0.0 and device.reboots == self._trigger_reboots_seen:
+                log.warning("trigger: no heartbeat while the daemon was starved (%.2f s): checked again next step",
+                            starved_s)
+                return None
             why = "lost (no heartbeat)" if lost else "rebooted"
             log.error("trigger %s", why)
             self.trigger_down(SensorState.ERR, why)
             return why
 
-    def check_stalls(self, progress: Progress, now_s: float) -> str | None:
-        """Frame rates of the cameras in the open acquisition into the state; returns a stalled side or None."""
+    def check_stalls(self, progress: Progress, now_s: float, starved_s: float = 0.0) -> str | None:
+        """Frame rates of the cameras in the open acquisition into the state; returns a stalled side or None
+        (``starved_s``: see :meth:`StallWatch.observe`)."""
         with self._lock:
             sides = list(self._cameras)
-        fps, stalled = self.stalls.observe(progress, sides, now_s)
+        fps, stalled = self.stalls.observe(progress, sides, now_s, starved_s)
         for side, value in fps.items():
             self.state.set_fps(side, value)
         return stalled

@@ -56,8 +56,10 @@ class DemoPlan:
     drl_weights: str | None = None
     #: localisation: "orbslam3" (ORB-SLAM3 stereo) or "builtin" (the built-in VO)
     slam: str = "orbslam3"
-    #: ORB-SLAM3 feed: "realtime" (the recording's timestamps; the default of every command, declared once in
-    #: bracketry_emulator/option_table.py) or seconds between frames (0 = as fast as it tracks)
+    #: ORB-SLAM3 feed: "lockstep" (each frame once that run's mapping threads are idle, so its results do not move
+    #: with the load; the default of every command, declared once in bracketry_emulator/option_table.py; see
+    #: :mod:`bracketry_emulator.slam.quiescence`), seconds between frames (0 = as fast as it tracks) or "realtime"
+    #: (the recording's timestamps: it does not hold on a 2-core machine with seven runs at once)
     slam_pace: str | float = DEFAULT_SLAM_PACE
     #: the synthetic suite benchmarked with the recording: a size of ``bracketry synth suite`` ("demo"), or None
     suite: str | None = None

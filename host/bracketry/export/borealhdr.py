@@ -6,6 +6,10 @@
   left and right frames of one trigger;
 - pixels are the raw 12-bit Bayer codes, unshifted, in 16-bit single-channel PNGs (lossless).
 
+A recording that carries a stereo calibration (the rig config's ``calibration``; RECORDING.md) gets it as the
+tree's ``calibration/`` (``left.yaml``, ``right.yaml`` and the other files ``bracketry calibrate solve`` wrote, byte
+for byte); one without gets no ``calibration/``.
+
 Frames without pixels (incomplete) or without a TRIGGER event (unknown exposure) are not exported; they are counted.
 PNG encoding runs in a thread pool (the encoders release the GIL) with a progress bar. ``png_compression`` chooses the
 lossless encoding (:mod:`bracketry.png`, the choices of ``bracketry emulate --png-compression``): ``opencv``
@@ -27,9 +31,13 @@ import numpy as np
 from bracketry.errors import BracketryError
 from bracketry.png import PNG_COMPRESSIONS, write_png
 from bracketry.recording import topics as T
+from bracketry.recording.calibration import recorded_calibration, write_calibration
 from bracketry.recording.decode import decode, decode_image_msg
 from bracketry.recording.reader import RecordingReader
 from bracketry.recording.verify import recording_files
+
+#: the tree's calibration folder (emulator/DATASET.md), written from the calibration the recording carries
+CALIBRATION_FOLDER = "calibration"
 
 
 def exposure_folder(exposure_us: int) -> str:
@@ -48,6 +56,8 @@ class ExportSummary:
     #: frames for one trigger): the first is kept
     duplicates: int = 0
     out_dir: str = ""
+    #: the ``calibration/`` folder written from the calibration the recording carries (None: it carries none)
+    calibration: str | None = None
 
 
 def _write_png(path: Path, image: np.ndarray, compression: str) -> None:
@@ -82,14 +92,19 @@ def export_borealhdr(recording: str | Path, out_dir: str | Path, *, workers: int
     total = 0
     image_topics = {T.image_topic(s): s for s in T.SIDES}
     seen: dict[str, set[int]] = {s: set() for s in T.SIDES}
+    carried: dict[str, str] | None = None
     for path in files:
-        for msg in RecordingReader(path).messages({T.TRIGGER_TOPIC, *image_topics}):
+        reader = RecordingReader(path)
+        for msg in reader.messages({T.TRIGGER_TOPIC, *image_topics}):
             if msg.topic == T.TRIGGER_TOPIC:
                 ev = decode(msg.schema_name, msg.data)
                 exposures[int(ev.trigger_seq)] = int(ev.exposure_us)
             else:
                 seen[image_topics[msg.topic]].add(msg.sequence)
                 total += 1
+        carried = carried or recorded_calibration(reader.report.metadata)
+    if carried is not None:
+        summary.calibration = str(write_calibration(carried, out / CALIBRATION_FOLDER))
     stereo = all(seen[s] for s in T.SIDES)
     paired = set.intersection(*(seen[s] for s in T.SIDES)) if stereo else set()
     lock = threading.Lock()

@@ -21,7 +21,7 @@ from bracketry.recording import topics as T
 from bracketry.recording.decode import decode
 from bracketry.recording.msgdefs import MSGDEFS, OWN_MSG_TEXT
 from bracketry.recording.reader import RecordingReader
-from bracketry.recording.recorder import current_frame_meta
+from bracketry.recording.recorder import current_frame_meta, current_status
 from bracketry.recording.verify import recording_files
 
 UPSTREAM_METADATA_TYPE = "norlab_basler_camera_driver/msg/metadata_msg"
@@ -91,6 +91,7 @@ def _write_bag(tmp: Path, files: list[Path], store: Any, cdr_store: Any, counts:
 
         temperature_c = {"left": float("nan"), "right": float("nan")}  # latest /rig/status reading per camera
         encode_meta = serialize_dynamic(T.SCHEMA_FRAME_META, MSGDEFS[T.SCHEMA_FRAME_META])[T.SCHEMA_FRAME_META]
+        encode_status = serialize_dynamic(T.SCHEMA_STATUS, MSGDEFS[T.SCHEMA_STATUS])[T.SCHEMA_STATUS]
         for path in files:
             reader = RecordingReader(path)
             for raw in reader.messages():
@@ -100,6 +101,8 @@ def _write_bag(tmp: Path, files: list[Path], store: Any, cdr_store: Any, counts:
                     st = decode(raw.schema_name, data, stored)
                     for s in temperature_c:
                         temperature_c[s] = float(getattr(st, f"temperature_{s}_c", float("nan")))
+                    if stored is not None and stored != MSGDEFS[T.SCHEMA_STATUS]:
+                        data = encode_status(current_status(st))  # a recording made before the last fields
                 if raw.schema_name == T.SCHEMA_FRAME_META:
                     m = decode(raw.schema_name, data, stored)
                     if stored is not None and stored != MSGDEFS[T.SCHEMA_FRAME_META]:

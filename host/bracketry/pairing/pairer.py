@@ -20,6 +20,12 @@ learn it and re-sync a whole camera wrongly). A frame stamped before its pulse p
 (``confirm_frames`` of them move back); a camera whose frames come whole periods later than the other cameras'
 frames of the same pulses (twice ``confirm_frames`` in a row) missed a pulse. The smallest such ``m`` is the shift.
 
+A frame that carries its pulse (``frame.trigger_seq``, not None: set by the recording session from the camera's own
+trigger stamp, ``bracketry.cameras.triggering.TriggerStamps``) is placed on that pulse as it is and is a reference
+for the checks above; its camera's frames without one (a lost leader: no timestamp) follow it by frame index. A
+trigger the host fired late is then still its pulse's, however late (a negative ``trigger_seq``: the priming
+trigger's frame, for no pulse).
+
 Bracket order: a frame that reports its exposure (``exposure_us_reported``, the ExposureTime chunk) is checked
 against the exposure of its pulse (the TRIGGER events' cyclic bracket table, ``bracket_index`` -> ``exposure_us``). A
 frame whose exposure is its pulse's is on its pulse (a reference, like an agreeing timestamp); one whose exposure is
@@ -103,6 +109,7 @@ class SideCounters:
     missing_packets: int = 0
     late: int = 0
     before_start: int = 0
+    stamped: int = 0  # frames placed by their own trigger stamp (``frame.trigger_seq``)
 
 
 @dataclass
@@ -202,14 +209,22 @@ class Pairer:
         side = frame.side
         st = self._state[side]
         c = self.counters[side]
-        if st.offset is None and self.initial_alignment == "host_time" and not self._events:
+        stamped = getattr(frame, "trigger_seq", None)  # the pulse its own trigger stamp shows (module doc)
+        if stamped is None and st.offset is None and self.initial_alignment == "host_time" and not self._events:
             st.waiting.append(frame)  # aligned when the first TRIGGER event arrives
             return -1
         c.frames += 1
         c.missing_packets += int(getattr(frame, "missing_packets", 0) or 0)
         if frame.status != "success":
             c.incomplete += 1
-        if st.offset is None:
+        if stamped is not None:
+            if stamped < 0:  # the priming trigger's frame: for no pulse
+                c.frames -= 1
+                c.before_start += 1
+                return -1
+            c.stamped += 1
+            st.offset = int(stamped) - frame.frame_index  # frames without a stamp of their own follow it
+        elif st.offset is None:
             first = self._initial_seq(frame)
             if first is None:
                 c.frames -= 1
@@ -234,7 +249,7 @@ class Pairer:
             self._emit_single(seq, side, frame, "duplicate")
             return seq
         slot[side] = frame
-        seq = self._check_time(side, seq, frame)
+        seq = self._check_time(side, seq, frame) if stamped is None else self._on_stamped_pulse(side, seq, frame)
         st.newest_seq = max(st.newest_seq, seq)
         self._touch(seq)
         return seq
@@ -323,6 +338,20 @@ class Pairer:
         return None
 
     # -- timestamps -------------------------------------------------------------------------------------------------
+    def _on_stamped_pulse(self, side: str, seq: int, frame: Any) -> int:
+        """A frame whose own trigger stamp shows its pulse ``seq``: on its pulse, a reference for the checks of
+        the frames without one (no inference from lateness)."""
+        st = self._state[side]
+        if frame.cam_timestamp_ns:
+            st.stamps[seq] = int(frame.cam_timestamp_ns)
+            if len(st.stamps) > 256:
+                del st.stamps[min(st.stamps)]
+        self._compare_exposure(side, seq, frame, 0)
+        st.last_ok_seq = seq if st.last_ok_seq is None else max(st.last_ok_seq, seq)
+        st.suspect = {k for k in st.suspect if k > seq}
+        st.drop_candidate(side, seq)
+        return seq
+
     def _check_time(self, side: str, seq: int, frame: Any) -> int:
         """Timestamp and bracket-order cross-check (see module doc); returns the frame's (possibly moved)
         trigger_seq."""

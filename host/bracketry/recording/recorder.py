@@ -25,6 +25,7 @@ from mcap_ros2._dynamic import serialize_dynamic
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet
 from bracketry.recording import topics as T
+from bracketry.recording.calibration import CALIBRATION_RECORD, camera_infos
 from bracketry.recording.mcap_writer import ChunkedMcapWriter
 from bracketry.recording.msgdefs import MSGDEFS, encode_image, stamp
 
@@ -155,6 +156,17 @@ def current_frame_meta(meta: Any) -> dict[str, Any]:
     return out
 
 
+def current_status(status: Any) -> dict[str, Any]:
+    """A decoded RigStatus of any version of the recording format as a dict of the current definition (fields a
+    recording made before them lacks: 0, as the recorder writes a count it has none of)."""
+    out: dict[str, Any] = {
+        "header": {"stamp": {"sec": int(status.header.stamp.sec), "nanosec": int(status.header.stamp.nanosec)},
+                   "frame_id": str(status.header.frame_id)}}
+    for key in STATUS_FIELDS:
+        out[key] = getattr(status, key, 0)
+    return out
+
+
 def trigger_message(ev: TriggerEvent) -> dict[str, Any]:
     return {"session_id": ev.session_id & 0xFFFFFFFF, "trigger_seq": ev.trigger_seq & 0xFFFFFFFF,
             "bracket_index": ev.bracket_index, "exposure_us": ev.exposure_us,
@@ -164,19 +176,23 @@ def trigger_message(ev: TriggerEvent) -> dict[str, Any]:
 
 STATUS_FIELDS = ("fps_left", "fps_right", "frames_left", "frames_right", "drops_left", "drops_right",
                  "incomplete_left", "incomplete_right", "unpaired", "missing_packets_left", "missing_packets_right",
-                 "queue_overflows", "temperature_left_c", "temperature_right_c", "free_disk_mb")
+                 "queue_overflows", "temperature_left_c", "temperature_right_c", "free_disk_mb", "lost_triggers_left",
+                 "lost_triggers_right")
 
 
 class Recorder:
     """Writes ``out_dir/<name>_<NNN>.mcap`` files from a bounded queue in its own thread."""
 
     def __init__(self, out_dir: str | Path, name: str, config: RecorderConfig | None = None, *,
-                 metadata: dict[str, str] | None = None, calibration: dict[str, dict[str, Any]] | None = None) -> None:
+                 metadata: dict[str, str] | None = None, calibration: dict[str, dict[str, Any]] | None = None,
+                 calibration_files: dict[str, str] | None = None) -> None:
         self.out_dir = Path(out_dir)
         self.name = name
         self.config = config or RecorderConfig()
         self.metadata = dict(metadata or {})
-        self.calibration = calibration or {}
+        #: the stereo calibration carried by every file (``bracketry.recording.calibration``: {file name: text})
+        self.calibration_files = dict(calibration_files or {})
+        self.calibration = calibration or (camera_infos(self.calibration_files) if self.calibration_files else {})
         self.summary = RecorderSummary(frames_written={s: 0 for s in self.config.sides})
         self._queue: queue.Queue[tuple[str, Any] | None] = queue.Queue(maxsize=self.config.queue_max_items)
         self._thread: threading.Thread | None = None
@@ -250,6 +266,8 @@ class Recorder:
         w.add_metadata(T.METADATA_NAME, {"format": T.FORMAT_NAME, "version": T.FORMAT_VERSION,
                                          "sides": ",".join(cfg.sides), "file_index": str(self._file_index),
                                          "image_encoding": T.IMAGE_ENCODING, **self.metadata})
+        if self.calibration_files:
+            w.add_metadata(CALIBRATION_RECORD, self.calibration_files)
         self._writer = w
         self._file_started = time.monotonic()
         self.summary.files.append(str(path))

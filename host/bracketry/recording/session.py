@@ -20,7 +20,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, ExposureReadbacks
+from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, ExposureReadbacks, TriggerStamps, frame_pulse
 from bracketry.errors import BracketryError
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet, Pairer
@@ -109,6 +109,7 @@ class RecordingSession:
         self.tap = tap
         #: the latest rig status (RigStatus fields), for readers outside the pairing thread
         self.last_status: dict[str, Any] = {}
+        self._lost_at_start: dict[str, int | None] = {}  # each camera's lost-trigger count when the session started
 
     def start(self) -> RecordingSession:
         """Start pairing and every camera's stream.
@@ -132,7 +133,14 @@ class RecordingSession:
                 self._thread = None
                 raise SessionStartError(side, str(exc)) from exc
             started.append(cam)
+        self._lost_at_start = {side: self._read_lost_triggers(cam) for side, cam in self.cameras.items()}
         return self
+
+    @staticmethod
+    def _read_lost_triggers(cam: Any) -> int | None:
+        """The camera's count of software triggers it lost (``GigECamera.read_lost_triggers``), None without one."""
+        read = getattr(cam, "read_lost_triggers", None)
+        return read() if read is not None else None
 
     def _on_frame(self, frame: Any) -> None:
         with self._lock:
@@ -144,6 +152,11 @@ class RecordingSession:
             with self._lock:
                 self.inbox_overflows += 1
             log.error("pairing inbox full: frame id %d of camera %s dropped", frame.frame_id, frame.side)
+
+    def received(self) -> dict[str, int]:
+        """Frames each camera delivered so far (counted on arrival, before pairing; priming frames included)."""
+        with self._lock:
+            return {side: self.frames_received.get(side, 0) for side in self._cameras_at_start}
 
     def on_trigger_event(self, event: TriggerEvent) -> None:
         """A TRIGGER event from the trigger device (any thread)."""
@@ -179,6 +192,17 @@ class RecordingSession:
                 except AttributeError:  # a frame type without the field: no read-back for it
                     continue
 
+    def _mark_pulse(self, frame: Any) -> None:
+        """``frame.trigger_seq`` from its own trigger stamp, when its camera keeps ``trigger_stamps`` and the stamp
+        shows one (``bracketry.cameras.triggering.frame_pulse``): the pairer then takes that pulse as it is."""
+        stamps = getattr(self._cameras_at_start.get(frame.side), "trigger_stamps", None)
+        if not isinstance(stamps, TriggerStamps):
+            return
+        seq = frame_pulse(frame, stamps)
+        if seq is not None:
+            with contextlib.suppress(AttributeError):  # a frame type without the field: placed by the pairer's checks
+                frame.trigger_seq = seq
+
     def _run(self) -> None:
         next_status = time.monotonic() + self.status_period_s
         while True:
@@ -187,6 +211,7 @@ class RecordingSession:
             except queue.Empty:
                 kind, item = "idle", None
             if kind == "frame":
+                self._mark_pulse(item)
                 self.pairer.add_frame(item)
             elif kind == "event":
                 self.pairer.add_event(item)
@@ -211,6 +236,8 @@ class RecordingSession:
             out[f"drops_{side}"] = c.drops
             out[f"incomplete_{side}"] = c.incomplete
             out[f"missing_packets_{side}"] = c.missing_packets
+            lost, lost_then = self._read_lost_triggers(cam), self._lost_at_start.get(side)
+            out[f"lost_triggers_{side}"] = max(0, lost - lost_then) if lost is not None and lost_then is not None else 0
             temperature = cam.read_temperature_c() if hasattr(cam, "read_temperature_c") else None
             out[f"temperature_{side}_c"] = math.nan if temperature is None else temperature
             unpaired += c.unpaired
@@ -251,7 +278,9 @@ class RecordingSession:
             self._inbox.put(("stop", None))
             self._thread.join(timeout=30)
             self._thread = None
-        self.recorder.put_status(self.status())
+        status = self.status()
+        self.recorder.put_status(status)
         summary = self.recorder.stop()
         return {"pairing": self.pairer.summary(), "inbox_overflows": self.inbox_overflows,
+                "lost_triggers": {s: int(status.get(f"lost_triggers_{s}", 0)) for s in self.cameras},
                 "recorder": vars(summary), "streams": {s: c.stats().as_dict() for s, c in self.cameras.items()}}

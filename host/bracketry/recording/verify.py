@@ -117,6 +117,7 @@ class SideReport:
     missing_packets: int = 0
     timestamp_mismatches: int = 0
     missing_images: int = 0
+    lost_triggers: int = 0  # software triggers the camera reported lost (RigStatus), whose frames are drops
     seqs: dict[str, list[int]] = field(default_factory=dict)
 
     def note(self, kind: str, seq: int) -> None:
@@ -288,6 +289,8 @@ def verify_recording(path: str | Path) -> VerifyReport:
         sr.images = len(images.get(side, set()))
         report.sides[side] = sr
     report.queue_overflows = max((int(s.queue_overflows) for s in statuses), default=0)
+    for side, sr in report.sides.items():  # (a status of a recording made before the field: absent, 0)
+        sr.lost_triggers = max((int(getattr(s, f"lost_triggers_{side}", 0) or 0) for s in statuses), default=0)
     _problems(report)
     return report
 
@@ -302,6 +305,9 @@ def _problems(report: VerifyReport) -> None:
                 report.problems.append(f"camera {side}: {n} {kind.replace('_', ' ')} (trigger_seq {listed})")
         if sr.missing_packets:
             report.problems.append(f"camera {side}: {sr.missing_packets} missing packets")
+        if sr.lost_triggers:
+            report.problems.append(f"camera {side}: {sr.lost_triggers} software trigger(s) lost by the camera "
+                                   f"(no frame for them: among the drops)")
     if report.events_missing:
         listed = ", ".join(map(str, report.events_missing_seqs[:10]))
         report.problems.append(f"{report.events_missing} trigger events missing (trigger_seq {listed})")
@@ -324,7 +330,8 @@ def format_report(report: VerifyReport) -> str:
         lines.append(f"  {side:>5}: frames {sr.frames}  drops {sr.drops}  incomplete {sr.incomplete}  "
                      f"unpaired {sr.unpaired}  bracket-order breaks {sr.bracket_order_breaks}  "
                      f"exposure mismatches {sr.exposure_mismatches}/{sr.exposures_checked} read back  "
-                     f"missing packets {sr.missing_packets}")
+                     f"missing packets {sr.missing_packets}"
+                     + (f"  lost software triggers {sr.lost_triggers}" if sr.lost_triggers else ""))
     lines += [f"  - {p}" for p in report.problems]
     return "\n".join(lines)
 

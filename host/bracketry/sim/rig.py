@@ -63,6 +63,8 @@ class SimOptions:
     #: keep the rendered frames in ``out_dir/dev/frames`` after the run (default: a temporary folder in memory,
     #: /dev/shm when there is one, removed at the end)
     keep_frames: bool = False
+    #: the stereo calibration folder the rig config names (``rig.calibration``; None: recordings carry none)
+    calibration: Path | None = None
 
 
 def _bracketry_cmd(*args: str) -> list[str]:
@@ -203,10 +205,11 @@ class SimulatedRig:
                        f'pixel_format = "Mono16"\n' for side, addr in CAMERA_ADDRESSES.items())
         monitor = (f'[monitor]\nlisten = "127.0.0.1:{self.o.monitor_port}"\nbayer = true\n\n'
                    if self.o.monitor_port is not None else "")
+        calibration = f'calibration = "{Path(self.o.calibration).resolve()}"\n' if self.o.calibration else ""
         self.config_path.write_text(
             f'{monitor}[rig]\noutput_dir = "{self.rec_dir}"\nbrackets_ms = [{brackets}]\nfps = {self.o.fps:g}\n'
             f'min_free_mb = {self.o.min_free_mb}\nstop_free_mb = {self.o.stop_free_mb}\n'
-            f'status_socket = "{self.socket_path}"\n\n'
+            f'status_socket = "{self.socket_path}"\n{calibration}\n'
             f'[trigger]\nkind = "{self.o.trigger}"\nport = "{self.trigger_url}"\nbaudrate = 921600\n\n'
             f'[panel]\nenabled = true\nport = "{self.panel_host}"\nbaudrate = 115200\nrefresh_hz = 4\n{cams}')
         return self.config_path

@@ -37,6 +37,7 @@ import sys
 import threading
 import time
 import traceback
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -53,15 +54,21 @@ PREVIEW_PORT = 8470
 def scenario_argv(scenario: str, out: Path, result: Path, *args: str, tmpfs_mb: int | None = None) -> list[str]:
     """The command running ``scenario`` in a private network namespace (and, with ``tmpfs_mb``, a private mount
     namespace where ``out/disk`` is a tmpfs of that many MiB)."""
-    from bracketry.cameras.netns import netns_argv
-
     inner = [sys.executable, "-m", "bracketry.testing.faults", "--scenario", scenario, "--out", str(out),
              "--result", str(result), *args]
+    return namespaced_argv(inner, out, tmpfs_mb, "bracketry-sim")
+
+
+def namespaced_argv(inner: list[str], out: Path, tmpfs_mb: int | None, tmpfs_name: str) -> list[str]:
+    """``inner`` in a private network namespace holding the fake cameras' addresses (and, with ``tmpfs_mb``, a
+    private mount namespace where ``out/disk`` is a tmpfs of that many MiB named ``tmpfs_name``)."""
+    from bracketry.cameras.netns import netns_argv
+
     argv = netns_argv(inner, tuple(CAMERA_ADDRESSES.values()))
     if tmpfs_mb is None:
         return argv
     disk = out / "disk"
-    script = (f"mkdir -p {shlex.quote(str(disk))} && mount -t tmpfs -o size={int(tmpfs_mb)}m bracketry-sim "
+    script = (f"mkdir -p {shlex.quote(str(disk))} && mount -t tmpfs -o size={int(tmpfs_mb)}m {tmpfs_name} "
               f"{shlex.quote(str(disk))} && exec \"$@\"")
     return ["unshare", "--mount", "--propagation", "private", "sh", "-c", script, "mountns", *argv]
 
@@ -402,6 +409,34 @@ def run_preview(s: Session, seconds: float) -> dict[str, Any]:
     return {"daemon_exit_code": rc, "brackets_us": brackets_us, "applied_us": new_us}
 
 
+
+def run_on_rig(session: Session, result: dict[str, Any], body: Callable[[], dict[str, Any]],
+               stop_camera: Callable[[str], None], before_start: Callable[[], None] | None = None) -> None:
+    """Start the session's rig (every frame ready before the devices start, so fault timing is as designed), merge
+    ``body()``'s result into ``result``; an exception goes into ``result`` (``error``, ``traceback``) as a last step.
+    Whatever happens, every camera is stopped through ``stop_camera`` and the rig is closed; ``result`` gets the
+    session's ``steps`` and ``runtime_s``."""
+    rig = session.rig
+    t0 = time.monotonic()
+    try:
+        rig.prepare_frames(wait=True)
+        if before_start is not None:
+            before_start()
+        rig.start()
+        result.update(body())
+    except Exception as exc:
+        result["error"] = f"{type(exc).__name__}: {exc}"
+        result["traceback"] = traceback.format_exc()
+        with contextlib.suppress(Exception):
+            session.step("error")
+    finally:
+        for side in list(rig.cameras):
+            stop_camera(side)
+        rig.close()
+        result["steps"] = session.steps
+        result["runtime_s"] = round(time.monotonic() - t0, 1)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--scenario", choices=SCENARIOS, required=True)
@@ -431,34 +466,20 @@ def main(argv: list[str] | None = None) -> int:
     session = Session(rig)
     result: dict[str, Any] = {"scenario": args.scenario, "config": str(rig.config_path),
                               "daemon_log": str(out / "daemon.log"), "screen_file": str(rig.screen_file)}
-    t0 = time.monotonic()
-    try:
-        rig.prepare_frames(wait=True)  # every frame ready before the devices start (fault timing as designed)
+    def body() -> dict[str, Any]:
         if args.scenario == "e2e":
-            session.listen_sd_notify()
-        rig.start()
-        if args.scenario == "e2e":
-            result.update(run_e2e(session, args.seconds, args.record_seconds))
-        elif args.scenario == "faults":
-            result.update(run_faults(session, args.seconds))
-        elif args.scenario == "preview":
-            result.update(run_preview(session, args.seconds))
-        else:
-            result.update(run_disk(session, args.ballast_mb))
-    except Exception as exc:
-        result["error"] = f"{type(exc).__name__}: {exc}"
-        result["traceback"] = traceback.format_exc()
-        with contextlib.suppress(Exception):
-            session.step("error")
-    finally:
-        for side in list(rig.cameras):
-            session.stop_camera(side)
-        rig.close()
-        result["served"] = session.served()
-        result["steps"] = session.steps
-        result["segments"] = [str(p) for p in rig.recordings()]
-        result["runtime_s"] = round(time.monotonic() - t0, 1)
-        args.result.write_text(json.dumps(result, indent=1, default=str))
+            return run_e2e(session, args.seconds, args.record_seconds)
+        if args.scenario == "faults":
+            return run_faults(session, args.seconds)
+        if args.scenario == "preview":
+            return run_preview(session, args.seconds)
+        return run_disk(session, args.ballast_mb)
+
+    run_on_rig(session, result, body, session.stop_camera,
+               before_start=session.listen_sd_notify if args.scenario == "e2e" else None)
+    result["served"] = session.served()
+    result["segments"] = [str(p) for p in rig.recordings()]
+    args.result.write_text(json.dumps(result, indent=1, default=str))
     return 1 if "error" in result else 0
 
 

@@ -160,7 +160,9 @@ def main(argv: list[str] | None = None) -> int:
                "skipped_triggers": sorted(skip),
                "served_exposures_us": {s: srv.exposures() for s, srv in servers.items()},
                "fill_errors": {s: srv.fill_errors for s, srv in servers.items()},
-               "packets_lost": {s: len(srv.relay.dropped) if srv.relay else 0 for s, srv in servers.items()}, **result}
+               "packets_lost": {s: len(srv.relay.dropped) if srv.relay else 0 for s, srv in servers.items()},
+               "triggers_lost_by_fake": {s: srv.relay.triggers_lost if srv.relay else 0 for s, srv in servers.items()},
+               **result}
     for cam in cams.values():
         cam.close()
     for srv in servers.values():

@@ -75,6 +75,7 @@ class TriggerSimulator:
         self._own_fd = own_fd
         self._keep_fds = keep_fds
         self._rng = random.Random(self.config.seed)
+        self._noise_rng = random.Random(self.config.seed + 0x5E7A1)  # line noise (send_garbage), apart from _rng
         self._lock = threading.RLock()
         self._write_lock = threading.Lock()
         self._wake = threading.Event()
@@ -118,6 +119,16 @@ class TriggerSimulator:
             self._tx_seq = (self._tx_seq + 1) & 0xFFFF
             with contextlib.suppress(OSError):  # nobody listening: like a UART with no cable
                 os.write(self.fd, frame)
+
+    def send_garbage(self, n_bytes: int = 256) -> bytes:
+        """Line noise: ``n_bytes`` pseudo-random bytes (seeded by ``config.seed``) written between two frames, as a
+        loose cable or a ground loop would put on the wire; returns them. The host's decoder drops and counts them."""
+        with self._write_lock:
+            noise = bytes(self._noise_rng.randrange(256) for _ in range(n_bytes))
+            with contextlib.suppress(OSError):
+                os.write(self.fd, noise)
+            self.counters["garbage_bytes"] = self.counters.get("garbage_bytes", 0) + n_bytes
+        return noise
 
     def start(self) -> TriggerSimulator:
         """Start the threads and announce the device with an unsolicited HELLO. Returns self."""

@@ -31,6 +31,10 @@ Listener = Callable[[int, int, dict[str, Any]], None]
 
 #: a device HEARTBEAT whose uptime_ms is this much below the previous one announces a reboot (milliseconds)
 UPTIME_SLACK_MS = 50
+#: the ticker's period (peer check, heartbeat, reconnection), seconds
+TICK_S = 0.05
+#: a tick this long after the previous one shows this process starved: that time counts as no silence of the peer
+STARVED_TICK_GAP_S = 0.5
 
 #: device -> host message types handed to listeners
 EVENT_TYPES = (bproto.MSG_TRIGGER, bproto.MSG_BUTTON, bproto.MSG_HELLO, bproto.MSG_HEARTBEAT)
@@ -40,7 +44,7 @@ COUNTER_NAMES = ("frames_in", "frames_out", "crc_errors", "length_errors", "cobs
                  "unsolicited_hellos", "heartbeats_in", "heartbeats_out", "peer_lost", "trigger_events",
                  "button_events", "bad_payloads", "unknown_types",
                  "unmatched_replies", "listener_errors", "reconnects", "io_errors", "seq_gaps", "send_acks",
-                 "send_nacks")
+                 "send_nacks", "write_timeouts")
 
 
 def open_serial(url: str, baudrate: int = 921600, read_timeout_s: float = 0.05) -> serial.SerialBase:
@@ -82,7 +86,8 @@ class SerialLink:
 
     Parameters: ``url`` (pyserial URL or path), ``baudrate``, ``heartbeat_period_s`` (0.5 = 2 Hz; ``None`` sends no
     HEARTBEAT, e.g. for the panel whose PANEL_STATE is the host heartbeat), ``peer_lost_after_s`` (1.5 s = 3 missed
-    heartbeats), ``reconnect`` (reopen the port after an I/O error, e.g. an unplug), ``time_ns`` (host clock for
+    heartbeats; time this process was not run, a ticker gap over ``STARVED_TICK_GAP_S``, does not count as
+    silence), ``reconnect`` (reopen the port after an I/O error, e.g. an unplug), ``time_ns`` (host clock for
     PING stamps and the clock model; default ``time.monotonic_ns``). BUTTON frames are handed to the listeners as
     they come (ACKs and duplicates are the panel client's).
 
@@ -308,6 +313,13 @@ class SerialLink:
         try:
             with self._write_lock:
                 port.write(frame)
+        except serial.SerialTimeoutException as exc:
+            # the peer does not read (a device busy, a simulator not run on a loaded host): the port is fine, and
+            # reopening it would throw away what the peer sent meanwhile; this frame is lost, counted
+            with self._lock:
+                self._counters["write_timeouts"] += 1
+            log.warning("%s: write timed out (the peer does not read): frame dropped", self.name)
+            raise DeviceLostError(f"{self.name}: write timed out: {exc}") from exc
         except (serial.SerialException, OSError) as exc:
             self._io_failed(exc)
             raise DeviceLostError(f"{self.name}: write failed: {exc}") from exc
@@ -335,8 +347,14 @@ class SerialLink:
     def _tick_loop(self) -> None:
         next_hb = time.monotonic()
         next_reconnect = 0.0
-        while not self._closed.wait(0.05):
+        last_tick = next_hb
+        while not self._closed.wait(TICK_S):
             now = time.monotonic()
+            if now - last_tick > STARVED_TICK_GAP_S:
+                # this process was not run (a loaded host): its reader could not take what the peer sent either, so
+                # that time is no silence of the peer's
+                self._last_rx_s = min(now, self._last_rx_s + (now - last_tick - TICK_S))
+            last_tick = now
             if not self.connected:
                 if self.reconnect and now >= next_reconnect:
                     next_reconnect = now + 0.5

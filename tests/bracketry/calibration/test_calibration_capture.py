@@ -131,7 +131,7 @@ class _NoRig:
 def test_a_recording_exported_as_a_borealhdr_tree_gives_the_same_pairs(tmp_path: Path) -> None:
     """``calibrate solve`` / ``capture`` read a board session folder or an exported recording (camera_left/<exp>/,
     camera_right/<exp>/ named by each camera's own stamps): the k-th images of the two sides are a pair."""
-    from bracketry.cli.calibrate import image_pairs
+    from bracketry.boardcapture.files import image_pairs
 
     for side in ("left", "right"):
         (tmp_path / "s" / side).mkdir(parents=True)

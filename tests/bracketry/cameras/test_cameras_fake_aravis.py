@@ -83,6 +83,20 @@ def test_fake_profile_reads_back_and_serves_our_pixels(fake_camera) -> None:  # 
     assert frames[-1].cam_timestamp_ns > frames[0].cam_timestamp_ns
 
 
+def test_lost_software_triggers_are_read_from_the_relays_register(fake_camera) -> None:  # type: ignore[no-untyped-def]
+    """The count of triggers the fake lost reaches a client over GVCP (the register its profile names)."""
+    from bracketry.cameras.camera import GigECamera
+    from bracketry.cameras.profiles import CameraSettings
+
+    with GigECamera("127.0.0.1", side="left") as cam:
+        assert cam.read_lost_triggers() is None  # not configured: no profile, no register
+        cam.configure(CameraSettings(profile="aravis_fake", pixel_format="Mono16", width=W, height=H))
+        assert cam.read_lost_triggers() == 0
+        with fake_camera.relay._lock:
+            fake_camera.relay._lost = 3
+        assert cam.read_lost_triggers() == 3
+
+
 def test_basler_profile_on_the_fake_refuses_with_a_clear_message(fake_camera) -> None:  # type: ignore[no-untyped-def]
     from bracketry.cameras.camera import GigECamera
     from bracketry.cameras.profiles import CameraSettings

@@ -18,7 +18,7 @@ from bracketry.daemon.config import RigConfig, parse_config
 from bracketry.daemon.pump import EventPump
 from bracketry.daemon.rig import DaemonOptions, RigDaemon
 from bracketry.daemon.segments import SegmentRecorder
-from bracketry.daemon.sensors import Backoff, Progress, SensorSupervisor, StallWatch
+from bracketry.daemon.sensors import Backoff, LoopWatch, Progress, SensorSupervisor, StallWatch
 from bracketry.daemon.state import RigState, SensorState
 from bracketry.events import TriggerEvent
 
@@ -130,6 +130,76 @@ def test_stall_watch_blames_only_a_camera_that_pulses_reached() -> None:
     assert watch.observe(progress(0, 0, session_id=2, failed=("left",)), ["left"], 302.5)[1] == "left"
 
 
+def test_the_daemons_own_starvation_is_no_camera_stall() -> None:
+    """A supervisor step 3.5 s after the previous one (period 1 s): the daemon itself was not run for 2.5 s, which
+    count towards no camera's stall; a camera that stays silent once the daemon runs again is still blamed."""
+    loop, watch = LoopWatch(period_s=1.0), StallWatch(stall_s=2.0, stall_pulses=3)
+
+    def step(now_s: float, frames: int, pulses: int) -> str | None:
+        progress = Progress(1, {"left": frames}, {"left": pulses}, frozenset())
+        return watch.observe(progress, ["left"], now_s, loop.step(now_s))[1]
+
+    assert step(100.0, 5, 5) is None and step(101.0, 5, 5) is None
+    assert step(104.5, 5, 40) is None  # 35 pulses without a frame, but the daemon lost 2.5 s of the 3.5 s
+    assert (loop.starved_windows, loop.starved_s, loop.longest_gap_s) == (1, 2.5, 3.5)
+    assert step(105.0, 5, 45) == "left"  # 2.5 s of the daemon's own time without a frame: stalled
+    unforgiving = StallWatch(stall_s=2.0, stall_pulses=3)  # the same steps with no starvation left out: blamed
+    unforgiving.observe(Progress(1, {"left": 5}, {"left": 5}, frozenset()), ["left"], 101.0)
+    assert unforgiving.observe(Progress(1, {"left": 5}, {"left": 40}, frozenset()), ["left"], 104.5)[1] == "left"
+    on_time = LoopWatch(period_s=1.0)
+    assert [on_time.step(t) for t in (0.0, 1.0, 2.9, 3.9)] == [0.0, 0.0, 0.0, 0.0]  # 1.9 s: late, not starved
+
+
+def stall_daemon(tmp_path: Path, dev: MemDevices) -> RigDaemon:
+    """A daemon on ``dev``, recording (its pump started, both buttons pressed), that calls a camera stalled after 2 s
+    of pulses without frames and does not retry within a test (60 s back-off)."""
+    daemon = RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger,
+                                                           camera_stall_s=2.0, backoff_s=(60.0, 60.0)))
+    daemon.pump.start()
+    daemon.on_button("sensors")
+    daemon.on_button("record")
+    return daemon
+
+
+def deliver_pulses(daemon: RigDaemon, dev: MemDevices, n: int) -> None:
+    """``n`` trigger pulses of bracket 1 through the trigger's listener thread and the pump into the segment (the
+    last event taken is delivered too)."""
+    for seq in range(n):
+        dev.on_event(event(1, seq))
+    daemon.pump.settle(2.0)
+    with daemon.pump.hold():
+        pass
+
+
+def test_daemon_declares_no_fault_for_a_window_it_was_starved_in(tmp_path: Path) -> None:
+    """Injected clock: the daemon's supervisor steps at 100 s, then (starved) at 103.5 s; pulses reached the
+    cameras, no frame came and the trigger's heartbeat was not read: nothing goes ERR. Steps on time afterwards blame
+    the camera still silent, then a trigger still silent."""
+    dev = MemDevices()
+    daemon = stall_daemon(tmp_path, dev)
+    try:
+        daemon.supervise_once(now_s=100.0)
+        deliver_pulses(daemon, dev, 3)
+        dev.trigger.peer_lost = True
+        daemon.supervise_once(now_s=103.5)  # 3.5 s after the previous step: the daemon itself was starved
+        snap = daemon.state.snapshot()
+        assert all(snap.states[k] == SensorState.REC for k in ("cam_left", "cam_right", "trigger")), snap.states
+        assert snap.counters["daemon_starved"] == 1 and daemon.segment_index == 1
+        dev.trigger.peer_lost = False  # its heartbeats were only waiting to be read
+        daemon.supervise_once(now_s=104.5)
+        assert daemon.state.snapshot().states["cam_left"] == SensorState.REC  # 2.0 s of the daemon's own time
+        daemon.supervise_once(now_s=105.5)  # 3.0 s of its own time, 3 pulses, no frame: stalled
+        assert daemon.state.snapshot().states["cam_left"] == SensorState.ERR
+        trigger = daemon.sensors.trigger
+        assert isinstance(trigger, MemTrigger)
+        trigger.peer_lost = True
+        assert daemon.sensors.check_trigger(starved_s=2.5) is None  # starved: looked at again next step
+        assert daemon.sensors.check_trigger() == "lost (no heartbeat)"  # on time: a silent trigger is a fault
+        assert daemon.state.snapshot().states["trigger"] == SensorState.ERR
+    finally:
+        daemon.close()
+
+
 def test_backoff_doubles_with_jitter_up_to_its_maximum_and_resets() -> None:
     b = Backoff(0.5, 2.0)
     assert b.due(0.0)
@@ -232,19 +302,13 @@ def test_segment_recorder_goes_on_without_a_camera_that_cannot_stream(tmp_path: 
 
 def test_daemon_closes_a_segment_whose_camera_stalled_and_records_on_without_it(tmp_path: Path) -> None:
     dev = MemDevices()
-    daemon = RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger,
-                                                           camera_stall_s=2.0, backoff_s=(60.0, 60.0)))
-    daemon.pump.start()
+    daemon = stall_daemon(tmp_path, dev)
     try:
-        daemon.on_button("sensors")
-        daemon.on_button("record")
         assert daemon.recording and daemon.segment_index == 1
         daemon.supervise_once(now_s=100.0)  # marks
-        for seq in range(3):
-            dev.on_event(event(1, seq))  # the trigger's listener thread -> the pump -> the segment
-        daemon.pump.settle(2.0)
-        with daemon.pump.hold():
-            pass  # the last event taken is delivered too
+        deliver_pulses(daemon, dev, 3)
+        daemon.supervise_once(now_s=101.0)
+        daemon.supervise_once(now_s=102.0)
         daemon.supervise_once(now_s=102.5)  # 3 pulses, 2.5 s, no frame: the left camera stalled
         snap = daemon.state.snapshot()
         assert snap.states["cam_left"] == SensorState.ERR and snap.errors["cam_left"] == "no frames"

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from monitor_chromium import Chromium, Page, chromium_path
 
+from bracketry.boardcapture.selection import FolderBackend as _FolderBackend
 from bracketry.calibration.board import BoardSpec
 from bracketry.calibration.detect import detect, to_gray8
-from bracketry.cli.calibrate import _FolderBackend
 from bracketry.monitor.calibration_feed import CaptureFeed
 from bracketry.monitor.hub import PreviewHub
 from bracketry.monitor.server import MonitorServer

@@ -2,35 +2,22 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet, Pairer
+from pairing_frames import PairingFrame
 
 PERIOD_US = 45_454
 BRACKETS = [1000, 2000, 4000, 8000, 16000, 32000]
-
-
-@dataclass
-class FakeFrame:
-    side: str
-    frame_id: int
-    frame_index: int
-    status: str
-    cam_timestamp_ns: int
-    host_receive_ns: int
-    missing_packets: int = 0
-    skipped_ids: int = 0
-    image: object = None
 
 
 def event(k: int) -> TriggerEvent:
     return TriggerEvent(1, k, k % 6, BRACKETS[k % 6], 1_000_000 + k * PERIOD_US, 5_000_000_000 + k * PERIOD_US * 1000)
 
 
-def frame(side: str, index: int, pulse: int, status: str = "success") -> FakeFrame:
+def frame(side: str, index: int, pulse: int, status: str = "success") -> PairingFrame:
     cam_ns = {"left": 77_000_000, "right": 900_000_000}[side] + pulse * PERIOD_US * 1000 + 3000
-    return FakeFrame(side, (65400 + index) % 65535 or 65535, index, status, cam_ns, 5_000_000_000 + pulse * 45_454_000)
+    host_ns = 5_000_000_000 + pulse * 45_454_000
+    return PairingFrame(side, (65400 + index) % 65535 or 65535, index, status, cam_ns, host_ns)
 
 
 def run(n: int, *, lose_frame=(), lose_event=(), miss_trigger=(), incomplete=(), no_timestamp=(),
@@ -190,12 +177,12 @@ def host_fired_run(n: int, late_ms: dict[tuple[str, int], float], miss_trigger: 
             host_ns = event(k).t_start_host_ns
             assert host_ns is not None
             if (side, k) in extra_frame:
-                p.add_frame(FakeFrame(side, index[side] + 1, index[side], "success", host_ns - PERIOD_US * 500, 0))
+                p.add_frame(PairingFrame(side, index[side] + 1, index[side], "success", host_ns - PERIOD_US * 500, 0))
                 index[side] += 1
             if (side, k) in miss_trigger:
                 continue
             stamp = host_ns + 2_000_000 + int(late_ms.get((side, k), 0.0) * 1e6)
-            p.add_frame(FakeFrame(side, index[side] + 1, index[side], "success", stamp, stamp + 1_000_000))
+            p.add_frame(PairingFrame(side, index[side] + 1, index[side], "success", stamp, stamp + 1_000_000))
             index[side] += 1
     p.flush()
     return p, sets

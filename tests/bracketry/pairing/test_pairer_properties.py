@@ -22,7 +22,6 @@ are only late are no problem at all; a camera that falls silent is given up on a
 from __future__ import annotations
 
 import random
-from dataclasses import dataclass
 
 import pytest
 from hypothesis import HealthCheck, Phase, given, settings
@@ -30,6 +29,7 @@ from hypothesis import strategies as st
 
 from bracketry.events import TriggerEvent
 from bracketry.pairing.pairer import PairedSet, Pairer
+from pairing_frames import PairingFrame
 
 PERIOD_US = 45_454
 BRACKETS = [1000, 2000, 4000, 8000, 16000, 32000]
@@ -45,21 +45,6 @@ BACKSTOP = 22  # pulses: the Pairer's max_lag_s (1 s) at PERIOD_US, above 2 * WI
 # pulses a camera's frames may come after their events: twice the window (the former give-up distance); at 20 a
 # missed pulse's shift is not always confirmed (by 3 to 6 frames after it) before its set meets the backstop
 BEHIND = 16
-
-
-@dataclass
-class SynthFrame:
-    side: str
-    frame_id: int
-    frame_index: int
-    status: str
-    cam_timestamp_ns: int
-    host_receive_ns: int
-    exposure_us_reported: float | None
-    true_pulse: int
-    missing_packets: int = 0
-    skipped_ids: int = 0
-    image: object = None
 
 
 def event(k: int) -> TriggerEvent:
@@ -110,7 +95,7 @@ def simulate(sc: dict) -> tuple[Pairer, list[PairedSet]]:
     cam_base = {"left": 77_000_000, "right": 900_000_000}
     lag_rng = random.Random(sc["seed"] + 1)
     due = {side: delivery(lag_rng, sc.get("behind", {}).get(side, 0)) for side in SIDES}
-    held: dict[str, list[SynthFrame]] = {side: [] for side in SIDES}
+    held: dict[str, list[PairingFrame]] = {side: [] for side in SIDES}
     for k in range(N_PULSES + BEHIND):
         if k < N_PULSES and k not in sc["lose_event"]:
             p.add_event(event(k))
@@ -131,10 +116,10 @@ def simulate(sc: dict) -> tuple[Pairer, list[PairedSet]]:
             no_ts = roll < sc["p_no_ts"]
             no_exposure = not no_ts and roll < sc["p_no_ts"] + sc["p_no_exposure"]
             i = index[side]
-            held[side].append(SynthFrame(side, i % 65535 + 1, i, "missing_packets" if no_ts else "success",
+            held[side].append(PairingFrame(side, i % 65535 + 1, i, "missing_packets" if no_ts else "success",
                                          0 if no_ts else ts, 5_000_000_000 + k * period_ns + int(0.4 * period_ns),
-                                         None if no_exposure else float(BRACKETS[k % 6]), k,
-                                         missing_packets=int(no_ts)))
+                                         exposure_us_reported=None if no_exposure else float(BRACKETS[k % 6]),
+                                         true_pulse=k, missing_packets=int(no_ts)))
             index[side] += 1
             if due[side][k] <= k:
                 p.add_frame(held[side].pop(0))
@@ -217,8 +202,8 @@ def test_a_silent_camera_is_given_up_on_at_the_backstop(mode: str) -> None:
         for i, side in enumerate(SIDES):
             if side == "right" and k > 30:
                 continue
-            p.add_frame(SynthFrame(side, k + 1, k, "success", base + k * PERIOD_US * 1000 + 1000 * i, 0,
-                                   float(BRACKETS[k % 6]), k))
+            p.add_frame(PairingFrame(side, k + 1, k, "success", base + k * PERIOD_US * 1000 + 1000 * i, 0,
+                                     exposure_us_reported=float(BRACKETS[k % 6]), true_pulse=k))
         assert len(p._pending) <= BACKSTOP + 1  # memory: bounded by the backstop
     assert p.backstop_pulses() == BACKSTOP
     by_seq = {s.trigger_seq: s for s in out.sets}
@@ -245,8 +230,9 @@ def test_a_missed_pulse_is_given_up_on_one_window_after_the_camera_moved_on() ->
         for side in SIDES:
             if side == "right" and k == 40:
                 continue
-            p.add_frame(SynthFrame(side, index[side] + 1, index[side], "success",
-                                   77_000_000 + k * PERIOD_US * 1000, 0, float(BRACKETS[k % 6]), k))
+            p.add_frame(PairingFrame(side, index[side] + 1, index[side], "success",
+                                   77_000_000 + k * PERIOD_US * 1000, 0, exposure_us_reported=float(BRACKETS[k % 6]),
+                                     true_pulse=k))
             index[side] += 1
     by_seq = {s.trigger_seq: s for s in out.sets}
     assert [k for k, s in by_seq.items() if s.frames["right"] is None] == [40]
@@ -269,8 +255,8 @@ def test_bracket_order_places_a_missed_trigger_whose_neighbours_have_no_timestam
                 continue
             untimed = side == "right" and 41 <= k <= 43
             ts = 0 if untimed else 77_000_000 + k * PERIOD_US * 1000
-            p.add_frame(SynthFrame(side, index[side] + 1, index[side], "missing_packets" if untimed else "success",
-                                   ts, 0, float(BRACKETS[k % 6]), k))
+            p.add_frame(PairingFrame(side, index[side] + 1, index[side], "missing_packets" if untimed else "success",
+                                     ts, 0, exposure_us_reported=float(BRACKETS[k % 6]), true_pulse=k))
             index[side] += 1
     p.flush()
     by_seq = {s.trigger_seq: s for s in sets}
@@ -298,8 +284,10 @@ def test_a_chunk_one_frame_behind_never_moves_frames() -> None:
                 base = 5_000_000_000 if mode == "host_time" else 77_000_000
                 ts = 0 if untimed else base + k * PERIOD_US * 1000 + 1000
                 exposure = BRACKETS[(k - 1) % 6] if side == "right" else BRACKETS[k % 6]
-                p.add_frame(SynthFrame(side, index[side] + 1, index[side], "missing_packets" if untimed else "success",
-                                       ts, 5_000_000_000 + k * PERIOD_US * 1000 + 2_000_000, float(exposure), k))
+                status = "missing_packets" if untimed else "success"
+                p.add_frame(PairingFrame(side, index[side] + 1, index[side], status, ts,
+                                         5_000_000_000 + k * PERIOD_US * 1000 + 2_000_000,
+                                         exposure_us_reported=float(exposure), true_pulse=k))
                 index[side] += 1
         p.flush()
         by_seq = {s.trigger_seq: s for s in sets}

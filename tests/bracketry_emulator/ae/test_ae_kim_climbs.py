@@ -60,3 +60,34 @@ def test_kim_leaves_a_black_scene_for_longer_exposures() -> None:
     irr = irradiance(seed=7) * 1e-5
     traj = closed_loop(get_method("kim"), irr, 4000.0, 3)
     assert traj[1] > traj[0] and traj[-1] == pytest.approx(35_000.0), traj
+
+
+def _snow_scene(scale: float) -> np.ndarray:
+    """A static view that is 70 % faintly textured snow (3 % contrast) beside a strip of dark forest texture
+    (1/20 of the AE tests' textured irradiance): ``scale`` 30 is a bright sunlit view (AE50 settles near 0.2 ms),
+    1/30 a dark one."""
+    h, w = 240, 320
+    rng = np.random.default_rng(3)
+    import cv2
+
+    snow = 1.0 + 0.03 * cv2.GaussianBlur(rng.standard_normal((h, w)), (0, 0), 2)
+    strip = np.zeros((h, w))
+    strip[:, : int(w * 0.3)] = 1.0
+    forest = irradiance(seed=4, dynamic_range=8.0) / 20.0
+    return scale * (strip * forest + (1 - strip) * snow * 30.0 * 2047.0 / 8000.0)
+
+
+@pytest.mark.parametrize("scale,where", [(1.0, "bright"), (1 / 300, "dark")])
+def test_kim_moves_the_way_ae50_does_on_snow(scale: float, where: str) -> None:
+    """Kim ends on AE50's side of its 4 ms start, and on the bright view never explores above its start: saturated
+    snow is not rewarded by the metric (kim.py, "Clipped pixels")."""
+    irr = _snow_scene(scale)
+    ae50 = closed_loop(get_method("ae50"), irr, 4000.0, 10)
+    kim = closed_loop(get_method("kim"), irr, 4000.0, 10)
+    settled_us = float(np.median(kim[-3:]))
+    if where == "bright":
+        assert ae50[-1] < 1000.0, ae50
+        assert settled_us < 4000.0 and max(kim[1:]) <= 4000.0, kim
+    else:
+        assert ae50[-1] > 16_000.0, ae50
+        assert settled_us > 4000.0, kim

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import cv2
 import numpy as np
 import pytest
 from ae_scenes import closed_loop, irradiance, render
@@ -107,7 +108,7 @@ def test_shim_gamma_fit_and_update() -> None:
 
 
 def test_kim_metric_hand_computed() -> None:
-    img = np.tile(np.array([0, 0, 100, 100], dtype=np.float64), (4, 1))
+    img = np.tile(np.array([1, 1, 101, 101], dtype=np.float64), (4, 1))  # no clipped code (0, 255)
     # H equal everywhere -> uniform weights 1/16, Hn = 0 -> act = 2/(1+e^4) - 1, mask all; Sobel x = 400 at 8 pixels
     # sum w G = 8 * 160000 / 16 = 80000 = mean G; metric = 80000 (1 + act)
     assert kim_metric(img) == pytest.approx(160000.0 / (1.0 + math.exp(4.0)))
@@ -115,19 +116,19 @@ def test_kim_metric_hand_computed() -> None:
 
 
 def test_kim_weights_follow_the_paper_sign() -> None:
-    """Hand-computed metric of vertical stripes 0,0,0,0,0,60,60,120 (3 rows): the weights are the paper's Gaussian
+    """Hand-computed metric of vertical stripes 1,1,1,1,1,61,61,121 (3 rows): the weights are the paper's Gaussian
     w = exp(-(H - mean H)^2 / (2 std^2)); the authors' positive exponent would give another value."""
-    row = [0, 0, 0, 0, 0, 60, 60, 120]
+    row = [1, 1, 1, 1, 1, 61, 61, 121]  # no clipped code (0, 255)
     img = np.tile(np.array(row, dtype=np.float64), (3, 1))
-    # histogram: p(0) = 5/8, p(60) = 2/8, p(120) = 1/8 -> H = -p log2 p per column
-    h_of = {0: -(5 / 8) * math.log2(5 / 8), 60: -(2 / 8) * math.log2(2 / 8), 120: -(1 / 8) * math.log2(1 / 8)}
+    # histogram: p(1) = 5/8, p(61) = 2/8, p(121) = 1/8 -> H = -p log2 p per column
+    h_of = {1: -(5 / 8) * math.log2(5 / 8), 61: -(2 / 8) * math.log2(2 / 8), 121: -(1 / 8) * math.log2(1 / 8)}
     h = np.array([h_of[v] for v in row])
-    assert h_of[60] == 0.5 and h_of[120] == 0.375  # exact: the rare 120 and the 60s lie either side of the mean
+    assert h_of[61] == 0.5 and h_of[121] == 0.375  # exact: the rare 121 and the 61s lie either side of the mean
     # Sobel x (reflect-101 border, constant columns): 4 (I[x+1] - I[x-1]) = 240 at x = 4, 5, 6, 0 elsewhere; gy = 0
     g = np.array([0, 0, 0, 0, 240.0**2, 240.0**2, 240.0**2, 0])
-    hn = (h - 0.375) / (0.5 - 0.375)  # min-max: 0 -> 0.39, 60 -> 1, 120 -> 0
+    hn = (h - 0.375) / (0.5 - 0.375)  # min-max: 1 -> 0.39, 61 -> 1, 121 -> 0
     act = 2.0 / (1.0 + np.exp(-16.0 * hn + 4.0)) - 1.0
-    mask = hn < 0.6  # the 0s and the 120
+    mask = hn < 0.6  # the 1s and the 121
 
     def metric(sign: float) -> float:  # every row is the same, so per-column sums stand for the image
         w = np.exp(sign * (h - h.mean()) ** 2 / (2.0 * h.var()))
@@ -141,6 +142,27 @@ def test_kim_weights_follow_the_paper_sign() -> None:
     assert kim_metric(img) != pytest.approx(authors, rel=1e-3)
     # uint8 codes and float input give the same metric
     assert kim_metric(img.astype(np.uint8)) == pytest.approx(paper, rel=1e-9)
+
+
+def test_kim_metric_gives_clipped_pixels_no_weight() -> None:
+    """A saturated block beside a textured one: the saturated pixels get entropy 0 and weight 0 (kim.py, "Clipped
+    pixels"), so the metric is what the textured pixels give with the weights normalised over the whole image."""
+    tex = np.tile(np.array([1, 1, 101, 101], dtype=np.float64), (4, 1))
+    img = np.hstack([tex, np.full((4, 4), 255.0)])
+    clipped = img == 255
+    codes = img.astype(np.uint8)
+    p = np.bincount(codes.ravel(), minlength=256) / img.size
+    h = np.where(clipped, 0.0, -p[codes] * np.log2(np.where(p[codes] > 0, p[codes], 1.0)))
+    w = np.exp(-((h - h.mean()) ** 2) / (2 * h.var()))
+    w = np.where(clipped, 0.0, w / w.sum())
+    gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3)
+    gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3)
+    g = gx**2 + gy**2
+    hn = (h - h.min()) / (h.max() - h.min())
+    act = 2.0 / (1.0 + np.exp(-16.0 * hn + 4.0)) - 1.0
+    expected = float(np.sum(w * g) + np.sum(act * (hn < 0.6) * w) * g.mean())
+    assert kim_metric(img) == pytest.approx(expected, rel=1e-9)
+    assert np.sum(w) < 0.75  # the saturated half's weight is lost, not moved to the textured half
 
 
 def test_zhang_soft_percentile_weights_hand_computed() -> None:

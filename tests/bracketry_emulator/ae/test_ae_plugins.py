@@ -93,6 +93,11 @@ def test_the_documented_example_plugin_runs_in_closed_loop(tmp_path: Path, monke
     assert summary["plugins"] == {"median40": {"source": "my_ae.bright:TargetMedian", "options": {}}}
     assert len(list((out / "median40" / "images_left").glob("*.png"))) == 3
     assert (out / "exposures.csv").read_text().splitlines()[0] == "step,timestamp_ns,ae50_ms,median40_ms"
+    # the option PLUGINS.md's "Options" passes (--method-option median40.target=0.3) is one the class takes
+    options = re.search(r"--method-option median40\.(\w+)=([\d.]+)", doc)
+    assert options is not None
+    from my_ae.bright import TargetMedian
+    assert TargetMedian(**{options.group(1): float(options.group(2))}).target == 0.3
     sys.modules.pop("my_ae.bright", None)
     sys.modules.pop("my_ae", None)
 

@@ -13,6 +13,7 @@ from bracketry_emulator.benchmark import BenchmarkConfig, RunResult, make_task, 
 from bracketry_emulator.benchmark.tasks import load_cached
 from bracketry_emulator.benchmark.toyworld import ToyWorld
 from bracketry_emulator.metrics import expand_datasets
+from bracketry_emulator.metrics.failure_causes import CAUSES
 
 N_FRAMES = 6
 WINDOWS = (1.0,)
@@ -74,6 +75,25 @@ def test_bench_local_run_and_report(local_run) -> None:
     wil = (rep / "wilcoxon.csv").read_text().splitlines()
     assert len(wil) == 1 + 5 * 2 and wil[1].startswith("Coverage,dim,2,")  # 5 metrics x 2 methods, paired on 2
     assert "<table>" in (rep / "report.html").read_text()
+
+
+def test_bench_report_says_why_runs_lost_track(local_run) -> None:
+    """failure_causes.csv: its header, one row per run that lost track (burst on both walks), a known cause; the
+    cause x method table in the Markdown, HTML and LaTeX report."""
+    rep = local_run.out_dir / "report"
+    lines = (rep / "failure_causes.csv").read_text().splitlines()
+    assert lines[0] == "trajectory,method,repeat,time_s,cause"
+    lost = [r for r in local_run.results if not r["success"]]
+    assert lost and len(lines) == 1 + len(lost)
+    rows = [line.split(",") for line in lines[1:]]
+    assert {(r[0], r[1]) for r in rows} == {(r["trajectory"], r["method"]) for r in lost}
+    assert all(r[4] in CAUSES and r[2] == "0" for r in rows)
+    burst = next(r for r in rows if r[:2] == ["traj1", "burst"])
+    assert float(burst[3]) == pytest.approx(3 / ToyWorld().fps, abs=0.01)
+    md = (rep / "report.md").read_text()
+    assert "Why runs lost track" in md and "exposure_jump" in md and "the paper's reading" in md
+    assert "Why runs lost track" in (rep / "report.html").read_text()
+    assert "exposure jump" in (rep / "latex" / "causes.tex").read_text()
 
 
 def test_bench_interrupted_run_resumes(datasets, local_run, tmp_path: Path) -> None:

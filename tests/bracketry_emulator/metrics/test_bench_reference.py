@@ -90,3 +90,25 @@ def test_bench_bad_extrinsic_is_one_line() -> None:
     with pytest.raises(BracketryError, match="not a rigid transform"):
         extrinsic_matrix({"matrix": [[2, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]})
     assert np.allclose(extrinsic_matrix({"translation": [1, 2, 3]})[:3, 3], [1, 2, 3])
+
+
+def test_bench_reference_kitti_without_times_takes_the_left_images(toy, tmp_path: Path) -> None:
+    """KITTI poses with no times file: line k is the pose at the k-th left image; a count that differs is one line."""
+    from bracketry_emulator.metrics.reference import image_times_ns
+
+    d, _ = toy
+    t = np.array(image_times_ns(d), np.float64) * 1e-9
+    T_ws = np.stack([WORLD.pose_wc(x) @ np.linalg.inv(T_SC) for x in t])
+    (d / "poses.txt").write_text("".join(" ".join(f"{v:.12g}" for v in T[:3, :].ravel()) + "\n" for T in T_ws))
+    (d / "reference.yaml").write_text(f"file: poses.txt\nformat: kitti\nextrinsic:\n  matrix: {T_SC.tolist()}\n")
+    try:
+        cam = write_camera_reference(d, tmp_path / "kitti_frames.txt")
+        ct, cposes = read_tum(cam)
+        gt_t, gt_poses = read_tum(d.parent / "camera_gt.txt")
+        assert np.allclose(ct, gt_t, atol=1e-6) and np.abs(cposes[:, :3, 3] - gt_poses[:, :3, 3]).max() < 1e-6
+        (d / "poses.txt").write_text("".join(" ".join(f"{v:.12g}" for v in T[:3, :].ravel()) + "\n"
+                                             for T in T_ws[:-1]))
+        with pytest.raises(BracketryError, match=rf"{len(t) - 1} KITTI poses for {len(t)} left images"):
+            write_camera_reference(d, tmp_path / "short.txt")
+    finally:
+        (d / "reference.yaml").unlink()

@@ -1,5 +1,6 @@
 """The report's LaTeX tables: well formed (balanced environments and braces, booktabs rules, the same column count
-on every row, one row per method, names escaped) and the same figures as the CSV files beside them."""
+on every row, one row per method, names escaped) and the same figures as the CSV files beside them (their widths:
+``test_report_latex_compile.py``)."""
 
 from __future__ import annotations
 
@@ -12,11 +13,12 @@ import pytest
 from report_results import LONG_METHODS, synthetic_results
 
 from bracketry_emulator.report import write_report
-from bracketry_emulator.report.latex import escape
+from bracketry_emulator.report.latex import SHORT_HEADS, escape
+from bracketry_emulator.report.tables import verdict_symbols
 
 _UNESCAPE = [(r"\textbackslash{}", "\\"), (r"\textasciitilde{}", "~"), (r"\textasciicircum{}", "^")] + [
     ("\\" + c, c) for c in "&%$#_{}"]
-_SYMBOLS = {r"$\blacktriangle$": "▲", r"$\blacktriangledown$": "▼", r"$\equiv$": "≡", "--": "–"}
+_SYMBOLS = {r"$\blacktriangle$": "▲", r"$\blacktriangledown$": "▼", r"$\equiv$": "≡", "--": "–", "?": "?"}
 
 
 def _unescape(cell: str) -> str:
@@ -30,8 +32,13 @@ def _csv(path: Path) -> list[list[str]]:
         return list(csv.reader(fh))
 
 
-def _parse(tex: str) -> tuple[list[str], list[list[str]]]:
-    """(header cells, body rows) of the file's one tabular, checking that it is well formed on the way."""
+def _heads(names: list[str]) -> list[str]:
+    """The first head row of CSV column or metric names (their short heads where the tables have one)."""
+    return [SHORT_HEADS[n][0] if n in SHORT_HEADS else escape(n) for n in names]
+
+
+def _parse(tex: str) -> tuple[list[list[str]], list[list[str]]]:
+    """(head rows, body rows) of the file's one tabular, checking that it is well formed on the way."""
     assert tex.startswith("% needs \\usepackage{booktabs,amssymb}")
     stack = []
     for m in re.finditer(r"\\(begin|end)\{(\w+)\}", tex):
@@ -48,7 +55,8 @@ def _parse(tex: str) -> tuple[list[str], list[list[str]]]:
     commands = set(re.findall(r"\\([A-Za-z]+)", tex))
     assert commands <= {"usepackage", "begin", "end", "centering", "caption", "label", "toprule", "midrule",
                         "bottomrule", "textbf", "alpha", "blacktriangle", "blacktriangledown", "equiv",
-                        "textbackslash", "textasciitilde", "textasciicircum"}, commands
+                        "textbackslash", "textasciitilde", "textasciicircum", "small", "footnotesize", "setlength",
+                        "tabcolsep", "circ"}, commands
     align = re.search(r"\\begin\{tabular\}\{([lcr]+)\}", tex)
     assert align is not None
     inner = tex[tex.index(r"\toprule") + len(r"\toprule"):tex.index(r"\bottomrule")]
@@ -59,11 +67,11 @@ def _parse(tex: str) -> tuple[list[str], list[list[str]]]:
         assert line.endswith(r"\\"), line
         return [c.strip() for c in re.split(r"(?<!\\)&", line[:-2])]
 
-    header = cells(head)
+    heads = [cells(line) for line in head.strip().splitlines()]
     rows = [cells(line) for line in body.strip().splitlines()]
-    for r in [header, *rows]:
+    for r in [*heads, *rows]:
         assert len(r) == len(align.group(1)), (r, align.group(1))
-    return header, rows
+    return heads, rows
 
 
 def _number(cell: str) -> float:
@@ -85,9 +93,9 @@ def report(request, tmp_path_factory) -> tuple[Path, list[str], str]:
 
 def test_verdicts_tex_equals_verdicts_csv(report) -> None:
     rep, methods, reference = report
-    header, rows = _parse((rep / "latex" / "verdicts.tex").read_text())
-    table = _csv(rep / "verdicts.csv")  # metrics as rows, compared methods as columns
-    assert [_unescape(c) for c in header[1:]] == [r[0] for r in table[1:]]
+    heads, rows = _parse((rep / "latex" / "verdicts.tex").read_text())
+    table = verdict_symbols(_csv(rep / "verdicts.csv"))  # metrics as rows, compared methods as columns
+    assert heads[0][1:] == _heads([r[0] for r in table[1:]])
     assert [_unescape(r[0]) for r in rows] == [m for m in methods if m != reference] == table[0][1:]
     for j, r in enumerate(rows):
         assert [_SYMBOLS[c] for c in r[1:]] == [t[1 + j] for t in table[1:]]
@@ -96,13 +104,14 @@ def test_verdicts_tex_equals_verdicts_csv(report) -> None:
 
 def test_success_tex_equals_success_csv(report) -> None:
     rep, methods, _ = report
-    header, rows = _parse((rep / "latex" / "success.tex").read_text())
+    heads, rows = _parse((rep / "latex" / "success.tex").read_text())
     table = _csv(rep / "success.csv")  # subsets as rows, methods as columns
     subsets = [r[0] for r in table[1:]]
+    named = [f"{_unescape(a)} {b}" for a, b in zip(heads[0][1:], heads[1][1:])]  # name, then (size)
     if subsets[0].startswith("all ("):
-        assert [_unescape(c) for c in header[1:]] == subsets[:1]  # no subsets: one column
+        assert named == subsets[:1]  # no subsets: one column
     else:
-        assert [_unescape(c) for c in header[1:]] == subsets and subsets[-1].startswith("Total (")
+        assert named == subsets and subsets[-1].startswith("Total (")
     assert [_unescape(r[0]) for r in rows] == methods == table[0][1:]
     for j, r in enumerate(rows):
         assert [int(c) for c in r[1:]] == [int(t[1 + j]) for t in table[1:len(r)]]
@@ -110,9 +119,9 @@ def test_success_tex_equals_success_csv(report) -> None:
 
 def test_medians_tex_equals_medians_csv(report) -> None:
     rep, methods, _ = report
-    header, rows = _parse((rep / "latex" / "medians.tex").read_text())
+    heads, rows = _parse((rep / "latex" / "medians.tex").read_text())
     table = _csv(rep / "medians.csv")
-    assert [_unescape(c) for c in header] == table[0]
+    assert heads[0][1:] == _heads(table[0][1:]) and table[0][0] == "method"
     assert [_unescape(r[0]) for r in rows] == methods == [t[0] for t in table[1:]]
     for r, t in zip(rows, table[1:]):
         assert r[2] == t[2] and int(r[1]) == int(t[1])  # runs, successful k/n

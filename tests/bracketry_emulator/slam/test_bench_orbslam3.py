@@ -19,7 +19,15 @@ from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
 from bracketry_emulator.benchmark.slam import combine_repeats, slam_options
 from bracketry_emulator.benchmark.toyworld import ToyWorld
 from bracketry_emulator.slam.orbslam3 import OrbSlam3Options, SlamRunError, map_states, run_orbslam3
-from bracketry_emulator.slam.settings import OrbSlamCamera, pyramid_levels, settings_yaml
+from bracketry_emulator.slam.settings import (
+    MIN_FIELD_FEATURES,
+    PAPER_ORB,
+    OrbSlamCamera,
+    field_orb_settings,
+    pyramid_levels,
+    settings_yaml,
+    slam_orb_settings,
+)
 from bracketry_emulator.slam.vocabulary import build_vocabulary, parse_vocabulary_text, vocabulary_text
 from bracketry_emulator.trajectory_io import read_frames_csv
 
@@ -109,7 +117,22 @@ def test_bench_settings_reals_and_levels() -> None:
     assert np.allclose(fs.getNode("Stereo.T_c1_c2").mat()[:3, 3], [0.18, 0, 0])
     assert int(fs.getNode("ORBextractor.nLevels").real()) == pyramid_levels(320, 240, 13, 1.2) == 8
     assert pyramid_levels(960, 600, 13, 1.2) == 13
+    assert int(fs.getNode("ORBextractor.nFeatures").real()) == slam_orb_settings(320, 240).n_features
     fs.release()
+    field = cv2.FileStorage(settings_yaml(cam, 3.67, orb=field_orb_settings(320, 240)),
+                            cv2.FILE_STORAGE_READ | cv2.FILE_STORAGE_MEMORY)
+    assert int(field.getNode("ORBextractor.nFeatures").real()) == MIN_FIELD_FEATURES
+    field.release()
+
+
+def test_bench_field_orb_settings_follow_the_papers_view() -> None:
+    """The paper's 3000 features at 1920 px; at smaller widths the share it spent at the scales those images resolve
+    (level log_1.2(1920 / W) on), never below the floor; its scale factor and FAST thresholds everywhere."""
+    assert field_orb_settings(1920, 1200) == PAPER_ORB
+    big, mid, small = field_orb_settings(960, 600), field_orb_settings(640, 400), field_orb_settings(320, 200)
+    assert (mid.n_features, mid.n_levels) == (794, 11) and (small.n_features, small.n_levels) == (750, 7)
+    assert big.n_features == 1345 and big.n_levels == 13
+    assert {(o.scale_factor, o.ini_th_fast, o.min_th_fast) for o in (big, mid, small)} == {(1.2, 15, 5)}
 
 
 def test_bench_map_states_splits_segments() -> None:
@@ -133,7 +156,7 @@ def test_bench_orbslam3_tracks_in_every_repeat(toy: Path, vocabulary: Path, tmp_
     small vocabulary; the built-in VO 3.1 % on the 24 frames); 5 % still catches a scale, frame or timing error
     (those give tens of percent).
     """
-    slam = slam_options("orbslam3", vocabulary, pace=0.0, repeats=3)
+    slam = slam_options("orbslam3", vocabulary, pace="lockstep", repeats=3)
     ds = toy_dataset(toy / "dense", tmp_path / "ds")
     seen: list[dict] = []
     res = run_benchmark(BenchmarkConfig([ds], ["ae50"], tmp_path / "out", reference="ae50",

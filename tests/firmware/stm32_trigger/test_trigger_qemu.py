@@ -5,13 +5,12 @@ from __future__ import annotations
 import itertools
 import subprocess
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
 from bracketry.trigger.client import TriggerClient
-from bracketry.trigger.qemu import QemuTrigger, build_firmware
+from bracketry.trigger.qemu import QemuTrigger
 from trigger_scenario import EXPOSURES_US, check_events, collect_events, run_scenario
 
 pytestmark = pytest.mark.qemu
@@ -19,20 +18,9 @@ pytestmark = pytest.mark.qemu
 TIMEOUT_S = 1.0
 
 
-@pytest.fixture(scope="module")
-def elf(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return build_firmware(tmp_path_factory.mktemp("stm32_build"))
-
-
-@pytest.fixture
-def qemu(elf: Path) -> Iterator[QemuTrigger]:
-    with QemuTrigger(elf, serial="tcp") as runner:
-        yield runner
-
-
-def test_trigger_qemu_scenario(qemu: QemuTrigger) -> None:
+def test_trigger_qemu_scenario(trigger_qemu: QemuTrigger) -> None:
     """HELLO, SET_BRACKETS, START, two bracket cycles, STOP, garbage, invalid tables: on the real ELF."""
-    with TriggerClient.open(qemu.url, timeout_s=TIMEOUT_S) as client:
+    with TriggerClient.open(trigger_qemu.url, timeout_s=TIMEOUT_S) as client:
         client.link.peer_lost_after_s = 10.0
         events = run_scenario(client, client.link._write, quiet_s=1.0)  # raw bytes straight to the port
         # the 64-bit device clock (TIM5 extended) never goes backwards
@@ -50,11 +38,11 @@ def test_trigger_qemu_scenario(qemu: QemuTrigger) -> None:
         client.stop()
 
 
-def test_trigger_qemu_pty_and_cli(elf: Path, tmp_path: Path) -> None:
+def test_trigger_qemu_pty_and_cli(trigger_elf: Path, tmp_path: Path) -> None:
     """`bracketry trigger qemu --serial pty` prints where to connect; `hello` and `monitor --start` use it."""
-    proc = subprocess.Popen([sys.executable, "-m", "bracketry", "trigger", "qemu", "--elf", str(elf), "--serial",
-                             "pty", "--duration-s", "60"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                            text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "bracketry", "trigger", "qemu", "--elf", str(trigger_elf),
+                             "--serial", "pty", "--duration-s", "60"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
         assert proc.stdout is not None
         line = proc.stdout.readline()

@@ -1,0 +1,123 @@
+"""Wait until this process's background threads are idle: the lockstep feed of ORB-SLAM3 (``--slam-pace lockstep``).
+
+ORB-SLAM3 tracks in the caller's thread and maps in its own (local mapping, loop closing, a global bundle adjustment
+when a loop closes). Fed faster than they keep up, tracking races them, and what a frame meets (how many keyframes,
+which map points) depends on the machine's load. Fed in lockstep, each frame is tracked only once those threads are
+idle: every frame meets the map its predecessors left, whatever the load.
+
+pyorbslam3 has no "local mapping idle" call, so idleness is read from the threads themselves, never from the wall
+clock: ``/proc/self/task/<tid>/stat`` (state: ``R`` runnable, ``D`` in I/O) and ``.../schedstat`` (nanoseconds on a
+CPU). Idle ORB-SLAM3 threads sleep in short polls (local mapping 3 ms, loop closing 5 ms) and run a few microseconds
+per poll; a thread at work is runnable (``R``, running or waiting for a CPU) or runs for most of a poll. The
+threads are idle when, over :data:`QUIET_WINDOW_S` (longer than those polls, so a keyframe just queued is seen), no
+sample found one runnable or in I/O, and together they ran less than :data:`MAX_IDLE_RUN_FRACTION` of the window.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+#: how long the background threads must stay idle (longer than ORB-SLAM3's idle polls: 3 ms and 5 ms)
+QUIET_WINDOW_S = 0.012
+#: seconds between two samples of the threads
+POLL_S = 0.001
+#: at most this share of the window may the threads together run and still count as idle (their idle polls)
+MAX_IDLE_RUN_FRACTION = 0.1
+#: give up waiting after this long (a thread that never sleeps): the feed goes on and the run counts it
+MAX_WAIT_S = 60.0
+
+TASK_DIR = "/proc/self/task"
+
+
+@dataclass(frozen=True)
+class ThreadSample:
+    """One thread at one instant: its state letter (``R``, ``S``, ``D``, ...) and nanoseconds it ran on a CPU."""
+
+    state: str
+    run_ns: int
+
+
+def thread_ids() -> set[int]:
+    """This process's thread ids (empty where ``/proc`` is missing)."""
+    try:
+        return {int(t) for t in os.listdir(TASK_DIR)}
+    except OSError:
+        return set()
+
+
+def sample_threads(tids: Iterable[int]) -> dict[int, ThreadSample]:
+    """The state and run time of each thread of ``tids`` still alive."""
+    out = {}
+    for tid in tids:
+        try:
+            with open(f"{TASK_DIR}/{tid}/stat") as fh:
+                stat = fh.read()
+            with open(f"{TASK_DIR}/{tid}/schedstat") as fh:
+                run_ns = int(fh.read().split()[0])
+        except (OSError, ValueError, IndexError):
+            continue  # ended meanwhile
+        out[tid] = ThreadSample(stat[stat.rindex(")") + 2], run_ns)
+    return out
+
+
+def busy_now(sample: dict[int, ThreadSample]) -> bool:
+    """Some thread is runnable (running or waiting for a CPU) or waits for I/O."""
+    return any(s.state in ("R", "D") for s in sample.values())
+
+
+def run_ns_between(first: dict[int, ThreadSample], last: dict[int, ThreadSample]) -> int:
+    """Nanoseconds the threads ran from ``first`` to ``last`` (a thread born meanwhile: all its run time)."""
+    return sum(s.run_ns - (first[t].run_ns if t in first else 0) for t, s in last.items())
+
+
+def window_idle(first: dict[int, ThreadSample], last: dict[int, ThreadSample], window_s: float,
+                max_run_fraction: float = MAX_IDLE_RUN_FRACTION) -> bool:
+    """Over a window of ``window_s`` whose samples found no thread busy (:func:`busy_now`), the threads ran little
+    enough to be idle: less than ``max_run_fraction`` of the window together."""
+    return run_ns_between(first, last) < max_run_fraction * window_s * 1e9
+
+
+@dataclass
+class LockstepStats:
+    """What the waits of one run cost: waits, seconds spent waiting, waits that gave up (:data:`MAX_WAIT_S`)."""
+
+    waits: int = 0
+    wait_s: float = 0.0
+    timeouts: int = 0
+
+
+def wait_idle(exclude: set[int], stats: LockstepStats, window_s: float = QUIET_WINDOW_S, poll_s: float = POLL_S,
+              max_wait_s: float = MAX_WAIT_S, clock: Callable[[], float] = time.monotonic,
+              sleep: Callable[[float], None] = time.sleep,
+              sample: Callable[[], dict[int, ThreadSample]] | None = None) -> bool:
+    """Return once this process's threads but ``exclude`` (the caller's and its helpers') have been idle for
+    ``window_s`` (see the module docstring); False when ``max_wait_s`` passed first. ``sample``: the threads' state
+    now (default: :func:`sample_threads` of every thread not in ``exclude``)."""
+
+    def now_sample() -> dict[int, ThreadSample]:
+        if sample is not None:
+            return sample()
+        return sample_threads(thread_ids() - exclude)
+
+    t_start = clock()
+    stats.waits += 1
+    first, t_first = now_sample(), clock()
+    ok = True
+    while True:
+        sleep(poll_s)
+        cur, t_cur = now_sample(), clock()
+        if busy_now(cur):
+            first, t_first = cur, t_cur
+        elif t_cur - t_first >= window_s:
+            if window_idle(first, cur, t_cur - t_first):
+                break
+            first, t_first = cur, t_cur
+        if t_cur - t_start > max_wait_s:
+            stats.timeouts += 1
+            ok = False
+            break
+    stats.wait_s += clock() - t_start
+    return ok
