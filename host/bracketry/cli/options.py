@@ -134,6 +134,23 @@ class Duration(click.ParamType):
         return total
 
 
+#: the camera resolutions any command or scenario takes, per side, in pixels
+MIN_RESOLUTION_PX, MAX_RESOLUTION_PX = 16, 8192
+
+
+def parse_resolution(text: str, what: str = "--resolution") -> tuple[int, int]:
+    """``WIDTHxHEIGHT`` (e.g. ``640x400``) -> (width, height) in pixels, both even and within
+    :data:`MIN_RESOLUTION_PX`..:data:`MAX_RESOLUTION_PX`; anything else: one-line BracketryError naming ``what``."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise BracketryError(f"{what} {text!r}: expected WIDTHxHEIGHT, e.g. 640x400") from None
+    lo, hi = MIN_RESOLUTION_PX, MAX_RESOLUTION_PX
+    if not (lo <= w <= hi and lo <= h <= hi) or w % 2 or h % 2:
+        raise BracketryError(f"{what} {text!r}: width and height must be even and within {lo}..{hi}")
+    return w, h
+
+
 _MEMORY = re.compile(r"(\d+(?:\.\d*)?)\s*([KMGT]i?B)", re.IGNORECASE)
 
 
