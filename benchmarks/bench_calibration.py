@@ -24,9 +24,9 @@ from bracketry.calibration.board import BoardSpec  # noqa: E402
 from bracketry.calibration.camera_info import rectified_camera  # noqa: E402
 from bracketry.calibration.detect import detect, to_gray8  # noqa: E402
 from bracketry.calibration.solve import solve_stereo  # noqa: E402
+from bracketry.cli.options import parse_resolution  # noqa: E402
 from bracketry_emulator.synth.board_session import render_session  # noqa: E402
 from bracketry_emulator.synth.calibration import default_calibration  # noqa: E402
-from bracketry_emulator.synth.world import parse_resolution  # noqa: E402
 
 
 def one(seed: int, size: tuple[int, int], n_views: int, baseline_m: float) -> dict[str, float]:

@@ -43,8 +43,9 @@ from pathlib import Path  # noqa: E402
 
 import yaml  # noqa: E402
 
-from bracketry_emulator.synth.scenario import scenario_from_dict, world_from_scenario  # noqa: E402
+from bracketry_emulator.synth.scenario import scenario_from_dict  # noqa: E402
 from bracketry_emulator.synth.suite import SIZES, WARMUP_STEPS, entries, entry_scenario_doc  # noqa: E402
+from bracketry_emulator.synth.world import world_from_scenario  # noqa: E402
 from bracketry_emulator.synth.writer import write_trajectory  # noqa: E402
 
 #: the full suite's benchmark: the paper's seven methods without DRL (no public weights shipped)

@@ -54,13 +54,13 @@ import time
 
 import numpy as np
 
+from bracketry.cli.options import parse_resolution
 from bracketry.sim.frames import cycle_rates, expose_frame, noise_bank, reference_time_s, trigger_time_s
 from bracketry_emulator.extensions import extensions_disabled
 from bracketry_emulator.runtime_policy import apply_profile
 from bracketry_emulator.synth import World
 from bracketry_emulator.synth.kernels import synth_kernels
 from bracketry_emulator.synth.trajectory import LoopTrajectory
-from bracketry_emulator.synth.world import parse_resolution
 
 BRACKETS_US = (1000, 2000, 4000, 8000, 16000, 32000)
 FPS = 22.0

@@ -30,7 +30,7 @@ from pathlib import Path
 
 DEMO_RUNS = 105
 
-IMPORTS = "from bracketry_emulator.slam.launcher import _preload; _preload()"
+IMPORTS = "from bracketry_emulator.slam.orbslam3_child import preload; preload()"
 VOC_LOAD = """
 import sys, time, pyorbslam3
 c0 = time.process_time()

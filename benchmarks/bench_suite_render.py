@@ -31,8 +31,9 @@ from pathlib import Path  # noqa: E402
 
 from bracketry_emulator.runtime_policy import apply_profile  # noqa: E402
 from bracketry_emulator.synth import World  # noqa: E402
-from bracketry_emulator.synth.scenario import scenario_from_dict, world_from_scenario  # noqa: E402
+from bracketry_emulator.synth.scenario import scenario_from_dict  # noqa: E402
 from bracketry_emulator.synth.suite import SIZES, entries, entry_scenario_doc, render_suite  # noqa: E402
+from bracketry_emulator.synth.world import world_from_scenario  # noqa: E402
 from bracketry_emulator.synth.writer import write_trajectory  # noqa: E402
 
 GOAL_DEMO_S = 60.0

@@ -15,8 +15,14 @@ Inside the emulator its sub-packages stand on floors (:data:`EMULATOR_FLOORS`): 
 and lower floors, never a neighbour on its floor nor a higher floor (trajectory files below both metrics and SLAM,
 metrics and VO apart, the report below the benchmark).
 
+The benchmark scripts (``benchmarks/``) are a layer above all: they may import every layer, none imports them.
+
 Every import statement counts, module-level or inside a function (a lazy import runs upward just the same), parsed
-with :mod:`ast` from the source of both packages.
+with :mod:`ast` from the source of both packages and the benchmark scripts.
+
+No two files import each other, directly or around a longer loop (:func:`import_cycles`): every import that runs
+counts, lazy ones included (a lazy import hides a cycle from Python, not from the reader); imports under ``if
+TYPE_CHECKING:`` do not run and do not count.
 """
 
 from __future__ import annotations
@@ -27,13 +33,14 @@ from pathlib import Path
 
 from bracketry.paths import repo_root
 
-BASE, RIG, EMULATOR, INTEGRATION = "base", "rig", "emulator", "integration"
+BASE, RIG, EMULATOR, INTEGRATION, BENCHMARKS = "base", "rig", "emulator", "integration", "benchmarks"
 #: the layers each layer may import (itself included)
 MAY_IMPORT: dict[str, set[str]] = {
     BASE: {BASE},
     RIG: {BASE, RIG},
     EMULATOR: {BASE, EMULATOR},
     INTEGRATION: {BASE, RIG, EMULATOR, INTEGRATION},
+    BENCHMARKS: {BASE, RIG, EMULATOR, INTEGRATION, BENCHMARKS},
 }
 #: module (or package: all below it) -> layer; the longest listed name that a module starts with decides
 LAYER_TABLE: dict[str, str] = {
@@ -59,13 +66,14 @@ LAYER_TABLE: dict[str, str] = {
     "bracketry.cli": INTEGRATION,
     "bracketry.__main__": INTEGRATION,
     "bracketry_emulator": EMULATOR,
+    "benchmarks": BENCHMARKS,
 }
 #: the emulator's sub-packages and top-level modules by floor (0 = ground); every module of the emulator is on one
 EMULATOR_FLOORS: dict[str, int] = {
     "bracketry_emulator.defaults": 0, "bracketry_emulator.extensions": 0, "bracketry_emulator.stages": 0,
     "bracketry_emulator.runtime_policy": 0, "bracketry_emulator.trajectory_io": 0, "bracketry_emulator.crf": 0,
     "bracketry_emulator.features": 0, "bracketry_emulator.stats": 0,
-    "bracketry_emulator.dataset": 1, "bracketry_emulator.synth": 1,
+    "bracketry_emulator.dataset": 1, "bracketry_emulator.synth": 1, "bracketry_emulator.option_table": 1,
     "bracketry_emulator.emulation": 2, "bracketry_emulator.vo": 2, "bracketry_emulator.metrics": 2,
     "bracketry_emulator.ae": 3, "bracketry_emulator.accuracy": 3, "bracketry_emulator.slam": 3,
     "bracketry_emulator.report": 3,
@@ -73,7 +81,8 @@ EMULATOR_FLOORS: dict[str, int] = {
     "bracketry_emulator.cli": 5,
 }
 #: the source folder of each package
-PACKAGES = {"bracketry": Path("host/bracketry"), "bracketry_emulator": Path("emulator/bracketry_emulator")}
+PACKAGES = {"bracketry": Path("host/bracketry"), "bracketry_emulator": Path("emulator/bracketry_emulator"),
+            "benchmarks": Path("benchmarks")}
 
 
 @dataclass(frozen=True)
@@ -82,6 +91,7 @@ class Import:
     target: str  # the module imported (``from a import b``: ``a.b`` when that is a module, else ``a``)
     line: int
     lazy: bool  # inside a function or class, not at module level
+    typing_only: bool = False  # under ``if TYPE_CHECKING:``: never runs
 
 
 def _longest(name: str, table: dict[str, object]) -> str | None:
@@ -127,6 +137,12 @@ def imports_of(module: str, source: str, is_init: bool, known: set[str]) -> list
             for inner in ast.walk(node):
                 if isinstance(inner, ast.Import | ast.ImportFrom):
                     lazy_lines.add(id(inner))
+    typing_only: set[int] = set()
+    for node in ast.walk(tree):
+        test = node.test if isinstance(node, ast.If) else None
+        if test is not None and "TYPE_CHECKING" in ast.unparse(test):
+            for inner in node.body:
+                typing_only.update(id(n) for n in ast.walk(inner) if isinstance(n, ast.Import | ast.ImportFrom))
     found = []
     for node in ast.walk(tree):
         targets: list[str] = []
@@ -142,7 +158,8 @@ def imports_of(module: str, source: str, is_init: bool, known: set[str]) -> list
             targets = [f"{pkg}.{a.name}" if f"{pkg}.{a.name}" in known else pkg for a in node.names]
         for t in dict.fromkeys(targets):
             if t.split(".")[0] in tops:
-                found.append(Import(module, t, node.lineno, id(node) in lazy_lines))  # type: ignore[attr-defined]
+                found.append(Import(module, t, node.lineno, id(node) in lazy_lines,  # type: ignore[attr-defined]
+                                    id(node) in typing_only))
     return found
 
 
@@ -175,6 +192,60 @@ def upward_imports(modules: dict[str, tuple[str, bool]], table: dict[str, str] =
                 elif unit != other and down == up:
                     problems.append(f"{where}: {unit} may not import its neighbour {other} on floor {up}")
     return problems
+
+
+def import_cycles(modules: dict[str, tuple[str, bool]]) -> list[list[str]]:
+    """The import cycles between files: each group of modules (sorted; groups sorted) that reach each other by
+    imports that run (module level or lazy; not ``TYPE_CHECKING``). ``modules``: name -> (source, is ``__init__``).
+    An import names the file it imports (``from a import b``: ``a.b`` when that is a module, else ``a``); the parent
+    packages Python runs first are not counted."""
+    known = set(modules)
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for module, (source, is_init) in modules.items():
+        for imp in imports_of(module, source, is_init, known):
+            if not imp.typing_only and imp.target in known and imp.target != module:
+                graph[module].add(imp.target)
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    groups: list[list[str]] = []
+
+    def visit(root: str) -> None:  # Tarjan's strongly connected components, iterative
+        work = [(root, iter(sorted(graph[root])))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on_stack.add(root)
+        while work:
+            node, children = work[-1]
+            child = next(children, None)
+            if child is not None:
+                if child not in index:
+                    index[child] = low[child] = len(index)
+                    stack.append(child)
+                    on_stack.add(child)
+                    work.append((child, iter(sorted(graph[child]))))
+                elif child in on_stack:
+                    low[node] = min(low[node], index[child])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[node])
+            if low[node] == index[node]:
+                group = []
+                while True:
+                    m = stack.pop()
+                    on_stack.discard(m)
+                    group.append(m)
+                    if m == node:
+                        break
+                if len(group) > 1:
+                    groups.append(sorted(group))
+
+    for m in sorted(graph):
+        if m not in index:
+            visit(m)
+    return sorted(groups)
 
 
 def _tree_modules() -> dict[str, tuple[str, bool]]:
@@ -253,3 +324,43 @@ def test_the_tree_with_an_upward_import_fails() -> None:
     problems = upward_imports(modules)
     assert len(problems) == 1 and problems[0].startswith("bracketry.recording.reader:"), problems
     assert "lazy import of bracketry.daemon.rig: the base layer may not import the rig layer" in problems[0]
+
+
+def test_no_import_cycles_between_files() -> None:
+    """No file imports another that imports it back, around any loop, lazy imports included."""
+    assert import_cycles(_tree_modules()) == []
+
+
+def test_import_cycles_are_found() -> None:
+    """On a synthetic module set: a cycle hidden behind a lazy import, a longer loop through a relative and a
+    ``from package import module`` import, and no cycle from a ``TYPE_CHECKING`` import or a one-way chain."""
+    modules = {
+        "bracketry_emulator": ("", True),
+        "bracketry_emulator.synth": ("", True),
+        "bracketry_emulator.synth.world": ("from bracketry_emulator.synth.scenario import Scenario\n", False),
+        "bracketry_emulator.synth.scenario": (  # back to world, lazily
+            "def f():\n    from bracketry_emulator.synth.world import World\n", False),
+        "bracketry_emulator.slam": ("", True),
+        "bracketry_emulator.slam.launcher": ("def g():\n    import bracketry_emulator.slam.child\n", False),
+        "bracketry_emulator.slam.child": ("from .orbslam3 import map_states\n", False),
+        "bracketry_emulator.slam.orbslam3": (  # a loop of three, through ``from package import module``
+            "def h():\n    from bracketry_emulator.slam import launcher\n", False),
+        "bracketry_emulator.vo": ("", True),
+        "bracketry_emulator.vo.a": ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n"
+                                    "    from bracketry_emulator.vo.b import B\n", False),
+        "bracketry_emulator.vo.b": ("from bracketry_emulator.vo.a import A\nfrom bracketry_emulator.vo.c import C\n",
+                                    False),
+        "bracketry_emulator.vo.c": ("", False),
+    }
+    assert import_cycles(modules) == [
+        ["bracketry_emulator.slam.child", "bracketry_emulator.slam.launcher", "bracketry_emulator.slam.orbslam3"],
+        ["bracketry_emulator.synth.scenario", "bracketry_emulator.synth.world"],
+    ]
+
+
+def test_benchmark_scripts_are_covered() -> None:
+    """The benchmark scripts are read (their imports checked, cycles included) and no package imports them."""
+    modules = _tree_modules()
+    assert {"benchmarks.bench_ae", "benchmarks.bench_slam_child"} <= set(modules)
+    assert upward_imports({**modules, "bracketry.errors": ("import benchmarks.bench_ae\n", False)}) == [
+        "bracketry.errors:1: import of benchmarks.bench_ae: the base layer may not import the benchmarks layer"]

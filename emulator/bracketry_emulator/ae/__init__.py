@@ -36,10 +36,10 @@ from .registry import (
     ENTRY_POINT_GROUP,
     PAPER_METHODS,
     MethodSpec,
-    expand_methods,
     get_method,
     load_plugin,
     parse_method_options,
+    parse_methods,
     resolve_methods,
 )
 from .runner import LoopConfig, RunSummary, run_methods
@@ -48,6 +48,6 @@ __all__ = ["BUILTIN_METHODS", "DEFAULT_INIT_EXPOSURE_US", "DEFAULT_MAX_EXPOSURE_
            "ENTRY_POINT_GROUP", "PAPER_METHODS", "AEMethod", "CameraSetting", "ClassicalAE", "ConstantExposure",
            "FixAE", "Frame",
            "LoopConfig", "MethodRun", "MethodSpec", "RunSummary", "Step", "bayer_gray", "classical_step_ms",
-           "expand_methods",
-           "get_method", "iter_loop", "load_plugin", "parse_method_options", "resolve_methods", "run_loop",
+           "get_method", "iter_loop", "load_plugin", "parse_method_options", "parse_methods", "resolve_methods",
+           "run_loop",
            "run_methods"]

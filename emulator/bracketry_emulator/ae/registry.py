@@ -7,8 +7,10 @@ or the name of an entry point in the group ``bracketry.ae_methods``. See PLUGINS
 
 One name per method: :func:`resolve_methods` turns the ids given (and their options) into :class:`MethodSpec`s whose
 ``name`` (a built-in's id; a plugin's ``name`` attribute) names the output folders, CSV rows, statistics and plots,
-refusing unsafe or colliding names before any work. While :func:`methods_in_use` holds them, :func:`get_method` and
-:func:`method_traits` accept those names (also in forked worker processes).
+refusing unsafe or colliding names before any work. A :class:`MethodSpec` is the method from the command line to the
+worker: it carries its source and options (a plugin's constructor arguments, the DRL actor's weights) and creates the
+method (:meth:`MethodSpec.create`) wherever it arrives, forked or on another machine (it pickles). The one parser of
+``--methods`` is :func:`parse_methods`.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import functools
 import importlib
 import math
 import re
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -32,8 +34,10 @@ from .classical import ClassicalAE, ConstantExposure, ConvergingFixAE, FixAE
 if TYPE_CHECKING:
     from importlib.metadata import EntryPoint
 
-#: The eight methods of the paper, in its table order.
+#: The eight methods of the paper, in its table order (``drl`` runs only with its weights, which are not shipped).
 PAPER_METHODS: tuple[str, ...] = ("fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl")
+#: The keywords of ``--methods`` that stand for :data:`PAPER_METHODS` (drl only with its weights).
+PAPER_KEYWORDS: tuple[str, ...] = ("all", "paper")
 #: Every built-in id (``all`` on the command line is :data:`PAPER_METHODS`; ``zhang`` and ``oracle`` by name).
 BUILTIN_METHODS: tuple[str, ...] = (*PAPER_METHODS, "zhang", "oracle")
 ENTRY_POINT_GROUP = "bracketry.ae_methods"
@@ -142,12 +146,6 @@ def get_method(spec: str, **options: Any) -> AEMethod:
     Raises BracketryError (one line) for an unknown id or a plugin that cannot be loaded.
     """
     name = spec.strip()
-    in_use = _IN_USE.get(name)
-    if in_use is not None and not in_use.plain:
-        method = get_method(in_use.source, **{**options, "plugin_kwargs": in_use.kwargs})
-        with contextlib.suppress(AttributeError):
-            method.name = in_use.name
-        return method
     factory = _builtin(name.lower(), options)
     if factory is not None:
         return factory()
@@ -165,28 +163,34 @@ def get_method(spec: str, **options: Any) -> AEMethod:
     raise BracketryError(f"unknown AE method {spec!r} (known: {known}; or a plugin pkg.module:Class)")
 
 
-def expand_methods(specs: str | list[str], has_drl_weights: bool = True,
-                   warn: Callable[[str], None] | None = None) -> list[str]:
-    """Split a comma list, expand ``all`` or ``paper`` (the paper's seven, and drl when weights are given), drop
-    duplicates."""
-    items = specs.split(",") if isinstance(specs, str) else list(specs)
+def parse_methods(methods: str | Sequence[str], has_drl_weights: bool = True,
+                  warn: Callable[[str], None] | None = None) -> list[str]:
+    """The one parser of ``--methods``: a comma list (or a sequence) -> method ids, order kept, duplicates removed.
+
+    ``all`` / ``paper``: the paper's methods (:data:`PAPER_METHODS`; drl only with its weights, ``warn`` says when
+    it is left out); ``controls``: the control rows (:func:`~bracketry_emulator.stats.controls.control_methods`: the
+    non-causal oracle and a grid of constant exposures); any other item is an id as :func:`get_method` takes it
+    (``oracle``, ``zhang``, ``constant-<ms>``, a plugin). Without DRL weights an explicit ``drl`` is an error (one
+    line), as is an empty list."""
+    items = methods.split(",") if isinstance(methods, str) else list(methods)
     out: list[str] = []
-    for raw in items:
-        s = raw.strip()
-        if not s:
+    for item in (str(m).strip() for m in items):
+        if not item:
             continue
-        if s.lower() in ("all", "paper"):
-            for b in PAPER_METHODS:
-                if b == "drl" and not has_drl_weights:
-                    if warn:
-                        warn("note: 'all' skips drl (no --drl-weights given)")
-                    continue
-                if b not in out:
-                    out.append(b)
-        elif s not in out:
-            out.append(s)
+        if item.lower() == "drl" and not has_drl_weights:
+            raise BracketryError("the drl method needs its weights: pass --drl-weights PATH (or set "
+                                 "BRACKETRY_DRL_WEIGHTS)")
+        if item.lower() in PAPER_KEYWORDS:
+            if not has_drl_weights and warn is not None:
+                warn(f"note: '{item}' leaves drl out (no --drl-weights given)")
+            expanded = [m for m in PAPER_METHODS if m != "drl" or has_drl_weights]
+        elif item.lower() == CONTROLS_KEYWORD:
+            expanded = list(control_methods())
+        else:
+            expanded = [item]
+        out += [m for m in expanded if m not in out]
     if not out:
-        raise BracketryError("no AE method given (e.g. --method ae50,shim or --method all)")
+        raise BracketryError("no AE method given (e.g. --methods ae50,shim or --methods all)")
     return out
 
 
@@ -215,14 +219,16 @@ class MethodTraits:
     looks_ahead: bool = False
 
 
-def method_traits(spec: str, **options: Any) -> MethodTraits:
-    """Check the id ``spec`` as :func:`get_method` does and return what its method declares for scheduling.
+def method_traits(spec: str | MethodSpec, **options: Any) -> MethodTraits:
+    """Check the method ``spec`` (an id as :func:`get_method` takes it, or a resolved :class:`MethodSpec`) and return
+    what its method declares for scheduling.
 
     A method class with ``created_in_worker = True`` (creating it starts threads, e.g. torch's) is not created
     here: its ``check_options(**options)`` is called instead and its class attributes are read. Raises
     BracketryError (one line) as :func:`get_method`."""
-    in_use = _IN_USE.get(spec.strip())
-    factory = _builtin(spec.strip().lower(), options) if in_use is None or in_use.plain else None
+    if isinstance(spec, MethodSpec):
+        return spec.traits(**options)
+    factory = _builtin(spec.strip().lower(), options)
     cls = factory.func if isinstance(factory, functools.partial) else factory
     source: Any
     if isinstance(cls, type) and getattr(cls, "created_in_worker", False):
@@ -250,9 +256,11 @@ OptionValue = str | int | float | bool | None
 
 @dataclass(frozen=True)
 class MethodSpec:
-    """One method of a run: its ``name`` (output folders, CSV rows, statistics, plots), the ``source`` it is loaded
-    from (a built-in id, ``pkg.module:Class`` or an entry point's name) and the keyword ``options`` its constructor
-    gets (sorted ``(key, value)`` pairs; YAML scalars). A built-in's name is its id and it takes no options."""
+    """One method of a run, from the command line to the worker: its ``name`` (output folders, CSV rows,
+    statistics, plots), the ``source`` it is loaded from (a built-in id, ``pkg.module:Class`` or an entry point's
+    name) and its ``options`` (sorted ``(key, value)`` pairs; YAML scalars): a plugin's constructor keywords, or a
+    built-in's own inputs (``drl_weights``: the DRL actor's .pth). A built-in's name is its id. Frozen and
+    picklable: forked workers and Dask units get it as it is and create the method from it (:meth:`create`)."""
 
     name: str
     source: str
@@ -263,10 +271,39 @@ class MethodSpec:
         return dict(self.options)
 
     @property
+    def builtin(self) -> bool:
+        return is_builtin(self.source)
+
+    @property
     def plain(self) -> bool:
-        """Whether the name alone loads the method (a built-in, or an entry point named as its method, no
-        options)."""
-        return self.source == self.name and not self.options
+        """Whether the name alone says which method this is (a built-in, whose inputs such as its weights are
+        named on their own, or an entry point named as its method, without options)."""
+        return self.source == self.name and (not self.options or self.builtin)
+
+    def _loader(self, seed: int, parity: str) -> dict[str, Any]:
+        if self.builtin:
+            return {"seed": seed, "parity": parity, **self.kwargs}
+        return {"seed": seed, "parity": parity, "plugin_kwargs": self.kwargs}
+
+    def create(self, seed: int = 0, parity: str = "default") -> AEMethod:
+        """The method itself (a new object; ``seed`` and ``parity``: the closed loop's, see :func:`get_method`)."""
+        method = get_method(self.source, **self._loader(seed, parity))
+        if not self.builtin:
+            with contextlib.suppress(AttributeError):
+                method.name = self.name
+        return method
+
+    def traits(self, seed: int = 0, parity: str = "default") -> MethodTraits:
+        """What the method declares for scheduling (:func:`method_traits`; a plugin is created to read them)."""
+        if self.builtin:
+            return method_traits(self.source, **self._loader(seed, parity))
+        m = self.create(seed, parity)
+        return MethodTraits(int(getattr(m, "step_cost", DEFAULT_STEP_COST)), getattr(m, "step_group", None),
+                            getattr(m, "start_up", None), bool(getattr(m, "looks_ahead", False)))
+
+    def option(self, key: str) -> OptionValue:
+        """One of its options (None when not given)."""
+        return self.kwargs.get(key)
 
     def to_json(self) -> dict[str, Any]:
         """``{"source": ..., "options": {...}}`` (what, besides the name, decides the method's results)."""
@@ -336,36 +373,45 @@ def _load_factory(source: str) -> tuple[Any, str]:
         raise BracketryError(f"cannot load AE entry point {source} ({eps[source].value}): {_one_line(exc)}") from exc
 
 
-def resolve_methods(specs: Sequence[str | MethodSpec], options: Mapping[str, Mapping[str, Any]] | None = None,
-                    **loader_options: Any) -> list[MethodSpec]:
-    """The methods of ``specs`` (ids as :func:`get_method` takes them, or resolved specs kept as they are) with
-    their names, checked before any work.
+def resolve_methods(methods: str | Sequence[str | MethodSpec],
+                    options: Mapping[str, Mapping[str, Any]] | None = None, *, drl_weights: str | Path | None = None,
+                    seed: int = 0, parity: str = "default", warn: Callable[[str], None] | None = None
+                    ) -> list[MethodSpec]:
+    """The methods of ``methods`` (``--methods`` text or ids, parsed by :func:`parse_methods`; resolved specs are
+    kept as they are) with their names, checked before any work: what travels to the workers.
 
     A built-in's name is its id; a plugin's is its ``name`` attribute (the class's, else the created object's),
     else the attribute after the colon or the entry point's name. ``options``: {method: {keyword: value}} for the
-    plugins' constructors, keyed by the method's name or by its id as given (``loader_options``: ``seed``,
-    ``parity``, ``drl_weights`` as :func:`get_method`). Each plugin is created once here (so a constructor that
-    rejects an option fails now). Raises BracketryError (one line) for an unknown id, an option for an unknown or
-    built-in method, a name that is not a safe folder name, and two methods of one name. The keyword ``controls``
-    stands for the control rows (:func:`~bracketry_emulator.stats.controls.control_methods`: the non-causal
-    oracle and a grid of constant exposures)."""
+    plugins' constructors, keyed by the method's name or by its id as given. ``drl_weights``: the DRL actor, an
+    option of the ``drl`` method (its absolute path); ``seed``, ``parity``: as :func:`get_method`. Each plugin is
+    created once here (so a constructor that rejects an option fails now). Raises BracketryError (one line) for an
+    unknown id, an option for an unknown or built-in method, a name that is not a safe folder name, and two methods
+    of one name."""
     options = {str(k): dict(v) for k, v in (options or {}).items()}
-    specs = [x for item in specs for x in (control_methods() if isinstance(item, str)
-                                           and item.strip().lower() == CONTROLS_KEYWORD else [item])]
+    has_weights = drl_weights is not None
+    items: list[str | MethodSpec] = []
+    for m in [methods] if isinstance(methods, str) else methods:
+        if isinstance(m, MethodSpec):
+            items.append(m)
+        else:  # groups expanded, duplicates dropped
+            items += [p for p in parse_methods(m, has_weights, warn) if p not in items]
+    weights = str(Path(drl_weights).resolve()) if drl_weights is not None else None
+    loader = {"seed": seed, "parity": parity, "drl_weights": weights}
     used: set[str] = set()
     out: list[MethodSpec] = []
-    for item in specs:
+    for item in items:
         if isinstance(item, MethodSpec):
             spec = item
         else:
-            source = item.strip()
+            source = str(item).strip()
             if is_builtin(source):
                 if source in options:
                     raise BracketryError(f"options given for the built-in method {source}: options are for plugins "
                                          "(their constructors' keyword arguments)")
-                spec = MethodSpec(source, source)
+                own = (("drl_weights", weights),) if source.lower() == "drl" and weights is not None else ()
+                spec = MethodSpec(source, source, own)
             else:
-                spec = _resolve_plugin(source, options, used, loader_options)
+                spec = _resolve_plugin(source, options, used, loader)
         check_method_name(spec.name, spec.source)
         out.append(spec)
     unknown = sorted(set(options) - used)
@@ -405,23 +451,6 @@ def _resolve_plugin(source: str, options: Mapping[str, Mapping[str, Any]], used:
     if name.lower() != source.lower() and is_builtin(name):
         raise BracketryError(f"AE plugin {source} is named {name!r}, the name of a built-in method: rename it")
     return MethodSpec(name, source, tuple(sorted(kwargs.items())))
-
-
-#: the methods of the run in progress, by name (:func:`methods_in_use`)
-_IN_USE: dict[str, MethodSpec] = {}
-
-
-@contextlib.contextmanager
-def methods_in_use(specs: Sequence[MethodSpec]) -> Iterator[None]:
-    """While inside, :func:`get_method` and :func:`method_traits` take these methods' names (worker processes
-    forked inside inherit them)."""
-    before = dict(_IN_USE)
-    _IN_USE.update({s.name: s for s in specs})
-    try:
-        yield
-    finally:
-        _IN_USE.clear()
-        _IN_USE.update(before)
 
 
 # -- options from the command line ---------------------------------------------------------------------------------

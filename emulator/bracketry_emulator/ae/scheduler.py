@@ -29,7 +29,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -43,9 +43,12 @@ from .decode_plan import decode_strategy
 from .emulation_cache import EmulationCache, needed_brackets
 from .frame_source import FrameSource
 from .loop import Frame, MethodRun, Step, initial_exposure_us, iter_loop
-from .registry import MethodTraits, get_method
+from .registry import MethodSpec, MethodTraits
 from .truth import TruthCache
 from .writers import ImageSink, LinkingRunWriter, method_folder
+
+if TYPE_CHECKING:
+    from .loop_config import LoopConfig
 
 #: Sequences held in the shared frame buffer at most (its ring of slots): a worker decodes at most this many sequences
 #: ahead of the slowest one (it waits otherwise); every slot's pages stay mapped in every process once touched.
@@ -58,27 +61,24 @@ EMULATION_COST = 16
 
 @dataclass(frozen=True)
 class LoopSettings:
-    """What every worker needs to know of a run (picklable; see :class:`~.runner.LoopConfig`).
+    """What every worker needs to know of a run (picklable): the run's closed-loop settings ``loop``
+    (:class:`~.runner.LoopConfig` itself, as the commands built it from the settings table) and what the run found
+    in the dataset: ``write_sides`` the sides written, ``emulate_sides`` every side emulated (write sides + AE
+    camera), ``truth_dir`` a synthetic trajectory whose world renders the images (truth runs, :mod:`.truth`; None:
+    emulated)."""
 
-    Exposures in us; ``ae_camera`` the side whose image the methods see; ``write_sides`` the sides written;
-    ``emulate_sides`` every side emulated (write sides + AE camera)."""
-
-    emulator: EmulatorConfig
-    ae_camera: str
+    loop: LoopConfig
     write_sides: tuple[str, ...]
     emulate_sides: tuple[str, ...]
-    init_exposure_us: float
-    min_exposure_us: float
-    max_exposure_us: float
-    seed: int
-    drl_weights: str | None
-    write_images: bool
-    png_compression: str
-    overwrite: bool
-    #: a synthetic trajectory whose world renders the images (truth runs, :mod:`.truth`); None: emulated
     truth_dir: str | None = None
-    #: steps each method takes on the first sequence's view before the run (:func:`~.loop.iter_loop`)
-    warmup_steps: int = 0
+
+    @property
+    def emulator(self) -> EmulatorConfig:
+        return self.loop.emulator
+
+    @property
+    def ae_camera(self) -> str:
+        return self.loop.ae_camera
 
 
 def partition(traits: dict[str, MethodTraits], n: int) -> list[list[str]]:
@@ -121,8 +121,8 @@ class Worker:
     and forked modes. Its frames come from a :class:`~.frame_source.FrameSource` (what to decode: the run's
     :func:`~.decode_plan.decode_strategy`)."""
 
-    def __init__(self, specs: list[str], settings: LoopSettings, sequences: list[BracketSequence], out_dir: Path,
-                 frames: FrameBuffer, write_threads: int = 1, feeds: dict[str, list[Any]] | None = None,
+    def __init__(self, methods: list[MethodSpec], settings: LoopSettings, sequences: list[BracketSequence],
+                 out_dir: Path, frames: FrameBuffer, write_threads: int = 1, feeds: dict[str, list[Any]] | None = None,
                  reader: int = 0) -> None:
         self.settings = s = settings
         #: this worker's reader number in ``frames`` (:meth:`FrameBuffer.release`)
@@ -142,7 +142,7 @@ class Worker:
         strategy = decode_strategy(s.emulator.selection, s.emulator.parity, len(s.emulate_sides), ae_i)
         self.source = FrameSource(frames, sequences, s.emulate_sides, strategy, self.emu.ae_choice(s.ae_camera),
                                   reader)
-        self.sink = ImageSink(write_threads if s.write_images else 0, stages=self.stages)
+        self.sink = ImageSink(write_threads if s.loop.write_images else 0, stages=self.stages)
         #: each method's next camera exposure (us): what its next step's source bracket is chosen for
         self.targets: dict[str, float] = {}
         self.runs: dict[str, MethodRun] = {}
@@ -156,19 +156,21 @@ class Worker:
         self._ahead_emu = (TruthCache(s.emulator, s.truth_dir) if s.truth_dir is not None
                            else EmulationCache(s.emulator))
         self._ahead: tuple[int, dict[str, dict[int, np.ndarray]]] | None = None  # (sequence, its brackets)
-        for spec in specs:
-            method = get_method(spec, seed=s.seed, drl_weights=s.drl_weights, parity=s.emulator.parity)
+        for m in methods:  # each method created here, in the worker, from the spec it was handed
+            spec = m.name
+            method = m.create(seed=s.loop.seed, parity=s.emulator.parity)
             if getattr(method, "looks_ahead", False):
                 self._looking_ahead.add(spec)
-            self.targets[spec] = initial_exposure_us(method, s.init_exposure_us)
+            self.targets[spec] = initial_exposure_us(method, s.loop.init_exposure_us)
             self.runs[spec] = MethodRun(spec)
             self._loops[spec] = iter_loop(method, itertools.count(), functools.partial(self._emulate, spec), name=spec,
-                                          init_exposure_us=s.init_exposure_us, min_exposure_us=s.min_exposure_us,
-                                          max_exposure_us=s.max_exposure_us, warmup_steps=s.warmup_steps,
+                                          init_exposure_us=s.loop.init_exposure_us,
+                                          min_exposure_us=s.loop.min_exposure_us,
+                                          max_exposure_us=s.loop.max_exposure_us, warmup_steps=s.loop.warmup_steps,
                                           warmup=functools.partial(self._first_view, spec))
             self.writers[spec] = LinkingRunWriter(out_dir, method_folder(spec), s.write_sides, s.emulator.depth,
-                                                  s.overwrite, self.sink, s.png_compression,
-                                                  s.emulator.parity, images=s.write_images)
+                                                  s.loop.overwrite, self.sink, s.loop.png_compression,
+                                                  s.emulator.parity, images=s.loop.write_images)
 
     def run(self, seq_indices: list[int], progress: Callable[[int], None], decode_pool: ThreadPoolExecutor) -> None:
         """Step every method of this worker through the given sequences (position = place in the list): all take
@@ -183,7 +185,7 @@ class Worker:
                 self._ahead = None
                 self._ahead_emu.clear()
                 self._brackets = self.source.load(pos, seq_i, self.targets.values())
-                if pos == 0 and self.settings.warmup_steps > 0:  # the warm-up's targets may need any bracket
+                if pos == 0 and self.settings.loop.warmup_steps > 0:  # the warm-up's targets may need any bracket
                     self._brackets = self.source.peek(pos, seq_i)
                 self._seq_i = seq_i
                 nxt = seq_indices[pos + 1] if pos + 1 < len(seq_indices) else None
@@ -269,13 +271,15 @@ class Worker:
 AUTO_FORK_MIN_SEQUENCES = 8
 
 
-def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, sequences: list[BracketSequence],
+def run_scheduled(methods: dict[str, MethodSpec], traits: dict[str, MethodTraits], settings: LoopSettings,
+                  sequences: list[BracketSequence],
                   out_dir: Path, *, workers: int, memory_budget_bytes: int,
                   progress: Callable[[int], None], feeds: dict[str, list[Any]] | None = None,
                   stages: StageTimes | None = None) -> dict[str, MethodRun]:
     """Every method's closed loop over ``sequences`` (at least one), its images written under ``out_dir``.
 
-    ``traits``: {method id: what it declares}, in run order. ``workers``: processes (0 = min(methods, CPUs, 4)
+    ``methods``: {method name: the method, created by each worker from it}; ``traits``: {method name: what it
+    declares}, in run order. ``workers``: processes (0 = min(methods, CPUs, 4)
     from :data:`AUTO_FORK_MIN_SEQUENCES` sequences on, else 1; 1 = in this process). ``progress(n)`` is called
     after every n method steps. Returns {method id: run} in ``traits`` order. Raises BracketryError (one line) on
     a failing method or worker. ``feeds``: see :class:`Worker`; ``stages``: receives the workers' stage times.
@@ -305,7 +309,7 @@ def run_scheduled(traits: dict[str, MethodTraits], settings: LoopSettings, seque
 
     def make(reader: int, write_threads: int = 1) -> Callable[[], Worker]:
         group = groups[reader]
-        return lambda: Worker(group, settings, sequences, out_dir, frames, write_threads,
+        return lambda: Worker([methods[m] for m in group], settings, sequences, out_dir, frames, write_threads,
                               {m: f for m, f in (feeds or {}).items() if m in group}, reader)
 
     runs: dict[str, MethodRun] = {}

@@ -11,7 +11,7 @@ Faults: a worker that dies (a cancelled job, a walltime, a killed process) loses
 on another worker, which finds the runs that finished in the cache and runs only the others, so no run is computed
 twice and nothing partial reaches the report (a run's SLAM output is replaced when it starts again, its result is
 only what :func:`~bracketry_emulator.benchmark.tasks.complete_task` wrote). A scheduler that goes away is one line
-(:class:`ClusterLost`) saying that the same command resumes from the cache.
+(:class:`ClusterLost`) saying that the same command with ``--resume`` resumes from the cache.
 
 Slurm (:func:`slurm_cluster`): dask-jobqueue's ``SLURMCluster``, one worker process per job (no nanny, so a unit
 may fork its closed-loop workers), at most ``jobs`` jobs (adaptive: fewer as the work runs out), all cancelled at the
@@ -34,6 +34,7 @@ from typing import TYPE_CHECKING, Any
 from bracketry.errors import BracketryError
 from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult, load_cached, run_task
 from bracketry_emulator.metrics.manifest import TrajectorySpec
+from bracketry_emulator.option_table import slurm_walltime as slurm_walltime
 
 if TYPE_CHECKING:
     from bracketry_emulator.ae.runner import LoopConfig
@@ -81,14 +82,6 @@ class WorkerChecks:
     inputs: tuple[str, ...]
     vocabulary: str | None = None
     vocabulary_id: str | None = None
-
-
-def slurm_walltime(seconds: float) -> str:
-    """``HH:MM:SS`` (Slurm's --time) of ``seconds``, rounded up to whole seconds."""
-    import math
-
-    s = math.ceil(seconds)
-    return f"{s // 3600:02d}:{s % 3600 // 60:02d}:{s % 60:02d}"
 
 
 def make_units(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], loop: LoopConfig, stream: bool) -> list[Unit]:
@@ -193,7 +186,7 @@ def run_unit(unit: Unit, checks: WorkerChecks, cores: int) -> list[RunResult]:
 def _lost(address: str, exc: BaseException, n_done: int, n_units: int) -> ClusterLost:
     return ClusterLost(f"lost the Dask scheduler {address} after {n_done} of {n_units} work units "
                        f"({type(exc).__name__}: {exc or 'no detail'}); every finished run is in the cache: the same "
-                       "command resumes")
+                       "command resumes with --resume")
 
 
 def run_units(client: Any, units: list[Unit], checks: WorkerChecks, cores: int,

@@ -53,13 +53,6 @@ def check_options(runs_dir: Path, loop: LoopConfig) -> None:
         path.write_text(json.dumps(options, indent=1, sort_keys=True) + "\n")
 
 
-def all_methods() -> tuple[str, ...]:
-    """The ids that ``--methods all`` expands to (the paper's eight; ``zhang`` by name)."""
-    from bracketry_emulator.ae.registry import PAPER_METHODS
-
-    return tuple(PAPER_METHODS)
-
-
 def method_name(method: str | MethodSpec) -> str:
     """A method's name (its folder under ``runs/<trajectory>/``)."""
     return method if isinstance(method, str) else method.name

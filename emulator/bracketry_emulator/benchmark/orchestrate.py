@@ -14,7 +14,6 @@ from typing import Any
 from bracketry.errors import BracketryError
 from bracketry_emulator.ae.runner import LoopConfig
 from bracketry_emulator.benchmark.cluster import SlurmOptions
-from bracketry_emulator.benchmark.emulated_runs import all_methods
 from bracketry_emulator.benchmark.slam import SlamOptions, describe
 from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult, load_cached, make_task, run_task
 from bracketry_emulator.defaults import DEFAULT_ALPHA, DEFAULT_REFERENCE, DEFAULT_STATS_METHODS
@@ -28,16 +27,17 @@ OnDone = Callable[[RunResult], None]
 class BenchmarkConfig:
     """What :func:`run_benchmark` does: ``methods`` on ``datasets`` (folders, manifests or specs) into ``out_dir``.
 
-    ``methods``: ``all`` / ``paper`` or a comma-separated list (or a sequence) of method ids. ``scheduler``: a Dask
-    scheduler address (``tcp://HOST:PORT``); ``cluster``: Slurm jobs through dask-jobqueue
+    ``methods``: ``--methods`` text or a sequence of ids (parsed by
+    :func:`~bracketry_emulator.ae.registry.parse_methods`: ``all`` / ``paper``, ``controls``, ids).
+    ``scheduler``: a Dask scheduler address (``tcp://HOST:PORT``); ``cluster``: Slurm jobs through dask-jobqueue
     (:class:`~bracketry_emulator.benchmark.cluster.SlurmOptions`); neither: local processes (``workers``). Locally,
     the closed loops of all methods still to run on a trajectory run first in one pass (each bracket sequence
     decoded once for all methods, ``progress`` shows a bar); on a cluster a worker runs such a pass per trajectory
     (:mod:`~bracketry_emulator.benchmark.cluster`: shared storage checked on every worker, a lost worker's runs
     done again elsewhere, a lost scheduler one line).
-    ``drl_weights``: the DRL actor (``all`` leaves DRL out without it). ``loop``: the closed-loop settings; what
-    :meth:`LoopConfig.to_json` holds is part of every cache key, and a setting it cannot hold is refused (the
-    cameras written, the images, the DRL weights and ``overwrite`` are the benchmark's own).
+    ``drl_weights``: the DRL actor (``all`` leaves DRL out without it; an option of the ``drl`` method from here
+    on). ``loop``: the closed-loop settings; what :meth:`LoopConfig.to_json` holds is part of every cache key, and a
+    setting it cannot hold is refused (the cameras written, the images and ``overwrite`` are the benchmark's own).
     ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
     Without ``slam_dir`` and ``export_orbslam`` (locally or on a cluster) SLAM gets the emulated images in memory
     (:mod:`~bracketry_emulator.benchmark.stream`: every run of a trajectory is fed by its one closed-loop pass) and
@@ -82,6 +82,9 @@ class BenchmarkConfig:
     #: steps each method takes on a trajectory's first view before it (:func:`~bracketry_emulator.ae.loop.iter_loop`);
     #: None: what its manifest declares (``warmup_steps:``), else ``loop.warmup_steps``
     warmup_steps: int | None = None
+    #: remove what an earlier benchmark wrote into ``out_dir`` first (:func:`remove_earlier_benchmark`), once the
+    #: input is checked; else its cached runs are reused
+    overwrite: bool = False
 
     def __post_init__(self) -> None:
         def put(name: str, value: Any) -> None:
@@ -114,26 +117,22 @@ class BenchmarkResult:
     timing: dict = field(default_factory=dict)
 
 
-def parse_methods(methods: str | list[str], has_drl_weights: bool = True) -> list[str]:
-    """``all`` / ``paper`` (the paper's seven, and drl with its weights) or a comma-separated list (or a list) ->
-    method ids, order kept, duplicates removed.
+#: what a benchmark writes into its output folder (``--overwrite`` removes these, and only these, first)
+BENCHMARK_OUTPUTS: tuple[str, ...] = ("cache", "runs", "vo", "report", "orbslam", "setup_check", "reference", "truth",
+                                      ".cluster_token")
 
-    Without DRL weights (``has_drl_weights=False``) ``all`` leaves ``drl`` out and an explicit ``drl`` is an error.
-    """
-    items = methods.split(",") if isinstance(methods, str) else list(methods)
-    out: list[str] = []
-    for item in (m.strip() for m in items):
-        if item == "drl" and not has_drl_weights:
-            raise BracketryError("the drl method needs its weights: pass --drl-weights PATH (or set "
-                                 "BRACKETRY_DRL_WEIGHTS)")
-        expanded = ([m for m in all_methods() if m != "drl" or has_drl_weights] if item in ("all", "paper")
-                    else [item])
-        for m in expanded:
-            if m and m not in out:
-                out.append(m)
-    if not out:
-        raise BracketryError("no AE method given (--methods all or a comma-separated list)")
-    return out
+
+def remove_earlier_benchmark(out_dir: Path) -> None:
+    """``--overwrite``: remove what an earlier benchmark wrote into ``out_dir`` (:data:`BENCHMARK_OUTPUTS`: its runs,
+    cached results and report), so nothing of it is reused or mixed with the new one; other files stay."""
+    import shutil
+
+    for name in BENCHMARK_OUTPUTS:
+        p = out_dir / name
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p)
+        elif p.exists() or p.is_symlink():
+            p.unlink()
 
 
 def spec_loop(spec: TrajectorySpec, loop: LoopConfig, warmup_steps: int | None = None) -> LoopConfig:
@@ -238,12 +237,11 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     weights = c.drl_weights
     if weights is not None and not Path(weights).is_file():
         raise BracketryError(f"--drl-weights file not found: {weights}")
-    method_ids = parse_methods(c.methods if isinstance(c.methods, str) else list(c.methods),
-                               has_drl_weights=weights is not None)
-    from bracketry_emulator.ae.registry import BUILTIN_METHODS, MethodSpec, is_builtin, resolve_methods
+    from bracketry_emulator.ae.registry import BUILTIN_METHODS, MethodSpec, is_builtin, parse_methods, resolve_methods
 
     # an unknown id, a broken plugin, a bad option, an unsafe or shared name: one line, before any work; a
-    # dataset's own run of a method is named by its folder
+    # dataset's own run of a method is named by its folder. Resolved once: the specs travel to the workers.
+    method_ids = parse_methods(c.methods, has_drl_weights=weights is not None)
     existing = {m for m in method_ids if m.lower() not in BUILTIN_METHODS and any(s.existing_run(m) for s in specs)}
     resolved = resolve_methods([MethodSpec(m, m) if m in existing else m for m in method_ids], c.method_options,
                                seed=c.loop.seed, parity=c.loop.emulator.parity, drl_weights=weights)
@@ -255,11 +253,13 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     plugin_names = [m.name for m in plugins]
     select_stats_methods(stats_methods, method_ids, c.reference, plugin_names)  # bad names: one line, before work
     out = c.out_dir
+    if c.overwrite:
+        remove_earlier_benchmark(out)
     out.mkdir(parents=True, exist_ok=True)
     slam_path = c.slam_dir.resolve() if c.slam_dir else None
     if slam_path is not None and not slam_path.is_dir():
         raise BracketryError(f"--slam-trajectories folder not found: {slam_path}")
-    loop = replace(c.loop, camera="both", drl_weights=weights, write_images=c.write_images, overwrite=False)
+    loop = replace(c.loop, camera="both", write_images=c.write_images, overwrite=False)
     loop.validate()  # bad settings: one clear line before anything runs
     if not loop.round_trips():
         raise BracketryError("the benchmark's closed loops take only the settings of its options (selection, crf, "
@@ -272,8 +272,8 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
         replace(loop, warmup_steps=c.warmup_steps).validate()  # a bad warm-up: one line before anything runs
     loops = {s.name: spec_loop(s, loop, c.warmup_steps) for s in specs}
     windows = {s.name: tuple(c.windows_m or s.windows_m or DEFAULT_WINDOWS_M) for s in specs}
-    tasks = [make_task(s, m, out, windows[s.name], c.max_frames, c.export_orbslam, slam_path, weights,
-                       loops[s.name], slam, r, references[s.name])
+    tasks = [make_task(s, m, out, windows[s.name], c.max_frames, c.export_orbslam, slam_path, loops[s.name], slam, r,
+                       references[s.name])
              for s in specs for m in resolved for r in range(slam.repeats)]
     if c.setup_check and slam_path is None and slam.backend == "orbslam3":
         _check_setup(specs, tasks, method_ids, references, slam, out, slam_echo)

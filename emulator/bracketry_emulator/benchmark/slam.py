@@ -18,6 +18,7 @@ import numpy as np
 
 from bracketry.errors import BracketryError
 from bracketry_emulator.defaults import DEFAULT_SLAM_PACE, SLAM_BACKENDS
+from bracketry_emulator.option_table import default, rows
 
 BACKENDS = SLAM_BACKENDS
 
@@ -36,12 +37,12 @@ class SlamOptions:
     per (trajectory, method); the report gives their median and spread.
     """
 
-    backend: str = SLAM_BACKENDS[0]
+    backend: str = default("slam", "backend")
     vocabulary: str | None = None
     vocabulary_id: str | None = None
-    pace: str | float = DEFAULT_SLAM_PACE
-    loop_closing: bool = True
-    repeats: int = 1
+    pace: str | float = default("slam", "pace")
+    loop_closing: bool = default("slam", "loop_closing")
+    repeats: int = default("slam", "repeats")
 
     @classmethod
     def builtin(cls, repeats: int = 1) -> SlamOptions:
@@ -62,8 +63,12 @@ class SlamOptions:
         built-in VO has none of its own."""
         if self.backend == "builtin":
             return {"backend": "builtin"}
-        return {"backend": self.backend, "vocabulary_id": self.vocabulary_id, "pace": self.pace,
-                "loop_closing": self.loop_closing}
+        doc: dict[str, Any] = {"vocabulary_id": self.vocabulary_id}
+        for s in rows("slam"):  # the table's SLAM rows that decide results (key: always, or changed from default)
+            v = getattr(self, s.target)
+            if s.key == "always" or (s.key == "changed" and v != s.default_value):
+                doc[s.target] = v
+        return doc
 
     @property
     def pace_s(self) -> float | None:
@@ -115,9 +120,10 @@ def file_id(path: str | Path) -> str:
 
 def slam_options(backend: str = SLAM_BACKENDS[0], vocabulary: str | Path | None = None,
                  pace: str | float | None = None, loop_closing: bool = True, repeats: int = 1, echo=None,
-                 resolve: bool = True) -> SlamOptions:
+                 resolve: bool = True, **more: Any) -> SlamOptions:
     """Checked, complete SLAM options; for ORB-SLAM3 the vocabulary is resolved (the default built once) unless
-    ``resolve`` is False (then :func:`resolve_options` does it, e.g. after the rest of the input was checked)."""
+    ``resolve`` is False (then :func:`resolve_options` does it, e.g. after the rest of the input was checked).
+    ``more``: the other :class:`SlamOptions` fields (the settings table's further SLAM rows)."""
     if backend not in BACKENDS:
         raise BracketryError(f"unknown SLAM backend {backend!r} (choose from {', '.join(BACKENDS)})")
     if int(repeats) < 1:
@@ -126,7 +132,7 @@ def slam_options(backend: str = SLAM_BACKENDS[0], vocabulary: str | Path | None 
     if backend == "builtin":  # not paced, no loop closing
         return SlamOptions.builtin(int(repeats))
     opts = SlamOptions(backend, str(vocabulary) if vocabulary else None, None, pace, bool(loop_closing),
-                       int(repeats))
+                       int(repeats), **more)
     return resolve_options(opts, echo) if resolve else opts
 
 

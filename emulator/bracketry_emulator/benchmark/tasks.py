@@ -54,18 +54,17 @@ def _default_loop() -> LoopConfig:
 class BenchmarkTask:
     """One (trajectory, method, repeat) of a benchmark (:func:`make_task`). Paths are strings (as in its JSON form).
 
-    ``out``: the benchmark folder. ``groundtruth``: the TUM left-camera reference (None: none). ``calibration``: the
-    trajectory's calibration folder. ``existing_run``: the dataset's own emulated run of ``method`` (then no closed
-    loop runs). ``drl_weights``: the DRL actor (``drl`` only). ``loop``: the closed-loop settings. ``slam_dir``:
-    external SLAM trajectories evaluated instead of running SLAM. ``export_orbslam``: also export the run for
-    ORB-SLAM's stereo examples. ``method`` is the method's name (folders, rows); a plugin's ``method_source``
-    (import path or entry point; None: the name itself) and constructor ``method_options`` (sorted pairs) are part
-    of the key.
+    ``method_spec``: the method itself (name, source, options such as a plugin's arguments or the DRL actor's
+    weights), as :func:`~bracketry_emulator.ae.registry.resolve_methods` made it: the worker creates the method from
+    it. ``out``: the benchmark folder. ``groundtruth``: the TUM left-camera reference (None: none). ``calibration``:
+    the trajectory's calibration folder. ``existing_run``: the dataset's own emulated run of the method (then no
+    closed loop runs). ``loop``: the closed-loop settings. ``slam_dir``: external SLAM trajectories evaluated instead
+    of running SLAM. ``export_orbslam``: also export the run for ORB-SLAM's stereo examples.
     """
 
     trajectory: str
     subset: str
-    method: str
+    method_spec: MethodSpec
     dataset: str
     out: str
     groundtruth: str | None = None
@@ -75,19 +74,20 @@ class BenchmarkTask:
     max_frames: int | None = None
     export_orbslam: bool = False
     slam_dir: str | None = None
-    drl_weights: str | None = None
     loop: LoopConfig = field(default_factory=_default_loop)
     slam: SlamOptions = field(default_factory=SlamOptions.builtin)
     repeat: int = 0
-    method_source: str | None = None
-    method_options: tuple[tuple[str, Any], ...] = ()
 
     @property
-    def method_spec(self) -> MethodSpec:
-        """The method to load: its name, source and options."""
-        from bracketry_emulator.ae.registry import MethodSpec
+    def method(self) -> str:
+        """The method's name (folders, rows, statistics)."""
+        return self.method_spec.name
 
-        return MethodSpec(self.method, self.method_source or self.method, tuple(self.method_options))
+    @property
+    def drl_weights(self) -> str | None:
+        """The DRL actor's weights (an option of the ``drl`` method; None for every other)."""
+        w = self.method_spec.option("drl_weights") if self.method_spec.builtin else None
+        return None if w is None else str(w)
 
     def _plugin_json(self) -> dict[str, Any]:
         """``{"plugin": {"source", "options"}}`` for a method its name alone does not load, else nothing (so a
@@ -109,15 +109,15 @@ class BenchmarkTask:
     @classmethod
     def from_json(cls, doc: dict[str, Any]) -> BenchmarkTask:
         """The task of :meth:`to_json`'s form (its ``key`` is recomputed)."""
+        from bracketry_emulator.ae.registry import MethodSpec
         from bracketry_emulator.ae.runner import LoopConfig
 
-        fields_ = {k: v for k, v in doc.items() if k not in ("key", "plugin")}
-        plugin = doc.get("plugin")
-        if plugin:
-            fields_["method_source"] = str(plugin["source"])
-            fields_["method_options"] = tuple(sorted(dict(plugin.get("options") or {}).items()))
-        return cls(**{**fields_, "windows_m": tuple(doc["windows_m"]), "loop": LoopConfig.from_json(doc["loop"]),
-                      "slam": SlamOptions.from_json(doc["slam"])})
+        fields_ = {k: v for k, v in doc.items() if k not in ("key", "plugin", "method", "drl_weights")}
+        name, plugin, weights = str(doc["method"]), doc.get("plugin"), doc.get("drl_weights")
+        spec = (MethodSpec.from_json(name, plugin) if plugin else
+                MethodSpec(name, name, (("drl_weights", weights),) if weights is not None else ()))
+        return cls(**{**fields_, "method_spec": spec, "windows_m": tuple(doc["windows_m"]),
+                      "loop": LoopConfig.from_json(doc["loop"]), "slam": SlamOptions.from_json(doc["slam"])})
 
     @property
     def key(self) -> str:
@@ -204,38 +204,32 @@ class RunResult:
 def make_task(spec: TrajectorySpec, method: str | MethodSpec, out_dir: Path,
               windows_m: tuple[float, ...] = DEFAULT_WINDOWS_M, max_frames: int | None = None,
               export_orbslam: bool = False, slam_dir: Path | None = None,
-              drl_weights: str | None = None, loop: LoopConfig | None = None, slam: SlamOptions | None = None,
+              loop: LoopConfig | None = None, slam: SlamOptions | None = None,
               repeat: int = 0, groundtruth: Path | None = None) -> BenchmarkTask:
-    """The task of ``method`` (a name, or a resolved :class:`~bracketry_emulator.ae.registry.MethodSpec`: a
-    plugin with its source and options) on trajectory ``spec``.
+    """The task of ``method`` (a resolved :class:`~bracketry_emulator.ae.registry.MethodSpec`: its source and
+    options, the DRL actor's weights included; or a built-in's id) on trajectory ``spec``.
 
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; None = the built-in VO).
     ``repeat``: which repeat of the (trajectory, method) run this is (0-based; part of the key and the paths).
     ``groundtruth``: a TUM left-camera reference replacing the spec's (e.g. made from its ``reference.yaml``).
 
-    ``drl_weights``: the DRL actor's .pth (used by the ``drl`` method's closed loop; part of its cache key).
     ``loop``: closed-loop settings (None: the defaults; part of the key in :meth:`LoopConfig.to_json`'s form).
 
     ``export_orbslam``: also write the run in ORB-SLAM's stereo-example layout to
     ``out/orbslam/<trajectory>/<method>/``. ``slam_dir``: evaluate external SLAM trajectories
     ``slam_dir/<trajectory>/<method>/CameraTrajectory*.txt`` instead of running the built-in VO.
     """
-    source: str | None = None
-    options: tuple[tuple[str, Any], ...] = ()
-    if not isinstance(method, str):
-        resolved = method
-        method, options = resolved.name, resolved.options
-        source = None if resolved.source == resolved.name else resolved.source
+    from bracketry_emulator.ae.registry import MethodSpec
+
+    resolved = MethodSpec(method, method) if isinstance(method, str) else method
     gt = groundtruth or spec.groundtruth_path()
-    calibration, existing = spec.calibration_dir(), spec.existing_run(method)
+    calibration, existing = spec.calibration_dir(), spec.existing_run(resolved.name)
     return BenchmarkTask(
-        trajectory=spec.name, subset=spec.subset, method=method, dataset=str(spec.path), out=str(out_dir),
+        trajectory=spec.name, subset=spec.subset, method_spec=resolved, dataset=str(spec.path), out=str(out_dir),
         groundtruth=str(gt) if gt else None, calibration=str(calibration) if calibration else None,
         existing_run=str(existing) if existing else None, windows_m=tuple(float(w) for w in windows_m),
         max_frames=max_frames, export_orbslam=bool(export_orbslam), slam_dir=str(slam_dir) if slam_dir else None,
-        drl_weights=str(Path(drl_weights).resolve()) if drl_weights and method == "drl" else None,
-        loop=replace(loop, drl_weights=None) if loop is not None else _default_loop(),
-        slam=slam or SlamOptions.builtin(), repeat=int(repeat), method_source=source, method_options=options)
+        loop=loop if loop is not None else _default_loop(), slam=slam or SlamOptions.builtin(), repeat=int(repeat))
 
 
 def load_cached(task: BenchmarkTask) -> RunResult | None:
@@ -276,8 +270,7 @@ def run_task(task: BenchmarkTask) -> RunResult:
     if task.existing_run:
         run_dir = Path(task.existing_run)
     else:
-        run_dir = emulate_run(Path(task.dataset), task.method_spec, out / "runs" / task.trajectory,
-                              replace(task.loop, drl_weights=task.drl_weights))
+        run_dir = emulate_run(Path(task.dataset), task.method_spec, out / "runs" / task.trajectory, task.loop)
     if task.export_orbslam:
         from bracketry_emulator.vo.orbslam import export_orbslam
 

@@ -214,7 +214,7 @@ def truth_causes_cmd(manifest: Path, out_dir: Path, methods: str, effects: str, 
         raise BracketryError(f"--effects: unknown {', '.join(bad) or 'none given'} (choose from "
                              f"{', '.join(TRUTH_EFFECT_NAMES)})")
     common = ["--methods", methods, "--reference", reference, "--slam", slam_backend, "--workers", str(workers),
-              "--quiet"] + (["--windows", windows_text] if windows_text else []) + \
+              "--quiet", "--resume"] + (["--windows", windows_text] if windows_text else []) + \
         (["--emulate-blur"] if emulate_blur else []) + \
         (["--max-frames", str(max_frames)] if max_frames else [])
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -3,42 +3,32 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
 from bracketry.cli.options import (
     EXIT_OK,
-    SEED,
     WORKERS,
     Number,
     count,
-    input_file,
     input_path,
     method_options_options,
-    option,
     output_dir,
     overwrite_option,
     quiet_option,
 )
 from bracketry.errors import BracketryError
-from bracketry_emulator.defaults import (
-    AE_CAMERAS,
-    CAMERAS,
-    DEFAULT_INIT_EXPOSURE_US,
-    DEFAULT_MAX_EXPOSURE_US,
-    DEFAULT_MIN_EXPOSURE_US,
-    FUSION_BRACKETS,
-    IMAGES,
-    MAX_EXPOSURE_OPTION_MS,
-    PARITIES,
-    PNG_COMPRESSIONS,
-    SELECTIONS,
-)
+from bracketry_emulator.defaults import CAMERAS, FUSION_BRACKETS, PNG_COMPRESSIONS
+from bracketry_emulator.option_table import EMULATE, options_for, pop_settings, record_values
+
+if TYPE_CHECKING:
+    from bracketry_emulator.emulation import EmulatorConfig
 
 
 def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str, depth: int,
                      gain_db: float, noise: Path | None = None, fusion_brackets: str = FUSION_BRACKETS[0],
-                     motion: str = "none", deghost_sigma: float | None = None, blur: bool = False) -> object:
+                     motion: str = "none", deghost_sigma: float | None = None) -> EmulatorConfig:
     from bracketry_emulator.emulation.noise import resolve_noise_model
     from bracketry_emulator.emulation.settings import emulator_config
 
@@ -58,38 +48,24 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
         raise BracketryError(f"--deghost-sigma must be > 0, got {deghost_sigma}")
     model, _source = resolve_noise_model(noise, dataset if dataset.is_dir() else None)
     return emulator_config(selection, crf, parity, depth=depth, gain_db=gain_db, fusion_brackets=fusion_brackets,
-                           motion=motion, deghost_sigma=deghost_sigma, noise=model, blur=blur)
+                           motion=motion, deghost_sigma=deghost_sigma, noise=model)
 
 
 @click.command("emulate")
 @click.argument("dataset", type=input_path())
-@option("--methods", "-m", "methods", aliases=("--method",), default="ae50", show_default=True,
-        help="AE methods: 'all' or 'paper': the paper's seven (fix, ae30, ae50, ae70, shim, wang, kim) and drl with "
-             "--drl-weights; 'controls': the oracle and constant exposures; or a comma list of ids (zhang, "
-             "constant-<ms> e.g. constant-8, oracle), plugins pkg.module:Class or entry points.")
-@method_options_options()
 @click.option("--out", "-o", "out_dir", required=True, type=output_dir(),
               help="Output folder (new or empty): one sub-folder per method, summary.json, exposures.csv, "
                    "exposure_times.png.")
-@click.option("--selection", type=click.Choice(SELECTIONS), default=SELECTIONS[0],
-              show_default=True, help="Source-bracket selection of the emulator.")
-@click.option("--crf", default=None,
-              help="Camera response: 'srgb' or a pcalib.txt file [default: srgb; with --parity upstream the dataset's "
-                   "calibration/pcalib*.txt].")
-@click.option("--parity", type=click.Choice(PARITIES), default=PARITIES[0], show_default=True,
-              help="'upstream' reproduces the authors' emulation (their pcalib lifting, truncation, closer_least_sat) "
-                   "and runs shim, kim and zhang as their code does; 'default' runs each method as its paper "
-                   "describes it.")
+@options_for(EMULATE)
+@method_options_options()
 @click.option("--camera", type=click.Choice(CAMERAS), default=CAMERAS[-1], show_default=True,
               help="Cameras to emulate and write.")
-@click.option("--ae-camera", type=click.Choice(AE_CAMERAS), default=AE_CAMERAS[0], show_default=True,
-              help="Camera whose emulated image the AE methods see (the authors: left).")
 @click.option("--depth", type=click.Choice(["12", "8"]), default="12", show_default=True,
               help="Bit depth of written images (12: 16-bit PNG of 12-bit codes; 8: code >> 4).")
 @click.option("--gain-db", type=Number(0.0, 48.0), default=0.0, show_default=True,
               help="Emulated analog gain in dB, 0 to 48.")
 @click.option("--noise", type=click.Path(path_type=Path, exists=True, dir_okay=False), default=None,
-              help="Camera noise model for --gain-db and fusion weights: a calibrate-crf --noise-out JSON or a "
+              help="Camera noise model for --gain-db and fusion weights: a calibrate crf --noise-out JSON or a "
                    "camera_model.json [default: DATASET/camera_model.json when present, else built-in].")
 @click.option("--fusion-brackets", type=click.Choice(FUSION_BRACKETS), default=FUSION_BRACKETS[0], show_default=True,
               help="Fusion: the two brackets around the target and every longer one, the two only, or every bracket.")
@@ -97,25 +73,6 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
               show_default=True, help="Fusion: global motion compensation between the brackets.")
 @click.option("--deghost-sigma", type=Number(0.0, 1e6, min_open=True), default=None,
               help="Fusion: drop pixels of a non-reference bracket more than this many noise sigmas off the reference.")
-@click.option("--emulate-blur", is_flag=True,
-              help="Emulate the motion blur of an exposure longer than its source bracket (optical flow to the "
-                   "bracket nearest in time; emulator/bracketry_emulator/emulation/blur.py).")
-@click.option("--images", type=click.Choice(IMAGES), default=IMAGES[0], show_default=True,
-              help="The closed loop's images: emulated from the brackets, or rendered by the synthetic world at each "
-                   "frame's instant with the chosen exposure (truth; a synthetic trajectory only).")
-@click.option("--init-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
-              default=DEFAULT_INIT_EXPOSURE_US / 1000.0, show_default=True,
-              help="First target exposure of every method (the authors: 4 ms).")
-@click.option("--min-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
-              default=DEFAULT_MIN_EXPOSURE_US / 1000.0,
-              show_default=True, help="Lower bound applied to every method's output (ms).")
-@click.option("--max-exposure-ms", type=Number(0.0, MAX_EXPOSURE_OPTION_MS, min_open=True),
-              default=DEFAULT_MAX_EXPOSURE_US / 1000.0,
-              show_default=True,
-              help=f"Upper bound applied to every method's output (ms, at most {MAX_EXPOSURE_OPTION_MS:g}).")
-@click.option("--drl-weights", type=input_file(), default=None,
-              help="The DRL actor's .pth (ShuyangUni/drl_exposure_ctrl model/actor_drl_feat_10000.pth).")
-@click.option("--seed", type=SEED, default=0, show_default=True, help="Seed of stochastic methods (Kim's GP).")
 @click.option("--workers", "-j", type=WORKERS, default=0, show_default=True,
               help="Worker processes (0 = automatic: up to min(methods, CPUs, 4) from 8 sequences on, else this "
                    "process; 1 = in this process).")
@@ -128,13 +85,10 @@ def _emulator_config(dataset: Path, selection: str, crf: str | None, parity: str
                    "time and size of each: emulator/DATASET.md.")
 @overwrite_option("Replace an earlier run in the same --out (its method folders and summaries are removed first).")
 @quiet_option()
-def command(dataset: Path, methods: str, method_option: tuple[str, ...], method_options: Path | None,
-            out_dir: Path, selection: str, crf: str | None, parity: str, camera: str,
-            ae_camera: str, depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
-            deghost_sigma: float | None, emulate_blur: bool, images: str, init_exposure_ms: float,
-            min_exposure_ms: float,
-            max_exposure_ms: float, drl_weights: Path | None, seed: int, workers: int, max_sequences: int | None,
-            no_images: bool, png_compression: str, overwrite: bool, quiet: bool) -> int:
+def command(dataset: Path, out_dir: Path, method_option: tuple[str, ...], method_options: Path | None, camera: str,
+            depth: str, gain_db: float, noise: Path | None, fusion_brackets: str, motion: str,
+            deghost_sigma: float | None, workers: int, max_sequences: int | None, no_images: bool,
+            png_compression: str, overwrite: bool, quiet: bool, **given: Any) -> int:
     """Run AE methods in closed loop on DATASET (BorealHDR tree, synthetic world, a .zip of either, or MCAP).
 
     Every method starts at --init-exposure-ms; at each bracket sequence its current target is emulated for the
@@ -144,23 +98,25 @@ def command(dataset: Path, methods: str, method_option: tuple[str, ...], method_
     from bracketry_emulator.runtime_policy import apply_profile
 
     apply_profile("emulate")  # before numpy loads (just below); the forked workers inherit it
-    from bracketry_emulator.ae import LoopConfig, expand_methods, parse_method_options, resolve_methods, run_methods
+    from bracketry_emulator.ae import LoopConfig, parse_method_options, resolve_methods, run_methods
 
-    specs = expand_methods(methods, has_drl_weights=drl_weights is not None, warn=lambda m: click.echo(m, err=True))
-    plugin_options = parse_method_options(method_option, method_options)
-    emu = _emulator_config(dataset, selection, crf, parity, int(depth), gain_db, noise, fusion_brackets, motion,
-                           deghost_sigma, emulate_blur)
-    cfg = LoopConfig(emulator=emu, camera=camera, ae_camera=ae_camera,  # type: ignore[arg-type]
-                     init_exposure_us=init_exposure_ms * 1000.0, min_exposure_us=min_exposure_ms * 1000.0,
-                     max_exposure_us=max_exposure_ms * 1000.0, seed=seed,
-                     drl_weights=str(drl_weights) if drl_weights else None, write_images=not no_images,
-                     png_compression=png_compression, overwrite=overwrite, max_sequences=max_sequences,
-                     images=images)
-    cfg.validate()  # before --overwrite removes anything
-    if drl_weights is not None and "drl" in specs:
-        _check_pth(drl_weights)
-    resolved = resolve_methods(specs, plugin_options, seed=seed, parity=parity,
-                               drl_weights=str(drl_weights) if drl_weights else None)  # names: before any work
+    settings = pop_settings(EMULATE, given)
+    assert not given, f"options without a row in the settings table: {sorted(given)}"
+    chosen = record_values(EMULATE, settings, "methods")
+    drl_weights: str | None = chosen.get("drl_weights")
+    values = record_values(EMULATE, settings, "loop")
+    emu = _emulator_config(dataset, values.pop("emulator.selection"), values.pop("emulator.crf", None),
+                           values["emulator.parity"], int(depth), gain_db, noise, fusion_brackets, motion,
+                           deghost_sigma)
+    cfg = LoopConfig.from_values({**values, "emulator.selection": emu.selection, "emulator.crf": str(emu.crf)},
+                                 emulator=emu, camera=camera, write_images=not no_images,
+                                 png_compression=png_compression, overwrite=overwrite, max_sequences=max_sequences)
+    # the methods, resolved once (names checked, plugins created, before any work): what the workers get
+    resolved = resolve_methods(chosen["methods"], parse_method_options(method_option, method_options),
+                               drl_weights=drl_weights, seed=cfg.seed, parity=cfg.emulator.parity,
+                               warn=lambda m: click.echo(m, err=True))
+    if drl_weights is not None and any(m.source == "drl" for m in resolved):
+        _check_pth(Path(drl_weights))
     if overwrite:
         remove_earlier_run(out_dir)
     summary = run_methods(dataset, resolved, out_dir, workers=workers, config=cfg, progress=not quiet)

@@ -53,7 +53,8 @@ def _scenario_world(ctx: click.Context, scenario_file: Path, seed: int, seconds:
 
     from bracketry_emulator.synth import parse_resolution
     from bracketry_emulator.synth.calibration import load_calibration
-    from bracketry_emulator.synth.scenario import load_scenario, world_from_scenario
+    from bracketry_emulator.synth.scenario import load_scenario
+    from bracketry_emulator.synth.world import world_from_scenario
 
     def given(name: str) -> bool:
         return ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE

@@ -7,6 +7,10 @@ interpreter plus numpy, OpenCV, SciPy, pyorbslam3 and our modules: ~0.6 CPU-s, a
 per run, which calls the same :func:`bracketry_emulator.slam.orbslam3_child.main` on the same ``request.json`` with
 its stdout/stderr file descriptors in ``orbslam3.log``: the run computes what a started child computes.
 
+The server knows its child module by name only (:data:`CHILD_MODULE`, its command-line argument): it imports it at
+start and calls its ``preload()`` (the child's imports and runtime profile) and, in each forked child, its
+``main([request])``. So this module imports nothing of SLAM (no import cycle with :mod:`.orbslam3` and its child).
+
 The server is single-threaded when it forks (checked at start: it refuses to serve otherwise, and the caller starts
 children as before). It applies the child's runtime profile (one OpenCV thread) before forking, as the child would.
 
@@ -25,6 +29,7 @@ from __future__ import annotations
 
 import atexit
 import contextlib
+import importlib
 import json
 import os
 import select
@@ -33,35 +38,16 @@ import subprocess
 import sys
 import threading
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 #: how long the server may take to import everything and say ``ready``
 START_TIMEOUT_S = 120.0
+#: the module whose ``preload()`` the server calls once and whose ``main([request])`` each forked child runs
+CHILD_MODULE = "bracketry_emulator.slam.orbslam3_child"
 
 
 # ---------------------------------------------------------------------------------------------------- server side
-
-
-def _preload() -> None:
-    """Import what a child imports (see :mod:`.orbslam3_child`), with its runtime profile applied in its order."""
-    import numpy  # noqa: F401
-
-    import bracketry_emulator.slam.orbslam3_child
-    from bracketry_emulator.runtime_policy import apply_profile
-
-    apply_profile("slam_child")
-    import bracketry.errors  # noqa: F401
-    import bracketry_emulator.features.coverage
-    import bracketry_emulator.features.orb
-    import bracketry_emulator.slam.frame_stream
-    import bracketry_emulator.slam.orbslam3
-    import bracketry_emulator.slam.settings
-    import bracketry_emulator.trajectory_io
-    import bracketry_emulator.vo.calibration
-    import bracketry_emulator.vo.runner  # noqa: F401
-
-    with contextlib.suppress(ImportError):  # the built-in VO's runs need no ORB-SLAM3
-        import pyorbslam3  # noqa: F401
 
 
 def _threads() -> int:
@@ -77,8 +63,9 @@ def _write(fd: int, line: str) -> None:
         data = data[os.write(fd, data):]
 
 
-def _child(request: str, log: str, close_fds: tuple[int, ...]) -> None:
-    """In the forked child: the run's log as stdout/stderr, the default signal handlers, then the child's main."""
+def _child(run: Callable[[list[str]], int], request: str, log: str, close_fds: tuple[int, ...]) -> None:
+    """In the forked child: the run's log as stdout/stderr, the default signal handlers, then ``run([request])`` (the
+    child module's main)."""
     rc = 1
     try:
         signal.set_wakeup_fd(-1)
@@ -95,9 +82,7 @@ def _child(request: str, log: str, close_fds: tuple[int, ...]) -> None:
         null = os.open(os.devnull, os.O_RDONLY)
         os.dup2(null, 0)
         os.close(null)
-        from bracketry_emulator.slam.orbslam3_child import main
-
-        rc = main([request])
+        rc = run([request])
     except BaseException as exc:  # one line in the run's log and exit 1, as a started child does
         with contextlib.suppress(BaseException):
             print(f"error: {type(exc).__name__}: {exc}".replace("\n", " "), file=sys.stderr)
@@ -122,8 +107,9 @@ def _reap(out_fd: int, children: set[int], block: bool = False) -> None:
         _write(out_fd, f"exit {pid} {os.waitstatus_to_exitcode(status)} {usage.ru_utime + usage.ru_stime:.6f}")
 
 
-def serve(in_fd: int, out_fd: int) -> int:
-    """The server's loop (see the module docstring) on the command pipe ``in_fd`` and the reply pipe ``out_fd``."""
+def serve(in_fd: int, out_fd: int, run: Callable[[list[str]], int]) -> int:
+    """The server's loop (see the module docstring) on the command pipe ``in_fd`` and the reply pipe ``out_fd``;
+    ``run``: what each forked child calls with ``[request]``."""
     wake_r, wake_w = os.pipe()
     os.set_blocking(wake_r, False)
     os.set_blocking(wake_w, False)
@@ -166,7 +152,7 @@ def serve(in_fd: int, out_fd: int) -> int:
                 _write(out_fd, f"failed {token} cannot fork: {exc}")
                 continue
             if pid == 0:
-                _child(request, log, (in_fd, out_fd, wake_r, wake_w))
+                _child(run, request, log, (in_fd, out_fd, wake_r, wake_w))
             children.add(pid)
             _write(out_fd, f"started {token} {pid}")
         _reap(out_fd, children)
@@ -177,15 +163,19 @@ def serve(in_fd: int, out_fd: int) -> int:
     return 0
 
 
-def main() -> int:
+def main(argv: list[str] | None = None) -> int:
+    """``python -m bracketry_emulator.slam.launcher [CHILD_MODULE]``: import the child module (default
+    :data:`CHILD_MODULE`), call its ``preload()``, then serve."""
+    args = sys.argv[1:] if argv is None else argv
     # the replies get a descriptor of their own; anything a library prints to stdout goes to stderr instead
     out_fd = os.dup(1)
     os.dup2(2, 1)
-    _preload()
+    child = importlib.import_module(args[0] if args else CHILD_MODULE)
+    child.preload()
     if _threads() != 1:  # forking a process with threads running is unsafe: refuse, the caller starts children
         print(f"slam launcher: {_threads()} threads after the imports, not forking", file=sys.stderr)
         return 3
-    return serve(0, out_fd)
+    return serve(0, out_fd, child.main)
 
 
 # ---------------------------------------------------------------------------------------------------- parent side
@@ -198,9 +188,9 @@ class LauncherError(RuntimeError):
 class SlamLauncher:
     """The parent's end of a fork server (see the module docstring). Thread-safe."""
 
-    def __init__(self, start_timeout_s: float = START_TIMEOUT_S) -> None:
+    def __init__(self, start_timeout_s: float = START_TIMEOUT_S, child_module: str = CHILD_MODULE) -> None:
         env = dict(os.environ, OMP_NUM_THREADS="1", OPENBLAS_NUM_THREADS="1")  # as for a started child
-        self.proc = subprocess.Popen([sys.executable, "-m", "bracketry_emulator.slam.launcher"],
+        self.proc = subprocess.Popen([sys.executable, "-m", "bracketry_emulator.slam.launcher", child_module],
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
         assert self.proc.stdout is not None and self.proc.stdin is not None
         self._out = self.proc.stdout.fileno()

@@ -10,6 +10,7 @@ message otherwise.
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import os
@@ -185,6 +186,28 @@ def _version() -> str:
         return importlib.metadata.version("pyorbslam3")
     except importlib.metadata.PackageNotFoundError:
         return "?"
+
+
+def preload() -> None:
+    """Import what a child imports, with its runtime profile applied in its order (the SLAM fork server,
+    :mod:`.launcher`, calls this once before it forks children that run :func:`main`)."""
+    import numpy  # noqa: F401
+
+    from bracketry_emulator.runtime_policy import apply_profile
+
+    apply_profile("slam_child")
+    import bracketry.errors  # noqa: F401
+    import bracketry_emulator.features.coverage
+    import bracketry_emulator.features.orb
+    import bracketry_emulator.slam.frame_stream
+    import bracketry_emulator.slam.orbslam3
+    import bracketry_emulator.slam.settings
+    import bracketry_emulator.trajectory_io
+    import bracketry_emulator.vo.calibration
+    import bracketry_emulator.vo.runner  # noqa: F401
+
+    with contextlib.suppress(ImportError):  # the built-in VO's runs need no ORB-SLAM3
+        import pyorbslam3  # noqa: F401
 
 
 def main(argv: list[str]) -> int:

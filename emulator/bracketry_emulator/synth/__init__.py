@@ -14,10 +14,10 @@ Writers: :func:`write_trajectory` (``bracketry synth trajectory``) and :func:`wr
 
 from bracketry_emulator.synth.calibration import CameraIntrinsics, StereoCalibration, default_calibration
 from bracketry_emulator.synth.camera_model import CameraModel, srgb_lut
-from bracketry_emulator.synth.scenario import Scenario, load_scenario, world_from_dataset, world_from_scenario
+from bracketry_emulator.synth.scenario import Scenario, load_scenario
 from bracketry_emulator.synth.scene import PRESETS
 from bracketry_emulator.synth.trajectory import LoopTrajectory
-from bracketry_emulator.synth.world import World, parse_resolution
+from bracketry_emulator.synth.world import World, parse_resolution, world_from_dataset, world_from_scenario
 from bracketry_emulator.synth.writer import write_static, write_trajectory
 
 __all__ = ["PRESETS", "CameraIntrinsics", "CameraModel", "LoopTrajectory", "Scenario", "StereoCalibration", "World",

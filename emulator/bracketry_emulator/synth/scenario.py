@@ -47,17 +47,16 @@ How each part acts (all of it deterministic, from the world seed):
 - **route.turn_deg** / **turn_period_s**: the walker looks around: a yaw of that amplitude (degrees) and period on
   top of the gait's sway (:class:`~bracketry_emulator.synth.trajectory.LoopTrajectory`).
 
-``bracketry synth trajectory --scenario FILE`` renders one; :func:`world_from_dataset` rebuilds the exact world of a
-written trajectory from its ``camera_model.json``.
+``bracketry synth trajectory --scenario FILE`` renders one (the World of a scenario:
+:func:`~bracketry_emulator.synth.world.world_from_scenario`); :func:`~bracketry_emulator.synth.world.world_from_dataset`
+rebuilds the exact world of a written trajectory from its ``camera_model.json``.
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
-import inspect
 import itertools
-import json
 import math
 from collections import OrderedDict
 from collections.abc import Mapping
@@ -68,9 +67,9 @@ from typing import Any
 import numpy as np
 import yaml
 
+from bracketry.cli.options import parse_resolution
 from bracketry.errors import BracketryError
 from bracketry_emulator.synth.calibration import SIDES, CameraIntrinsics, StereoCalibration
-from bracketry_emulator.synth.camera_model import CameraModel
 from bracketry_emulator.synth.render import RenderResult, SideRenderer, pseudo_angle
 from bracketry_emulator.synth.scene import PRESETS, Lighting, Scene, SceneOptions, build_scene
 from bracketry_emulator.synth.trajectory import LoopTrajectory, mat_mul
@@ -281,8 +280,6 @@ def _event(where: str, e: Any) -> dict:
 
 def scenario_from_dict(doc: Any, name: str = "scenario") -> Scenario:
     """Validate a scenario document (the parsed YAML). Raises BracketryError with a one-line message naming the key."""
-    from bracketry_emulator.synth.world import parse_resolution
-
     if not isinstance(doc, dict):
         raise BracketryError("a scenario must be a YAML mapping")
     _mapping("scenario", doc, _TOP_KEYS)
@@ -338,8 +335,8 @@ def scenario_from_dict(doc: Any, name: str = "scenario") -> Scenario:
     return Scenario(name=str(doc.get("name") or name), preset=str(preset), description=str(doc.get("description", "")),
                     subset=str(doc.get("subset", "")), seed=seed,
                     duration_s=_num("duration_s", doc.get("duration_s", 60.0), 0.0, 3600.0, lo_open=True),
-                    resolution=parse_resolution(res_text), fps=fps, brackets_ms=br, route=route, sun=sun,
-                    weather=weather, content=content,
+                    resolution=parse_resolution(res_text, "resolution"), fps=fps, brackets_ms=br, route=route,
+                    sun=sun, weather=weather, content=content,
                     events=tuple(_event(f"lighting_events[{i}]", e) for i, e in enumerate(events)))
 
 
@@ -680,19 +677,9 @@ def scenario_scene(scenario: Scenario, seed: int, trajectory: LoopTrajectory, de
     return scene
 
 
-def world_from_scenario(scenario: Scenario, seed: int | None = None, resolution: tuple[int, int] | None = None,
-                        **kwargs: Any):  # -> World (imported lazily: world imports this module)
-    """The World of ``scenario`` (its preset, route and light) with ``seed`` / ``resolution`` (default: the
-    scenario's); other keyword arguments go to :class:`World` (camera, calibration, detail, ...)."""
-    from bracketry_emulator.synth.world import World
-
-    return World(scenario.preset, scenario.seed if seed is None else seed,
-                 scenario.resolution if resolution is None else resolution, trajectory=scenario.trajectory(),
-                 scenario=scenario, **kwargs)
-
-
 def calibration_to_dict(calib: StereoCalibration) -> dict:
-    """Exact (float repr) description of the stereo rig, for :func:`world_from_dataset`."""
+    """Exact (float repr) description of the stereo rig, for
+    :func:`~bracketry_emulator.synth.world.world_from_dataset`."""
     return {"baseline_m": calib.baseline_m,
             **{side: dataclasses.asdict(calib.side(side)) | {"dist": list(calib.side(side).dist)} for side in SIDES}}
 
@@ -701,45 +688,3 @@ def calibration_from_dict(d: Mapping[str, Any]) -> StereoCalibration:
     """Inverse of :func:`calibration_to_dict`."""
     sides = {s: CameraIntrinsics(**{**d[s], "dist": tuple(d[s]["dist"])}) for s in SIDES}
     return StereoCalibration(sides["left"], sides["right"], float(d["baseline_m"]))
-
-
-def world_from_dataset(path: str | Path):  # -> World
-    """The exact World that wrote the synthetic trajectory folder ``path`` (from its ``camera_model.json``: camera
-    model, world seed/resolution/detail, walk, calibration, blur settings and the scenario, if any).
-
-    Frame k of the folder was exposed from world time ``t_s = start_s + k / fps`` (``recording`` in the same file:
-    ``t0_ns``, ``start_s``, ``fps``); ``world.render(side, t_s, exposure_us)`` renders any exposure at that instant.
-    Raises BracketryError when the folder is not a synthetic trajectory."""
-    from bracketry_emulator.synth.world import World
-
-    p = Path(path)
-    info_path = p / "camera_model.json" if p.is_dir() else p
-    try:
-        info = json.loads(info_path.read_text())
-        wd = info["world"]
-    except (OSError, ValueError, KeyError, TypeError) as exc:
-        raise BracketryError(f"not a synthetic dataset (no readable camera_model.json with 'world'): {p}") from exc
-    cam_fields = {f.name for f in dataclasses.fields(CameraModel)}
-    cam_args: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) and k != "pcalib" else v) for k, v in info.items()
-                if k in cam_fields}
-    for name in ("dark_current_e_per_s", "blooming", "veiling_glare"):  # a camera written without them had none
-        cam_args.setdefault(name, 0.0)
-    camera = CameraModel(**cam_args)
-    traj_d = dict(wd.get("trajectory_init") or {})
-    if "wobble" in traj_d:
-        traj_d["wobble"] = tuple(traj_d["wobble"])
-    trajectory = LoopTrajectory(**traj_d) if traj_d else LoopTrajectory(
-        speed_kmh=float(wd.get("trajectory", {}).get("speed_kmh", 2.0)))
-    scenario = scenario_from_dict(wd["scenario"]) if wd.get("scenario") else None
-    calib = calibration_from_dict(wd["calibration"]) if wd.get("calibration") else None
-    blur = wd.get("motion_blur") or {}
-    params = inspect.signature(World).parameters
-    kwargs: dict[str, Any] = {}
-    for key, name, kind in (("enabled", "motion_blur", bool), ("method", "blur_method", str),
-                            ("max_step_px", "blur_px", float), ("max_instants", "blur_max", int),
-                            ("renders_per_frame", "blur_renders", int),
-                            ("slice_us", "blur_slice_us", float), ("max_slices", "blur_max", int)):
-        if key in blur and name in params:
-            kwargs[name] = kind(blur[key])
-    return World(wd["preset"], int(wd["seed"]), tuple(wd["resolution"]), calibration=calib, camera=camera,
-                 trajectory=trajectory, detail=float(wd.get("detail", 1.0)), scenario=scenario, **kwargs)

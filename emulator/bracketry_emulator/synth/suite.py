@@ -185,7 +185,7 @@ def read_suite_id(folder: Path) -> dict | None:
 
 
 def _render_one(args: tuple[Path, dict, float]) -> str:
-    from bracketry_emulator.synth.scenario import world_from_scenario
+    from bracketry_emulator.synth.world import world_from_scenario
     from bracketry_emulator.synth.writer import write_trajectory
 
     out, doc, detail = args
@@ -327,7 +327,7 @@ def scenario_figures(doc: dict, resolution: tuple[int, int] = (160, 100), step_s
     its duration, at ``resolution``): the dynamic range of one view in stops (median and max over the views, see
     :func:`view_dynamic_range_stops`), the largest brightness change within 2 s (:func:`brightness_change` of
     :func:`scene_brightness`), the brightness range over the walk, and the pace."""
-    from bracketry_emulator.synth.scenario import world_from_scenario
+    from bracketry_emulator.synth.world import world_from_scenario
 
     sc = scenario_from_dict(doc)
     world = world_from_scenario(sc, resolution=resolution, detail=detail, motion_blur=False)
@@ -352,7 +352,7 @@ def thumbnail_strip(doc: dict, n: int = 6, resolution: tuple[int, int] = (192, 1
     uint8 BGR (2 H, n W, 3)."""
     import cv2
 
-    from bracketry_emulator.synth.scenario import world_from_scenario
+    from bracketry_emulator.synth.world import world_from_scenario
 
     sc = scenario_from_dict(doc)
     world = world_from_scenario(sc, resolution=resolution, detail=detail, motion_blur=False)

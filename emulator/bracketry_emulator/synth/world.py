@@ -9,19 +9,31 @@ in the ground-truth frame (the left camera's optical frame at t = 0; x right, y 
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import itertools
+import json
 from collections import OrderedDict
 from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from bracketry.cli.options import parse_resolution as parse_resolution
 from bracketry.errors import BracketryError
 from bracketry_emulator.synth import blur
 from bracketry_emulator.synth.blur import Motion
 from bracketry_emulator.synth.calibration import SIDES, StereoCalibration, default_calibration
 from bracketry_emulator.synth.camera_model import CameraModel
 from bracketry_emulator.synth.render import RenderResult, SideRenderer
-from bracketry_emulator.synth.scenario import LightField, Scenario, calibration_to_dict, scenario_scene
+from bracketry_emulator.synth.scenario import (
+    LightField,
+    Scenario,
+    calibration_from_dict,
+    calibration_to_dict,
+    scenario_from_dict,
+    scenario_scene,
+)
 from bracketry_emulator.synth.scene import PRESETS, Scene, build_scene
 from bracketry_emulator.synth.trajectory import LoopTrajectory, mat_mul
 
@@ -46,17 +58,6 @@ def cached_scene(preset: str, seed: int, trajectory: LoopTrajectory, detail: flo
     return scene
 
 
-def parse_resolution(text: str) -> tuple[int, int]:
-    """``"WxH"`` -> (W, H); both even, 16..8192 (raises BracketryError otherwise)."""
-    try:
-        w_s, h_s = text.lower().split("x")
-        w, h = int(w_s), int(h_s)
-    except ValueError:
-        raise BracketryError(f"resolution must look like 960x600 (got {text!r})") from None
-    if not (16 <= w <= 8192 and 16 <= h <= 8192) or w % 2 or h % 2:
-        raise BracketryError(f"resolution {w}x{h}: width and height must be even and within 16..8192")
-    return w, h
-
 
 class World:
     """A procedural HDR world seen by the synthetic stereo rig.
@@ -70,7 +71,7 @@ class World:
         trajectory: the walk (default :class:`LoopTrajectory`, 2 km/h).
         scenario: a :class:`~bracketry_emulator.synth.scenario.Scenario` (its sun, content and lighting events over
             time: the radiance at ``t_s`` is lit as at ``t_s``); None: the preset's fixed light. Its preset must be
-            ``preset`` (see :func:`~bracketry_emulator.synth.scenario.world_from_scenario`).
+            ``preset`` (see :func:`world_from_scenario`).
         detail: ground texture resolution factor (1.0: 4 cm texels near the path).
         motion_blur: integrate the moving scene over each exposure [t_s, t_s + exposure] (on by default; off:
             the frame is the instantaneous render at its mid-exposure instant, the time of its ground-truth pose).
@@ -356,3 +357,52 @@ class World:
                             "exposure": "[trigger, trigger + exposure]",
                             "pose_and_timestamp": "mid-exposure (trigger + exposure / 2)"},
         }
+
+
+def world_from_scenario(scenario: Scenario, seed: int | None = None, resolution: tuple[int, int] | None = None,
+                        **kwargs: Any) -> World:
+    """The World of ``scenario`` (its preset, route and light) with ``seed`` / ``resolution`` (default: the
+    scenario's); other keyword arguments go to :class:`World` (camera, calibration, detail, ...)."""
+    return World(scenario.preset, scenario.seed if seed is None else seed,
+                 scenario.resolution if resolution is None else resolution, trajectory=scenario.trajectory(),
+                 scenario=scenario, **kwargs)
+
+
+def world_from_dataset(path: str | Path) -> World:
+    """The exact World that wrote the synthetic trajectory folder ``path`` (from its ``camera_model.json``: camera
+    model, world seed/resolution/detail, walk, calibration, blur settings and the scenario, if any).
+
+    Frame k of the folder was exposed from world time ``t_s = start_s + k / fps`` (``recording`` in the same file:
+    ``t0_ns``, ``start_s``, ``fps``); ``world.render(side, t_s, exposure_us)`` renders any exposure at that instant.
+    Raises BracketryError when the folder is not a synthetic trajectory."""
+    p = Path(path)
+    info_path = p / "camera_model.json" if p.is_dir() else p
+    try:
+        info = json.loads(info_path.read_text())
+        wd = info["world"]
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise BracketryError(f"not a synthetic dataset (no readable camera_model.json with 'world'): {p}") from exc
+    cam_fields = {f.name for f in dataclasses.fields(CameraModel)}
+    cam_args: dict[str, Any] = {k: (tuple(v) if isinstance(v, list) and k != "pcalib" else v) for k, v in info.items()
+                if k in cam_fields}
+    for name in ("dark_current_e_per_s", "blooming", "veiling_glare"):  # a camera written without them had none
+        cam_args.setdefault(name, 0.0)
+    camera = CameraModel(**cam_args)
+    traj_d = dict(wd.get("trajectory_init") or {})
+    if "wobble" in traj_d:
+        traj_d["wobble"] = tuple(traj_d["wobble"])
+    trajectory = LoopTrajectory(**traj_d) if traj_d else LoopTrajectory(
+        speed_kmh=float(wd.get("trajectory", {}).get("speed_kmh", 2.0)))
+    scenario = scenario_from_dict(wd["scenario"]) if wd.get("scenario") else None
+    calib = calibration_from_dict(wd["calibration"]) if wd.get("calibration") else None
+    blur = wd.get("motion_blur") or {}
+    params = inspect.signature(World).parameters
+    kwargs: dict[str, Any] = {}
+    for key, name, kind in (("enabled", "motion_blur", bool), ("method", "blur_method", str),
+                            ("max_step_px", "blur_px", float), ("max_instants", "blur_max", int),
+                            ("renders_per_frame", "blur_renders", int),
+                            ("slice_us", "blur_slice_us", float), ("max_slices", "blur_max", int)):
+        if key in blur and name in params:
+            kwargs[name] = kind(blur[key])
+    return World(wd["preset"], int(wd["seed"]), tuple(wd["resolution"]), calibration=calib, camera=camera,
+                 trajectory=trajectory, detail=float(wd.get("detail", 1.0)), scenario=scenario, **kwargs)

@@ -37,8 +37,8 @@ COMMANDS: dict[str, tuple[str, str, str, str | None]] = {
     "synth": ("bracketry_emulator.cli.synth", "command", "Render synthetic bracketed HDR stereo data.", "emulator"),
     "calibrate": ("bracketry.cli.calibrate", "command", "Calibrate the rig: stereo geometry (solve, capture), "
                   "response (crf).", None),
-    "calibrate-crf": ("bracketry_emulator.cli.crf", "command", "Calibrate the camera response from a static stack.",
-                      "emulator"),
+    "calibrate-crf": ("bracketry_emulator.cli.crf", "command", "Calibrate the camera response from a static stack "
+                      "(hidden: the old spelling of 'calibrate crf').", "emulator"),
     "emulate": ("bracketry_emulator.cli.emulate", "command", "Emulate images at chosen exposures, run AE methods.",
                 "emulator"),
     "accuracy": ("bracketry_emulator.cli.accuracy", "command", "Measure the emulator's accuracy.", "emulator"),

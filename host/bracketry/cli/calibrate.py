@@ -277,7 +277,7 @@ def _capture_sim(out: Path, board_file: Path | None, max_blur_px: float, monitor
     itself there) serving a board moved by hand, driven in calibration mode."""
     import sys
 
-    from bracketry.cli.simulate import parse_resolution
+    from bracketry.cli.options import parse_resolution
     from bracketry.sim.rig import in_private_netns, monitor_bridge_outside, reexec_in_netns
 
     size = parse_resolution(resolution)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import click
 
@@ -10,12 +11,12 @@ from bracketry.cli.options import (
     EXIT_OK,
     EXIT_PROBLEMS,
     Duration,
-    input_file,
     method_options_options,
     option,
     output_dir,
     overwrite_option,
 )
+from bracketry_emulator.option_table import DEMO, options_for, pop_settings, record_values
 
 
 @click.command("demo")
@@ -25,28 +26,13 @@ from bracketry.cli.options import (
 @option("--duration-s", "seconds", aliases=("--seconds",), type=Duration(600.0, min_s=3.0), default=None,
         help="How long to record: seconds or e.g. 30s, 2m; 3 s to 10 min (default 20 s, or 10 s with --quick).")
 @click.option("--quick", is_flag=True, help="Small and short (320x200, 10 s of recording): the version CI runs.")
-@click.option("--drl-weights", type=input_file(), default=None,
-              envvar="BRACKETRY_DRL_WEIGHTS",
-              help="The DRL actor's .pth (env BRACKETRY_DRL_WEIGHTS); without it DRL is left out.")
-@click.option("--slam", type=click.Choice(["orbslam3", "builtin"]), default=None,
-              help="Localisation (default: orbslam3; builtin with --quick).")
-@click.option("--slam-pace", default="lockstep", show_default=True,
-              help="ORB-SLAM3 feed: 'lockstep' (each frame once ORB-SLAM3's mapping threads are idle: results that "
-                   "do not move with the machine's load), seconds between frames (0 = as fast as it tracks) or "
-                   "'realtime' (the recording's timestamps).")
-@option("--methods", "-m", "methods", aliases=("--method",), default="all", show_default=True,
-        help="AE methods: 'all' or 'paper': the paper's seven (fix, ae30, ae50, ae70, shim, wang, kim) and drl with "
-             "--drl-weights; 'controls': the oracle and constant exposures; or a comma list of ids, plugins "
-             "pkg.module:Class or entry points (ae50 is the reference: keep it).")
+@options_for(DEMO)
 @method_options_options()
-@click.option("--stats-methods", default="paper", show_default=True,
-              help="Methods in the statistics: 'paper' (plugins are reported, not tested), 'all', or a comma list.")
 @click.option("--suite/--no-suite", "with_suite", default=None,
               help="Also benchmark the demo-size synthetic suite (bracketry synth suite --size demo --seed 0; rendered "
                    "once into the user cache) beside the recording. Default: on, off with --quick.")
-def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, drl_weights: Path | None,
-            slam: str | None, slam_pace: str, methods: str, method_option: tuple[str, ...],
-            method_options: Path | None, stats_methods: str, with_suite: bool | None) -> int:
+def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, method_option: tuple[str, ...],
+            method_options: Path | None, with_suite: bool | None, **given: Any) -> int:
     """Run the whole pipeline on the embedded default: simulated rig -> recording -> AE benchmark -> report."""
     from bracketry_emulator.runtime_policy import apply_profile
 
@@ -55,9 +41,14 @@ def command(out_dir: Path, overwrite: bool, seconds: float | None, quick: bool, 
     from bracketry_emulator.ae.registry import parse_method_options
     from bracketry_emulator.benchmark.slam import parse_pace
 
-    pace = parse_pace(slam_pace)  # a bad value: one line before anything runs
-    the_plan = plan(out_dir, seconds, quick, str(drl_weights) if drl_weights else None, slam, pace, methods,
-                    stats_methods, parse_method_options(method_option, method_options), suite=with_suite)
+    settings = pop_settings(DEMO, given)
+    assert not given, f"options without a row in the settings table: {sorted(given)}"
+    chosen = record_values(DEMO, settings, "methods")
+    slam = record_values(DEMO, settings, "slam")
+    pace = parse_pace(slam["pace"])  # a bad value: one line before anything runs
+    the_plan = plan(out_dir, seconds, quick, chosen.get("drl_weights"), slam.get("backend"), pace, chosen["methods"],
+                    record_values(DEMO, settings, "benchmark")["stats_methods"],
+                    parse_method_options(method_option, method_options), suite=with_suite)
     check_methods(the_plan)  # unknown methods, bad plugin options, unsafe names: one line before recording
     summary = run(the_plan, echo=lambda s: click.echo(s, err=True))
     click.echo("")

@@ -134,6 +134,23 @@ class Duration(click.ParamType):
         return total
 
 
+#: the camera resolutions any command or scenario takes, per side, in pixels
+MIN_RESOLUTION_PX, MAX_RESOLUTION_PX = 16, 8192
+
+
+def parse_resolution(text: str, what: str = "--resolution") -> tuple[int, int]:
+    """``WIDTHxHEIGHT`` (e.g. ``640x400``) -> (width, height) in pixels, both even and within
+    :data:`MIN_RESOLUTION_PX`..:data:`MAX_RESOLUTION_PX`; anything else: one-line BracketryError naming ``what``."""
+    try:
+        w, h = (int(v) for v in str(text).lower().split("x"))
+    except ValueError:
+        raise BracketryError(f"{what} {text!r}: expected WIDTHxHEIGHT, e.g. 640x400") from None
+    lo, hi = MIN_RESOLUTION_PX, MAX_RESOLUTION_PX
+    if not (lo <= w <= hi and lo <= h <= hi) or w % 2 or h % 2:
+        raise BracketryError(f"{what} {text!r}: width and height must be even and within {lo}..{hi}")
+    return w, h
+
+
 _MEMORY = re.compile(r"(\d+(?:\.\d*)?)\s*([KMGT]i?B)", re.IGNORECASE)
 
 
@@ -170,13 +187,15 @@ class OutputPath(click.ParamType):
 
     ``--overwrite`` (declared with :func:`overwrite_option`, which is eager) is read from the context, so the order of
     the options on the command line does not matter. ``dash_stdout``: ``-`` means standard output (no check).
+    ``resumable``: a non-empty folder is also fine with ``--resume`` (:func:`resume_option`, eager too).
     """
 
     name = "path"
 
     def __init__(self, kind: Kind = "file", *, existing: Existing = "refuse", suffixes: tuple[str, ...] = (),
-                 dash_stdout: bool = False) -> None:
+                 dash_stdout: bool = False, resumable: bool = False) -> None:
         self.kind, self.existing, self.suffixes, self.dash_stdout = kind, existing, suffixes, dash_stdout
+        self.resumable = resumable
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Path:
         if isinstance(value, Path):
@@ -186,12 +205,20 @@ class OutputPath(click.ParamType):
         if self.dash_stdout and str(path) == "-":
             return path
         overwrite = bool(ctx is not None and ctx.params.get("overwrite"))
+        resume = self.resumable and bool(ctx is not None and ctx.params.get("resume"))
+        if resume and overwrite:
+            self.fail("--resume and --overwrite exclude each other (continue what the folder holds, or replace it)",
+                      param, ctx)
         what = param.opts[0] if param is not None and param.opts else "output"
         try:
-            return check_output(path, self.kind, overwrite=overwrite, existing=self.existing,
+            return check_output(path, self.kind, overwrite=overwrite, existing="resume" if resume else self.existing,
                                 suffixes=self.suffixes, what=what)
         except BracketryError as exc:
-            self.fail(str(exc).removeprefix(f"{what} "), param, ctx)
+            message = str(exc).removeprefix(f"{what} ")
+            if self.resumable:
+                message = message.replace("(add --overwrite to write into it)",
+                                          "(add --resume to continue what it holds, or --overwrite to replace it)")
+            self.fail(message, param, ctx)
 
 
 def output_file(*, existing: Existing = "refuse", suffixes: tuple[str, ...] = (),
@@ -200,9 +227,9 @@ def output_file(*, existing: Existing = "refuse", suffixes: tuple[str, ...] = ()
     return OutputPath("file", existing=existing, suffixes=suffixes, dash_stdout=dash_stdout)
 
 
-def output_dir(*, existing: Existing = "refuse") -> OutputPath:
-    """The type of an option that names a folder to write into."""
-    return OutputPath("dir", existing=existing)
+def output_dir(*, existing: Existing = "refuse", resumable: bool = False) -> OutputPath:
+    """The type of an option that names a folder to write into (``resumable``: a non-empty one with ``--resume``)."""
+    return OutputPath("dir", existing=existing, resumable=resumable)
 
 
 def input_file() -> click.Path:
@@ -248,6 +275,11 @@ def overwrite_option(help: str = "Replace existing output files (and write into 
                      ) -> Callable[[F], F]:
     """``--overwrite`` (eager, so the output types see it whatever the order; old spelling ``--force`` hidden)."""
     return option("--overwrite", "overwrite", aliases=("--force",), is_flag=True, is_eager=True, help=help)
+
+
+def resume_option(help: str = "Continue in a non-empty output folder, reusing what it holds.") -> Callable[[F], F]:
+    """``--resume`` (eager, so the output types see it whatever the order; see ``output_dir(resumable=True)``)."""
+    return click.option("--resume", "resume", is_flag=True, is_eager=True, help=help)
 
 
 def quiet_option(help: str = "No progress bar.") -> Callable[[F], F]:

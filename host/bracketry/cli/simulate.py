@@ -13,20 +13,19 @@ from typing import Any
 
 import click
 
-from bracketry.cli.options import SEED, Duration, Integer, Number, input_dir, option, output_dir, overwrite_option
+from bracketry.cli.options import (
+    SEED,
+    Duration,
+    Integer,
+    Number,
+    input_dir,
+    option,
+    output_dir,
+    overwrite_option,
+    parse_resolution,
+)
 from bracketry.errors import BracketryError
 from bracketry.sim.clock import MONOTONIC, Clock
-
-
-def parse_resolution(text: str) -> tuple[int, int]:
-    """``WIDTHxHEIGHT`` -> (width, height), both even and >= 16."""
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise BracketryError(f"--resolution {text!r}: expected WIDTHxHEIGHT, e.g. 640x400") from None
-    if w < 16 or h < 16 or w % 2 or h % 2:
-        raise BracketryError(f"--resolution {text!r}: width and height must be even and >= 16")
-    return w, h
 
 
 @click.command("simulate")

@@ -34,6 +34,7 @@ from typing import Any, BinaryIO
 
 from bracketry.errors import BracketryError
 from bracketry.progress import Progress
+from bracketry_emulator.defaults import DEFAULT_SLAM_PACE
 
 
 @dataclass(frozen=True)
@@ -55,20 +56,15 @@ class DemoPlan:
     drl_weights: str | None = None
     #: localisation: "orbslam3" (ORB-SLAM3 stereo) or "builtin" (the built-in VO)
     slam: str = "orbslam3"
-    #: ORB-SLAM3 feed: "lockstep", seconds between frames (0 = as fast as it tracks) or "realtime" (see
-    #: :data:`DEMO_PACE`)
-    slam_pace: str | float = "lockstep"
+    #: ORB-SLAM3 feed: "lockstep" (each frame once that run's mapping threads are idle, so its results do not move
+    #: with the load; the default of every command, declared once in bracketry_emulator/option_table.py; see
+    #: :mod:`bracketry_emulator.slam.quiescence`), seconds between frames (0 = as fast as it tracks) or "realtime"
+    #: (the recording's timestamps: it does not hold on a 2-core machine with seven runs at once)
+    slam_pace: str | float = DEFAULT_SLAM_PACE
     #: the synthetic suite benchmarked with the recording: a size of ``bracketry synth suite`` ("demo"), or None
     suite: str | None = None
     #: the suite's seed
     suite_seed: int = 0
-
-
-#: The demo feeds ORB-SLAM3 in lockstep, as ``bracketry benchmark`` does: every method's run at once, fed by the one
-#: closed-loop pass, each frame once that run's mapping threads are idle, so its results do not move with the load.
-#: Real time does not hold on a 2-core machine (seven real-time runs at once fall minutes behind their clock) and
-#: unpaced runs race their own mapping (see :mod:`bracketry_emulator.slam.quiescence`).
-DEMO_PACE = "lockstep"
 
 
 #: The demo's dataset PNGs are stored (deflate without compression): 0.34 vs 5.7 ms an image to write at 640x400
@@ -108,10 +104,10 @@ def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | N
                               "method_options": dict(method_options or {})}
     if quick:
         return DemoPlan(out_dir, seconds or QUICK_SECONDS, QUICK_RESOLUTION, drl_weights=drl_weights,
-                        slam=slam or "builtin", slam_pace=DEMO_PACE if slam_pace is None else slam_pace,
+                        slam=slam or "builtin", slam_pace=DEFAULT_SLAM_PACE if slam_pace is None else slam_pace,
                         suite=DEMO_SUITE if suite else None, **chosen)
     return DemoPlan(out_dir, seconds or DEFAULT_SECONDS, DEFAULT_RESOLUTION, drl_weights=drl_weights,
-                    slam=slam or "orbslam3", slam_pace=DEMO_PACE if slam_pace is None else slam_pace,
+                    slam=slam or "orbslam3", slam_pace=DEFAULT_SLAM_PACE if slam_pace is None else slam_pace,
                     suite=None if suite is False else DEMO_SUITE, **chosen)
 
 
@@ -124,10 +120,9 @@ def check_methods(p: DemoPlan) -> list[str]:
     """The names of the plan's methods, checked as the benchmark checks them (unknown ids, plugins that do not
     load or reject an option, unsafe or shared names, --stats-methods): one line before anything is recorded."""
     from bracketry_emulator.ae.registry import resolve_methods
-    from bracketry_emulator.benchmark.orchestrate import parse_methods, select_stats_methods
+    from bracketry_emulator.benchmark.orchestrate import select_stats_methods
 
-    names = [m.name for m in resolve_methods(parse_methods(p.methods, has_drl_weights=p.drl_weights is not None),
-                                              p.method_options, drl_weights=p.drl_weights)]
+    names = [m.name for m in resolve_methods(p.methods, p.method_options, drl_weights=p.drl_weights)]
     if "ae50" not in names:
         raise BracketryError("the demo's statistics compare with ae50: keep it in --methods")
     select_stats_methods(p.stats_methods, names, "ae50", plugins=[])
@@ -262,11 +257,10 @@ def suite(p: DemoPlan, echo: Callable[[str], None], background: subprocess.Popen
 def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None], suite_manifest: Path | None = None) -> Any:
     """The last step: all AE methods in closed loop (one shared-decode pass per trajectory, with a progress bar), VO,
     metrics, statistics and the report, on the recording (and the suite's trajectories when given)."""
-    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, parse_methods, run_benchmark
+    from bracketry_emulator.benchmark.orchestrate import BenchmarkConfig, run_benchmark
     from bracketry_emulator.benchmark.slam import slam_options
     from bracketry_emulator.metrics.manifest import TrajectorySpec, load_manifest
 
-    ids = parse_methods(p.methods, has_drl_weights=p.drl_weights is not None)
     methods = check_methods(p)  # their names
     slam = slam_options(p.slam, pace=p.slam_pace, echo=echo)  # the default vocabulary is built here the first time
     out = p.out_dir / "benchmark"
@@ -290,7 +284,7 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None], suite_man
         bar.update(1)
 
     try:
-        return run_benchmark(BenchmarkConfig(datasets, ids, out, reference="ae50", workers=p.workers,
+        return run_benchmark(BenchmarkConfig(datasets, p.methods, out, reference="ae50", workers=p.workers,
                                              drl_weights=p.drl_weights, progress=True, slam=slam,
                                              stats_methods=p.stats_methods, method_options=p.method_options),
                              on_done=done)

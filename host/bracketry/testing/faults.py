@@ -452,7 +452,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ballast-mb", type=int, default=4096)
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
-    from bracketry.cli.simulate import parse_resolution
+    from bracketry.cli.options import parse_resolution
 
     os.environ[NETNS_ENV] = "1"
     out = args.out

@@ -342,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
-    from bracketry.cli.simulate import parse_resolution
+    from bracketry.cli.options import parse_resolution
 
     faults = tuple(f for f in args.faults.split(",") if f)
     unknown = [f for f in faults if f not in FAULTS]

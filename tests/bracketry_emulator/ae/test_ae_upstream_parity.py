@@ -287,13 +287,13 @@ def test_closed_loop_equals_the_authors_on_a_synthetic_trajectory(borealhdr_samp
 
 
 def test_all_is_the_papers_eight_and_the_mode_is_in_the_benchmark_key(tmp_path: Path) -> None:
-    from bracketry_emulator.ae import expand_methods
+    from bracketry_emulator.ae import parse_methods
     from bracketry_emulator.benchmark.tasks import make_task
     from bracketry_emulator.metrics.manifest import TrajectorySpec
 
-    assert expand_methods("all", has_drl_weights=True) == ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl"]
-    assert "drl" not in expand_methods("all", has_drl_weights=False)
-    assert expand_methods("all,zhang", has_drl_weights=False)[-1] == "zhang"
+    assert parse_methods("all", has_drl_weights=True) == ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim", "drl"]
+    assert "drl" not in parse_methods("all", has_drl_weights=False)
+    assert parse_methods("all,zhang", has_drl_weights=False)[-1] == "zhang"
     up = LoopConfig.from_json({"parity": "upstream"})
     assert up.emulator.parity == "upstream" and up.emulator.selection == "upstream"
     spec = TrajectorySpec(name="t", path=tmp_path)

@@ -108,7 +108,8 @@ def test_scheduler_gone_is_one_line_and_the_same_command_resumes(tmp_path: Path)
     def bench(address: str) -> subprocess.Popen:
         return subprocess.Popen([sys.executable, "-m", "bracketry", "benchmark", str(ds), "--out", str(tmp_path / "o"),
                                  "--slam", "builtin", "--methods", "ae50,slurm_gate_plugin:Gated", "--method-option",
-                                 f"gated.gate={gate}", "--windows", "1", "-q", "--scheduler", address], env=env,
+                                 f"gated.gate={gate}", "--windows", "1", "-q", "--resume", "--scheduler", address],
+                                env=env,
                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
     try:

@@ -132,8 +132,11 @@ def test_bench_dask_localcluster_matches_local(datasets, local_run, tmp_path: Pa
 
 def test_bench_cli(datasets, local_run, tmp_path: Path, capsys) -> None:
     # same settings as the library run in the same folder: every task comes from the cache
-    rc = cli_main(["benchmark", str(datasets[0]), "--methods", ",".join(METHODS), "--out", str(local_run.out_dir),
-                   "--windows", "1", "--slam", "builtin"])
+    args = ["benchmark", str(datasets[0]), "--methods", ",".join(METHODS), "--out", str(local_run.out_dir),
+            "--windows", "1", "--slam", "builtin"]
+    assert cli_main(args) == 2  # a full folder: refused without --resume (or --overwrite)
+    assert "--resume" in capsys.readouterr().err
+    rc = cli_main([*args, "--resume"])
     assert rc == 0
     out = capsys.readouterr().out
     assert "cached traj1 / burst: failed at 0.8 s" in out and "report:" in out
@@ -149,7 +152,7 @@ def test_bench_cli(datasets, local_run, tmp_path: Path, capsys) -> None:
 
 
 def test_methods_all_leaves_drl_out_without_weights_and_names_the_option() -> None:
-    from bracketry_emulator.benchmark.orchestrate import parse_methods
+    from bracketry_emulator.ae.registry import parse_methods
 
     assert "drl" not in parse_methods("all", has_drl_weights=False)
     # 'all' = the paper's eight (drl with its weights); zhang by name
@@ -161,7 +164,8 @@ def test_methods_all_leaves_drl_out_without_weights_and_names_the_option() -> No
 
 
 def test_methods_paper_and_stats_methods() -> None:
-    from bracketry_emulator.benchmark.orchestrate import parse_methods, select_stats_methods
+    from bracketry_emulator.ae.registry import parse_methods
+    from bracketry_emulator.benchmark.orchestrate import select_stats_methods
 
     paper = parse_methods("paper", has_drl_weights=False)
     assert paper == ["fix", "ae30", "ae50", "ae70", "shim", "wang", "kim"]

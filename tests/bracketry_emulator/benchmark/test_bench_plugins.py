@@ -156,12 +156,14 @@ def test_benchmark_plugins_to_statistics_and_cache(plugins: dict, world: Path, t
     assert sorted(p.name for p in (out / "runs" / "walk").iterdir() if p.is_dir()) == ["ae50", "brighter", "darker"]
     assert sorted(p.name for p in (out / "cache" / "walk").iterdir()) == ["ae50.json", "brighter.json",
                                                                            "darker.json"]
-    # unchanged: every run from the cache
+    # unchanged: every run from the cache (a full --out is continued only when asked)
+    assert bracketry(argv, plugins["env"]).returncode == 2
+    argv.append("--resume")
     again = bracketry(argv, plugins["env"])
     assert again.returncode == 0, again.stderr
     assert sorted(line.split()[0] for line in again.stdout.splitlines() if " / " in line) == ["cached"] * 3
     # a changed option reruns that method only
-    changed = bracketry([*argv[:-1], "brighter.target=0.3"], plugins["env"])
+    changed = bracketry([*argv[:-2], "brighter.target=0.3", "--resume"], plugins["env"])
     assert changed.returncode == 0, changed.stderr
     states = {line.split()[3].rstrip(":"): line.split()[0] for line in changed.stdout.splitlines() if " / " in line}
     assert states == {"ae50": "cached", "brighter": "done", "darker": "cached"}, changed.stdout

@@ -70,7 +70,7 @@ BUILTIN = ("--slam", "builtin")
 
 def _args(datasets: list[Path], out: Path, gate: Path, slam: tuple[str, ...], *extra: str) -> list[str]:
     return ["benchmark", *map(str, datasets), "--out", str(out), *slam, "--methods", f"ae50,{PLUGIN}",
-            "--method-option", f"gated.gate={gate}", "--windows", "1", "-q", *extra]
+            "--method-option", f"gated.gate={gate}", "--windows", "1", "-q", "--resume", *extra]
 
 
 def _env(root: Path, slurm: SlurmNode) -> dict[str, str]:

@@ -10,7 +10,8 @@ import pytest
 
 from bracketry_emulator.synth import CameraModel, World
 from bracketry_emulator.synth.realism import dark_noise_floor, model_noise_dn, shares
-from bracketry_emulator.synth.scenario import load_scenario, shipped_scenarios, world_from_scenario
+from bracketry_emulator.synth.scenario import load_scenario, shipped_scenarios
+from bracketry_emulator.synth.world import world_from_scenario
 from bracketry_emulator.synth.trajectory import LoopTrajectory
 
 

@@ -77,7 +77,8 @@ def test_sun_position_follows_the_time_of_day() -> None:
 _SCENARIO_SCRIPT = """
 import hashlib
 import numpy as np
-from bracketry_emulator.synth.scenario import scenario_from_dict, world_from_scenario
+from bracketry_emulator.synth.scenario import scenario_from_dict
+from bracketry_emulator.synth.world import world_from_scenario
 doc = {"preset": "forest-winter", "sun": {"elevation_deg": 9.0, "azimuth_deg": 200.0}, "weather": {"glare": 2.0},
        "content": {"tree_density": 0.5, "treeline_scale": 0.4},
        "lighting_events": [{"kind": "canopy", "from": 0.0, "to": 0.3, "density": 0.98},

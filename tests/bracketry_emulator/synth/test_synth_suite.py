@@ -14,7 +14,7 @@ import yaml
 from bracketry.cli import main
 from bracketry_emulator.metrics.manifest import load_manifest
 from bracketry_emulator.synth import suite
-from bracketry_emulator.synth.scenario import load_scenario, scenario_from_dict, shipped_scenarios, world_from_scenario
+from bracketry_emulator.synth.scenario import load_scenario, scenario_from_dict, shipped_scenarios
 from bracketry_emulator.synth.suite import (
     SUBSETS,
     brightness_change,
@@ -23,6 +23,7 @@ from bracketry_emulator.synth.suite import (
     scene_brightness,
     view_dynamic_range_stops,
 )
+from bracketry_emulator.synth.world import world_from_scenario
 
 
 class _Res:
