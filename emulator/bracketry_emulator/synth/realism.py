@@ -97,8 +97,8 @@ def _main(sample: str) -> None:  # pragma: no cover - prints DATASET.md's table
         read_scenario_doc,
         scenario_from_dict,
         shipped_scenarios,
-        world_from_scenario,
     )
+    from bracketry_emulator.synth.world import world_from_scenario
 
     root = Path(sample)
     doc = merge(read_scenario_doc(shipped_scenarios()["day-cycle"]), {"sun": {"hour": 15.0}})

@@ -11,8 +11,8 @@ import pytest
 from bracketry_emulator.synth import CameraModel, World
 from bracketry_emulator.synth.realism import dark_noise_floor, model_noise_dn, shares
 from bracketry_emulator.synth.scenario import load_scenario, shipped_scenarios
-from bracketry_emulator.synth.world import world_from_scenario
 from bracketry_emulator.synth.trajectory import LoopTrajectory
+from bracketry_emulator.synth.world import world_from_scenario
 
 
 def test_synth_noise_with_dark_current_follows_the_formula() -> None:
