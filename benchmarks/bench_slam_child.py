@@ -65,11 +65,15 @@ def make_run(root: Path, frames: int) -> tuple[Path, Path]:
     return root / "ae50", cal
 
 
+def output_bytes(out: Path) -> bytes:
+    """frames.csv and the trajectories of one run's folder, concatenated in name order (empty: none written)."""
+    names = sorted(p.name for p in out.iterdir() if p.name == "frames.csv" or p.name.startswith("CameraTrajectory"))
+    return b"".join(n.encode() + (out / n).read_bytes() for n in names)
+
+
 def same_files(a: Path, b: Path) -> bool:
-    names = sorted(p.name for p in a.iterdir() if p.name == "frames.csv" or p.name.startswith("CameraTrajectory"))
-    return bool(names) and names == sorted(p.name for p in b.iterdir() if p.name == "frames.csv"
-                                           or p.name.startswith("CameraTrajectory")) and \
-        all((a / n).read_bytes() == (b / n).read_bytes() for n in names)
+    """Both runs wrote frames.csv / trajectories, byte for byte the same."""
+    return bool(output_bytes(a)) and output_bytes(a) == output_bytes(b)
 
 
 def main() -> None:

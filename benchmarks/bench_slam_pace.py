@@ -19,22 +19,9 @@ import statistics
 import tempfile
 from pathlib import Path
 
+from bench_slam_child import make_run, output_bytes
+
 FEEDS = ("lockstep", "realtime")
-
-
-def make_run(root: Path, frames: int) -> tuple[Path, Path]:
-    from bracketry_emulator.benchmark.toyworld import ToyWorld
-
-    w = ToyWorld(width_px=320, height_px=200, fx_px=190.0)
-    cal = w.write_calibration(root)
-    w.write_run(root, "ae50", frames)
-    return root / "ae50", cal
-
-
-def output_bytes(out: Path) -> bytes:
-    """frames.csv and the trajectories of one run, concatenated in name order."""
-    names = sorted(p.name for p in out.iterdir() if p.name == "frames.csv" or p.name.startswith("CameraTrajectory"))
-    return b"".join(n.encode() + (out / n).read_bytes() for n in names)
 
 
 def main() -> None:
