@@ -65,7 +65,9 @@ def test_simulated_rig_under_load_gives_each_frame_the_pose_of_the_frame_it_show
     # recording started before rendering finished: the first recorded frame predates the end of rendering
     assert summary["first_frame_ns"] is not None
     assert summary["render_done_ns"] is None or summary["first_frame_ns"] < summary["render_done_ns"]
-    assert (summary["first_frame_ns"] - summary["started_ns"]) / 1e9 < 60.0
+    # and did not wait for the whole render (600 s of world: about 400 CPU-s at this size, more beside the busy
+    # loops); the rig's start-up alone took up to 67 s on a machine loaded beyond the test's own busy loops
+    assert (summary["first_frame_ns"] - summary["started_ns"]) / 1e9 < 180.0
 
     rendered = {s: np.load(out / "dev" / "frames" / f"frames_{s}.npy", mmap_mode="r") for s in ("left", "right")}
     n_frames = rendered["left"].shape[0]
