@@ -4,6 +4,10 @@ Each exchange gives ``host_send_ns`` (host clock when the PING left), ``host_rec
 ``device_us`` (device microsecond clock when it answered). The device instant is assumed to be the midpoint of the
 round trip; its error is half the asymmetry of the two legs, which is smallest for the fastest round trips, so the
 model is a least-squares line ``host_ns = a + b * device_us`` through the samples with the lowest round trips only.
+
+Each sample's true instant lies inside its round trip, so its error is at most half the round trip (plus the device
+clock's jitter and its 1 us resolution); the line is a weighted sum of the samples, so the error of the map at any
+device time is bounded by the same weights applied to those per-sample bounds (:meth:`ClockModel.error_bound_us`).
 """
 
 from __future__ import annotations
@@ -33,6 +37,9 @@ class ClockModel:
         self._b_ns_per_us = 1000.0
         self._residual_us = math.inf
         self._used = 0
+        self._fit_x_us: list[float] = []  # the fitted samples' device times, relative to x_ref
+        self._fit_half_rtt_us: list[float] = []  # and their half round trips
+        self._slope_fitted = False
 
     # ------------------------------------------------------------------ samples
     def add_sample(self, host_send_ns: int, host_recv_ns: int, device_us: int) -> None:
@@ -50,6 +57,7 @@ class ClockModel:
         with self._lock:
             self._samples.clear()
             self._c_ns, self._b_ns_per_us, self._residual_us, self._used = 0.0, 1000.0, math.inf, 0
+            self._fit_x_us, self._fit_half_rtt_us, self._slope_fitted = [], [], False
 
     def _fit(self) -> None:
         samples = sorted(self._samples)  # by rtt
@@ -64,12 +72,12 @@ class ClockModel:
         my = sum(ys) / n
         sxx = sum((x - mx) ** 2 for x in xs)
         # A slope needs a spread of device times; over < 10 ms it is too noisy, keep the nominal rate.
-        if n >= 2 and sxx > 0 and (max(xs) - min(xs)) >= 10_000.0:
-            b = sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sxx
-        else:
-            b = 1000.0
+        fitted = n >= 2 and sxx > 0 and (max(xs) - min(xs)) >= 10_000.0
+        b = sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / sxx if fitted else 1000.0
         c = my - b * mx
         self._b_ns_per_us, self._c_ns, self._used = b, c, n
+        self._fit_x_us, self._slope_fitted = xs, fitted
+        self._fit_half_rtt_us = [(rtt + 1) / 2000.0 for rtt, _, _ in chosen]  # mid_ns is floored
         if n >= 2:
             sq = sum((y - (c + b * x)) ** 2 for x, y in zip(xs, ys))
             self._residual_us = math.sqrt(sq / n) / 1000.0
@@ -90,6 +98,30 @@ class ClockModel:
             if not self._samples:
                 raise ValueError("clock model has no samples yet")
             return self._x_ref + round((host_ns - self._y_ref - self._c_ns) / self._b_ns_per_us)
+
+    def error_bound_us(self, device_us: int, device_jitter_us: float = 0.0) -> float:
+        """Worst-case error (us) of :meth:`device_to_host_ns` at ``device_us``, for a device whose clock reads its
+        time to within ``device_jitter_us`` (plus its 1 us resolution) and runs at a constant rate over the samples.
+
+        The map is ``sum_i w_i * mid_i`` over the fitted samples (weights of the least-squares line at ``device_us``;
+        ``1/n`` each while the nominal rate is kept), and each ``mid_i`` is within half its round trip of the truth,
+        so the bound is ``sum_i |w_i| * (rtt_i / 2 + device_jitter_us + 1)``: it grows away from the samples' span.
+        While the nominal rate is kept (under 10 ms of samples) the rate error is not in the bound. ValueError before
+        any sample.
+        """
+        with self._lock:
+            if not self._samples:
+                raise ValueError("clock model has no samples yet")
+            xs, half = self._fit_x_us, self._fit_half_rtt_us
+            n = len(xs)
+            x0 = float(int(device_us) - self._x_ref)
+            if self._slope_fitted:
+                mx = sum(xs) / n
+                sxx = sum((x - mx) ** 2 for x in xs)
+                weights = [1.0 / n + (x0 - mx) * (x - mx) / sxx for x in xs]
+            else:
+                weights = [1.0 / n] * n
+            return sum(abs(w) * (h + device_jitter_us + 1.0) for w, h in zip(weights, half))
 
     @property
     def residual_us(self) -> float:
