@@ -192,7 +192,8 @@ def status(port: str, timeout_s: float, as_json: bool) -> int:
     clock = st["clock"]
     click.echo(f"state: {state}" + ("" if hb is None else f"  uptime {hb['uptime_ms'] / 1000:.1f} s"))
     click.echo(f"clock: residual {clock['residual_us']:.1f} us  drift {clock['drift_ppm']:.1f} ppm  "
-               f"min rtt {clock['min_rtt_us']:.0f} us  ({clock['samples']} samples)")
+               f"min rtt {clock['min_rtt_us']:.0f} us  error bound {clock['error_bound_us']:.0f} us  "
+               f"({clock['samples']} samples)")
     click.echo(f"capabilities: 0x{st['device']['capabilities']:x}")
     return 0
 

@@ -246,7 +246,8 @@ def ping(port: str, baud: int, count: int, interval_s: float, timeout_s: float, 
                f"uid {info['uid'].hex()} proto 1.{info['proto_minor']}")
     click.echo(f"round trip: min {rtt['min']:.0f} us, median {rtt['median']:.0f} us, max {rtt['max']:.0f} us "
                f"({count} pings)")
-    click.echo(f"clock model: residual {clock['residual_us']:.1f} us, drift {clock['drift_ppm']:+.1f} ppm "
+    click.echo(f"clock model: residual {clock['residual_us']:.1f} us, error bound {clock['error_bound_us']:.0f} us, "
+               f"drift {clock['drift_ppm']:+.1f} ppm "
                f"({clock['fit_samples']} of {clock['samples']} samples)")
     click.echo("counters: " + " ".join(f"{k}={v}" for k, v in sorted(nonzero.items())))
     return 0

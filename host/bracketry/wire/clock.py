@@ -154,7 +154,11 @@ class ClockModel:
             return min(s[0] for s in self._samples) if self._samples else None
 
     def summary(self) -> dict[str, float | int | None]:
-        """Numbers for logs and status: samples, fit samples, residual_us, drift_ppm, min_rtt_us."""
+        """Numbers for logs and status: samples, fit samples, residual_us, drift_ppm, min_rtt_us and error_bound_us
+        (:meth:`error_bound_us` at the latest sample's device time; None without samples)."""
         rtt = self.min_rtt_ns
+        with self._lock:
+            latest_us = self._samples[-1][2] if self._samples else None
         return {"samples": self.n_samples, "fit_samples": self.n_fit_samples, "residual_us": self.residual_us,
-                "drift_ppm": self.drift_ppm, "min_rtt_us": None if rtt is None else rtt / 1000.0}
+                "drift_ppm": self.drift_ppm, "min_rtt_us": None if rtt is None else rtt / 1000.0,
+                "error_bound_us": None if latest_us is None else self.error_bound_us(latest_us)}

@@ -147,6 +147,9 @@ def test_trigger_simulate_command(tmp_path: Path) -> None:
         assert out.returncode == 0, out.stderr
         status = json.loads(out.stdout)
         assert status["heartbeat"]["state"] == 1 and status["device"]["device_kind"] == 1
+        out = subprocess.run([sys.executable, "-m", "bracketry", "trigger", "status", "--port", str(link),
+                              "--timeout-s", "0.5"], capture_output=True, text=True, timeout=60)
+        assert out.returncode == 0 and "state: running" in out.stdout and " us  error bound " in out.stdout, out
         out = subprocess.run([sys.executable, "-m", "bracketry", "trigger", "stop", "--port", str(link),
                               "--timeout-s", "0.5"], capture_output=True, text=True, timeout=60)
         assert out.returncode == 0, out.stderr

@@ -133,6 +133,7 @@ def test_wire_cli_ping(capsys: pytest.CaptureFixture[str]) -> None:
     result = json.loads(out)
     assert result["device"]["device_kind"] == 1 and result["device"]["uid"] == b"FAKE-DEVICE1".hex()
     assert result["clock"]["samples"] == 20
+    assert result["clock"]["error_bound_us"] > result["clock"]["min_rtt_us"] / 2  # no better than its best sample
     assert result["rtt_us"]["min"] <= result["rtt_us"]["median"] <= result["rtt_us"]["max"]
     with FakeDevice() as dev:
         rc, out, _ = run(capsys, "ping", dev.path, "--count", "3", "--timeout", "1.0")
