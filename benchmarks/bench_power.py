@@ -111,13 +111,12 @@ def flags(report_dir: Path) -> dict[str, dict[str, dict[str, str]]]:
     from bracketry_emulator.stats.mannwhitney import METRICS
 
     key_of = {label: key for key, (label, _higher) in METRICS.items()}
-    from bracketry_emulator.report.tables import verdict_symbols
 
     word = {"▲": "better", "▼": "worse", "≡": "equal", "–": "n/a", "?": "unstable"}
     out: dict[str, dict[str, dict[str, str]]] = {}
     for test, name in (("mann-whitney", "verdicts.csv"), ("wilcoxon", "verdicts_paired.csv")):
         with open(report_dir / name, newline="") as fh:
-            rows = verdict_symbols(list(csv.reader(fh)))  # each verdict's stability column left out
+            rows = list(csv.reader(fh))
         methods = rows[0][1:]
         out[test] = {m: {} for m in methods}
         for label, *cells in rows[1:]:

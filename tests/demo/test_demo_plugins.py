@@ -25,7 +25,7 @@ def test_demo_runs_plugins_into_the_statistics(tmp_path: Path) -> None:
     assert res.returncode == 0, res.stderr[-3000:]
     rep = out / "benchmark" / "report"
     with open(rep / "verdicts.csv", newline="") as f:
-        assert next(csv.reader(f)) == ["metric", "brighter", "brighter stability", "darker", "darker stability"]
+        assert next(csv.reader(f)) == ["metric", "brighter", "darker"]
     md = (rep / "report.md").read_text()
     assert "brighter: ae_kit_mod:Brighter, target=0.5" in md and "darker: ae-kit-ep, target=0.2" in md
     runs = {p.name for p in (out / "benchmark" / "runs").glob("*/*") if p.is_dir()}

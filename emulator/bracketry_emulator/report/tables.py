@@ -110,12 +110,13 @@ def success_table(results: list[dict], methods: list[str]) -> list[list[str]]:
 
 def stats_tables(results: list[dict], methods: list[str], reference: str, alpha: float
                  ) -> tuple[list[list[str]], list[list[str]], dict[str, dict[str, Comparison]]]:
-    """(verdict table with ▲ better / ▼ worse / ≡ equal / ? unstable and each verdict's stability, p-value table
-    with the stability, raw comparisons). Stability: :mod:`~bracketry_emulator.stats.stability` (bootstrap
-    resamples of the trajectories)."""
+    """(verdict table with ▲ better / ▼ worse / ≡ equal / ? unstable, p-value table with each verdict's stability,
+    raw comparisons). Stability: :mod:`~bracketry_emulator.stats.stability` (bootstrap resamples of the
+    trajectories). The verdict table holds symbols only, the result that must not move between two runs of the same
+    benchmark; the stability, a share computed from the runs' values, is in the p-value table."""
     table = verdict_table(per_metric_values(results, methods), reference, alpha)
     others = [m for m in methods if m != reference]
-    verdicts = [["metric", *stability_header(others)]]
+    verdicts = [["metric", *others]]
     pvalues = [["metric", "method", "n", "median", f"median {reference}", "p two-sided", "p one-sided",
                 "alpha (Bonferroni)", "verdict", "stability"]]
     for key, comps in table.items():
@@ -126,28 +127,12 @@ def stats_tables(results: list[dict], methods: list[str], reference: str, alpha:
 
         share = verdict_stability(per_trajectory_values(results, methods, key), reference,
                                   {m: comps[m].verdict for m in others}, test, name_seed("mann-whitney", key))
-        verdicts.append([label, *[c for m in others for c in (shown_symbol(comps[m].verdict, share[m]),
-                                                              _fmt(share[m], 2))]])
+        verdicts.append([label, *[shown_symbol(comps[m].verdict, share[m]) for m in others]])
         for m in others:
             c = comps[m]
             pvalues.append([label, m, str(c.n), _fmt(c.median), _fmt(c.median_ref), _fmt(c.p_two_sided, 4),
                             _fmt(c.p_one_sided, 4), _fmt(c.alpha_corrected, 4), c.verdict, _fmt(share[m], 2)])
     return verdicts, pvalues, table
-
-
-#: the header suffix of a verdict table's stability columns (``verdicts.csv``: each method's verdict, then its share)
-STABILITY_SUFFIX = " stability"
-
-
-def stability_header(methods: list[str]) -> list[str]:
-    """The columns of a verdict table: each method, then its verdict's stability."""
-    return [c for m in methods for c in (m, m + STABILITY_SUFFIX)]
-
-
-def verdict_symbols(rows: list[list[str]]) -> list[list[str]]:
-    """A verdict table without its stability columns (metrics as rows, compared methods as columns, symbols)."""
-    keep = [j for j, c in enumerate(rows[0]) if not c.endswith(STABILITY_SUFFIX)]
-    return [[r[j] for j in keep] for r in rows]
 
 
 #: error metrics a run that never tracked has no value of: in the paired test it ranks worst (not left out, which
@@ -202,16 +187,15 @@ def paired_tables(results: list[dict], methods: list[str], reference: str, alpha
 
 def paired_verdicts_table(wilcoxon_rows: list[list[str]], methods: list[str], reference: str) -> list[list[str]]:
     """The Wilcoxon signed-rank verdicts of :func:`paired_tables` shaped as the Mann-Whitney verdict table (metrics
-    as rows, compared methods as columns, ▲ ▼ ≡ – and ? for an unstable one, each followed by its stability): the
-    paired test, which sees a difference that every trajectory shows in the same direction even when it is small
-    against the spread between trajectories."""
+    as rows, compared methods as columns, ▲ ▼ ≡ – and ? for an unstable one; the stability is in the Wilcoxon
+    rows): the paired test, which sees a difference that every trajectory shows in the same direction even when it
+    is small against the spread between trajectories."""
     others = [m for m in methods if m != reference]
-    by_metric: dict[str, dict[str, tuple[str, str]]] = {}
+    by_metric: dict[str, dict[str, str]] = {}
     for label, method, *_rest, verdict, share in wilcoxon_rows[1:]:
-        by_metric.setdefault(label, {})[method] = (shown_symbol(verdict, float(share)), share)
-    na = (SYMBOL["n/a"], "nan")
-    return [["metric", *stability_header(others)],
-            *[[label, *[c for m in others for c in v.get(m, na)]] for label, v in by_metric.items()]]
+        by_metric.setdefault(label, {})[method] = shown_symbol(verdict, float(share))
+    return [["metric", *others],
+            *[[label, *[v.get(m, SYMBOL["n/a"]) for m in others]] for label, v in by_metric.items()]]
 
 
 #: metric key -> (axis label with unit, scale to that unit) of the box plots and the medians table

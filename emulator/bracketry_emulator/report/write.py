@@ -4,9 +4,10 @@ Files in ``<out>/report/``: ``results.csv`` (per trajectory and method), ``windo
 ``summary.csv``, ``medians.csv`` (per method: medians and spread over repeats), ``success.csv`` (per subset),
 ``stats.csv`` (p-values, verdicts and their stability), ``failure_causes.csv`` (trajectory, method, repeat, time_s,
 cause: one row per run that lost track, :mod:`~bracketry_emulator.metrics.failure_causes`; with the cause x method
-table in the report and ``latex/causes.tex``), ``verdicts.csv``, ``verdicts_paired.csv`` (each method's verdict, then
-its stability over bootstrap resamples, :mod:`~bracketry_emulator.stats.stability`; the Wilcoxon signed-rank verdicts
-as the same table), ``controls.csv`` (with control rows), ``report.md``, ``report.html``, the PNG figures (box plots
+table in the report and ``latex/causes.tex``), ``verdicts.csv``, ``verdicts_paired.csv`` (each method's verdict as a
+symbol, ``?`` where its stability over bootstrap resamples is low, :mod:`~bracketry_emulator.stats.stability`: the
+shares themselves are in ``stats.csv`` and ``wilcoxon.csv``; the Wilcoxon signed-rank verdicts as the same table),
+``controls.csv`` (with control rows), ``report.md``, ``report.html``, the PNG figures (box plots
 per metric and method over trajectories and repeats ``box_<metric>.png``, per-frame coverage and matches box plots,
 time before failure, exposure traces, qualitative grid) and ``latex/`` (the verdict, success and medians tables as
 LaTeX, :mod:`~bracketry_emulator.report.latex`).
@@ -40,7 +41,6 @@ from bracketry_emulator.report.tables import (
     stats_tables,
     success_table,
     summary_table,
-    verdict_symbols,
     windows_table,
 )
 from bracketry_emulator.stats.stability import N_RESAMPLES, STABLE_SHARE
@@ -122,8 +122,7 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     if len(ctl_rows) > 1:
         files["controls.csv"] = _write_csv(rep / "controls.csv", ctl_rows)
     labels = method_labels(results, methods)
-    verdicts_shown, paired_shown = verdict_symbols(verdicts), verdict_symbols(paired_verdicts)
-    files.update(write_latex(rep, verdicts_shown, suc_rows, med_rows, reference, alpha, cause_rows))
+    files.update(write_latex(rep, verdicts, suc_rows, med_rows, reference, alpha, cause_rows))
 
     box_figs: list[tuple[str, str]] = []
     for key, (label, _scale) in METRIC_UNITS.items():
@@ -164,7 +163,7 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
              f"alpha = {alpha} with Bonferroni over {max(len(tested) - 1, 1)} methods "
              f"(▲ better, ▼ worse, ≡ not different from {reference}; ? better or worse in fewer than "
              f"{STABLE_SHARE:.0%} of {N_RESAMPLES} bootstrap resamples of the trajectories, a verdict resting on "
-             f"noise: verdicts.csv gives each verdict's share). RTE/RRE: evo RPE, windows "
+             f"noise: stats.csv and wilcoxon.csv give each verdict's share). RTE/RRE: evo RPE, windows "
              f"{_window_text(results)} m, per segment, paper equations; distance tracked = share of the reference "
              f"path covered by tracked segments. Localisation: {localisation}.")
     untested = [m for m in methods if m not in tested]
@@ -189,8 +188,8 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     # at a glance (in this order), then the long tables (folded in the HTML page)
     suc_shown, sum_shown, med_shown = (relabel(suc_rows, labels, header=True), relabel(sum_rows, labels),
                                        relabel(med_rows, labels))
-    glance = [(verdict_title, relabel(verdicts_shown, labels, header=True)),
-              (paired_title, relabel(paired_shown, labels, header=True)),
+    glance = [(verdict_title, relabel(verdicts, labels, header=True)),
+              (paired_title, relabel(paired_verdicts, labels, header=True)),
               *([("Control rows", ctl_rows)] if len(ctl_rows) > 1 else []),
               *([(failed_title, failed_rows)] if len(failed_rows) > 1 else []),
               ("Successful trajectories per subset", suc_shown),

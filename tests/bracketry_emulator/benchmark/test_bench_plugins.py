@@ -148,7 +148,7 @@ def test_benchmark_plugins_to_statistics_and_cache(plugins: dict, world: Path, t
     assert res.returncode == 0, res.stderr
     rep = out / "report"
     verdicts = _csv(rep / "verdicts.csv")
-    assert list(verdicts[0]) == ["metric", "brighter", "brighter stability", "darker", "darker stability"]
+    assert list(verdicts[0]) == ["metric", "brighter", "darker"]
     assert {r["method"] for r in _csv(rep / "results.csv")} == {"ae50", "brighter", "darker"}
     md = (rep / "report.md").read_text()
     assert "brighter: ae_kit_mod:Brighter, target=0.5" in md and "darker: ae-kit-ep" in md

@@ -14,7 +14,6 @@ from report_results import LONG_METHODS, synthetic_results
 
 from bracketry_emulator.report import write_report
 from bracketry_emulator.report.latex import SHORT_HEADS, escape
-from bracketry_emulator.report.tables import verdict_symbols
 
 _UNESCAPE = [(r"\textbackslash{}", "\\"), (r"\textasciitilde{}", "~"), (r"\textasciicircum{}", "^")] + [
     ("\\" + c, c) for c in "&%$#_{}"]
@@ -94,7 +93,7 @@ def report(request, tmp_path_factory) -> tuple[Path, list[str], str]:
 def test_verdicts_tex_equals_verdicts_csv(report) -> None:
     rep, methods, reference = report
     heads, rows = _parse((rep / "latex" / "verdicts.tex").read_text())
-    table = verdict_symbols(_csv(rep / "verdicts.csv"))  # metrics as rows, compared methods as columns
+    table = _csv(rep / "verdicts.csv")  # metrics as rows, compared methods as columns
     assert heads[0][1:] == _heads([r[0] for r in table[1:]])
     assert [_unescape(r[0]) for r in rows] == [m for m in methods if m != reference] == table[0][1:]
     for j, r in enumerate(rows):
