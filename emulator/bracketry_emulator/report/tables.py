@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.stats import kendalltau
 
 from bracketry_emulator.metrics.failure_causes import CAUSES, failure_rows
 from bracketry_emulator.metrics.manifest import success_counts
@@ -294,6 +295,32 @@ PAPER_FAILURE_READING = {
     "wang": "abrupt exposure changes (its jumps); saturation once converged too high",
     "shim": "short exposures: least blur",
 }
+
+
+#: the paper's successful trajectories per method (BorealHDR benchmark, ORB-SLAM2, table of successful trajectories per
+#: deployment day: Forest 42, Belair 8, Campus1 3, Campus2 6), of :data:`PAPER_TRAJECTORIES`
+PAPER_SUCCESS = {"fix": 40, "ae30": 29, "ae50": 31, "ae70": 23, "shim": 39, "wang": 12, "kim": 19, "drl": 27}
+PAPER_TRAJECTORIES = 59
+
+
+def success_beside_paper(results: list[dict], methods: list[str]) -> tuple[list[list[str]], float]:
+    """Per method of the paper's (:data:`PAPER_SUCCESS`, in ``methods`` order): our successful trajectories and share,
+    the paper's, and Kendall's tau-b between the two counts over those methods (NaN with fewer than 3 of them or
+    no spread on one side): how far the ranking of robustness agrees, a measurement, not a target.
+    Returns (rows with a header, tau)."""
+    counts = success_counts(results).get("Total", {})
+    shared = [m for m in methods if m in PAPER_SUCCESS and m in counts]
+    rows = [["method", "successful", "share (%)", f"paper (of {PAPER_TRAJECTORIES})", "paper share (%)"]]
+    for m in shared:
+        ok, n = counts[m]
+        rows.append([m, f"{ok}/{n}", _fmt(100.0 * ok / n, 0), str(PAPER_SUCCESS[m]),
+                     _fmt(100.0 * PAPER_SUCCESS[m] / PAPER_TRAJECTORIES, 0)])
+    ours = [counts[m][0] / counts[m][1] for m in shared]
+    paper = [PAPER_SUCCESS[m] for m in shared]
+    tau = float("nan")
+    if len(shared) >= 3 and len(set(ours)) > 1:
+        tau = float(kendalltau(ours, paper).statistic)
+    return rows, tau
 
 
 def failure_causes_rows(results: list[dict]) -> list[list[str]]:
