@@ -174,7 +174,8 @@ def _track(request: dict) -> dict:
                "track_s_mean": float(np.mean(track_s)) if track_s else float("nan"),
                "raw_states": {s: raw_states.count(s) for s in sorted(set(raw_states))},
                "max_late_s": late_s,
-               **({"lockstep_wait_s": waits.wait_s, "lockstep_timeouts": waits.timeouts} if lockstep else {}),
+               **({"lockstep_wait_s": waits.wait_s, "lockstep_timeouts": waits.timeouts,
+                   "lockstep_polls": waits.polls} if lockstep else {}),
                "source": "stream" if request.get("frames_fifo") else "png"}
     return summary
 

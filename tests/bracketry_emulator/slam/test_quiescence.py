@@ -47,8 +47,27 @@ def test_waits_for_a_whole_quiet_window_after_the_threads_stop() -> None:
     ok = wait_idle(set(), stats, window_s=0.012, poll_s=0.001, clock=clock, sleep=clock.sleep,
                    sample=_script(clock, busy_until_s=0.5))
     assert ok and stats.waits == 1 and stats.timeouts == 0
-    assert 0.5 + 0.012 <= clock.t < 0.5 + 0.012 + 0.003
+    # the end of the busy stretch is seen at most one spaced-out poll (8 ms) late
+    assert 0.5 + 0.012 <= clock.t < 0.5 + 0.012 + 0.008 + 0.003
     assert abs(stats.wait_s - clock.t) < 1e-9
+
+
+def test_polls_space_out_while_a_thread_is_busy_and_not_in_the_quiet_window() -> None:
+    clock, stats = FakeClock(), LockstepStats()
+    # 2 s of busy work: at 1 ms a poll that would be ~2000 samples; spaced out to 8 ms about 250
+    assert wait_idle(set(), stats, window_s=0.012, poll_s=0.001, max_busy_poll_s=0.008, clock=clock,
+                     sleep=clock.sleep, sample=_script(clock, busy_until_s=2.0))
+    assert 2.0 / 0.008 <= stats.polls < 2.0 / 0.008 + 30
+    quiet_polls = stats.polls
+    clock2, stats2 = FakeClock(), LockstepStats()
+    assert wait_idle(set(), stats2, window_s=0.012, poll_s=0.001, max_busy_poll_s=0.001, clock=clock2,
+                     sleep=clock2.sleep, sample=_script(clock2, busy_until_s=2.0))
+    assert stats2.polls > 6 * quiet_polls  # the unspaced poll: every millisecond
+    # idle threads are watched at the fine poll: the quiet window is 12 samples, not 2
+    clock3, stats3 = FakeClock(), LockstepStats()
+    assert wait_idle(set(), stats3, window_s=0.012, poll_s=0.001, max_busy_poll_s=0.008, clock=clock3,
+                     sleep=clock3.sleep, sample=_script(clock3, busy_until_s=0.0))
+    assert 12 <= stats3.polls <= 14
 
 
 def test_a_thread_that_runs_while_sleeping_is_not_idle_and_the_wait_gives_up() -> None:
