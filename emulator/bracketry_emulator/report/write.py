@@ -167,7 +167,7 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     n_traj = len({r["trajectory"] for r in results})
     intro = (f"{n_traj} trajectories x {len(methods)} methods. Reference: **{reference}**. Mann-Whitney U, "
              f"alpha = {alpha} with Bonferroni over {max(len(tested) - 1, 1)} methods "
-             f"(▲ better, ▼ worse, ≡ not different from {reference}; ? better or worse in fewer than "
+             f"(▲ better, ▼ worse, ≡ not different from {reference}; ? a verdict given by fewer than "
              f"{STABLE_SHARE:.0%} of {N_RESAMPLES} bootstrap resamples of the trajectories, a verdict resting on "
              f"noise: stats.csv and wilcoxon.csv give each verdict's share). RTE/RRE: evo RPE, windows "
              f"{_window_text(results)} m, per segment, paper equations; distance tracked = share of the reference "

@@ -3,9 +3,10 @@
 A verdict (better / worse / equal than the reference, :mod:`.mannwhitney` or :mod:`.paired`) comes from one set of
 trajectories. Resampled with replacement (:data:`N_RESAMPLES` times, the same draw for every method, so pairs stay
 pairs), the test gives each resample a verdict; the **stability** of the verdict is the share of resamples that give
-the same one. A verdict of better or worse is shown (▲ / ▼) only when its stability is at least
-:data:`STABLE_SHARE`; otherwise the table prints :data:`UNSTABLE` (the sign of the difference rests on noise: a
-p-value close to the threshold, or one or two trajectories carrying it).
+the same one. A verdict is shown (▲ / ▼ / ≡) only when its stability is at least :data:`STABLE_SHARE`; otherwise the
+table prints :data:`UNSTABLE` (the verdict rests on noise: a p-value close to the threshold, or one or two
+trajectories carrying it; an "equal" that many resamples call better or worse is no more settled than a "worse" that
+many call equal, and two runs of one benchmark whose SLAM differs slightly flip between the two).
 
 The draws come from a generator seeded by :data:`SEED` and the metric's and method's names: the same values give
 the same shares on every run.
@@ -20,7 +21,7 @@ from typing import Protocol
 
 import numpy as np
 
-from bracketry_emulator.stats.mannwhitney import BETTER, SYMBOL, WORSE
+from bracketry_emulator.stats.mannwhitney import BETTER, EQUAL, SYMBOL, WORSE
 
 #: bootstrap resamples of the trajectories per verdict
 N_RESAMPLES = 200
@@ -75,8 +76,8 @@ def verdict_stability(values: dict[str, dict[str, float]], reference: str, verdi
 
 
 def shown_symbol(verdict: str, stability: float, stable_share: float = STABLE_SHARE) -> str:
-    """The table's symbol of a verdict: ▲ / ▼ when its ``stability`` is at least ``stable_share``, else
-    :data:`UNSTABLE`; equal and n/a as they are."""
-    if verdict in (BETTER, WORSE) and not stability >= stable_share:
+    """The table's symbol of a verdict: ▲ / ▼ / ≡ when its ``stability`` is at least ``stable_share``, else
+    :data:`UNSTABLE`; n/a as it is."""
+    if verdict in (BETTER, WORSE, EQUAL) and not stability >= stable_share:
         return UNSTABLE
     return SYMBOL[verdict]

@@ -47,7 +47,9 @@ def test_a_difference_every_trajectory_shows_is_stable_and_one_resting_on_noise_
 def test_symbols_and_seeded_draws() -> None:
     assert shown_symbol(WORSE, 0.95) == SYMBOL[WORSE]
     assert shown_symbol(WORSE, 0.5) == UNSTABLE
-    assert shown_symbol("equal", 0.1) == SYMBOL["equal"]
+    assert shown_symbol("equal", 0.1) == UNSTABLE  # an equal that resamples call better or worse
+    assert shown_symbol("equal", 0.9) == SYMBOL["equal"]
+    assert shown_symbol("n/a", 0.0) == SYMBOL["n/a"]
     a, b = resample_indices(5, 3, 7), resample_indices(5, 3, 7)
     assert a.shape == (3, 5) and (a == b).all() and a.min() >= 0 and a.max() < 5
     assert resample_indices(0, 4, 1).shape == (4, 0)
