@@ -33,7 +33,7 @@ from pathlib import Path
 
 import cv2
 
-from bracketry import paths
+from bracketry_base import paths
 from bracketry_emulator.ae import get_method, run_methods
 from bracketry_emulator.ae.drl import save_random_actor
 from bracketry_emulator.crf import load_pcalib

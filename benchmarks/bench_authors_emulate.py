@@ -35,7 +35,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from bracketry import paths
+from bracketry_base import paths
 
 CODE_ENV = "BRACKETRY_BOREALHDR_CODE"
 PYTHON_ENV = "BRACKETRY_BOREALHDR_PYTHON"

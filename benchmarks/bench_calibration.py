@@ -1,5 +1,5 @@
 """Stereo calibration against the known truth: rendered board sessions (``bracketry synth calibration``'s
-renderer) solved by ``bracketry.calibration`` (what ``bracketry calibrate solve`` runs), recovered vs true.
+renderer) solved by ``bracketry_base.calibration`` (what ``bracketry calibrate solve`` runs), recovered vs true.
 
 Usage: .venv/bin/python benchmarks/bench_calibration.py [--resolution 640x400] [--seeds 0,1,2,3,4] [--views 40]
        [--baseline-m 0.18]
@@ -20,11 +20,11 @@ from pathlib import Path
 
 sys.path[:0] = [str(Path(__file__).resolve().parents[1] / d) for d in ("host", "emulator")]
 
-from bracketry.calibration.board import BoardSpec  # noqa: E402
-from bracketry.calibration.camera_info import rectified_camera  # noqa: E402
-from bracketry.calibration.detect import detect, to_gray8  # noqa: E402
-from bracketry.calibration.solve import solve_stereo  # noqa: E402
-from bracketry.cli.options import parse_resolution  # noqa: E402
+from bracketry_base.calibration.board import BoardSpec  # noqa: E402
+from bracketry_base.calibration.camera_info import rectified_camera  # noqa: E402
+from bracketry_base.calibration.detect import detect, to_gray8  # noqa: E402
+from bracketry_base.calibration.solve import solve_stereo  # noqa: E402
+from bracketry_base.options import parse_resolution  # noqa: E402
 from bracketry_emulator.synth.board_session import render_session  # noqa: E402
 from bracketry_emulator.synth.calibration import default_calibration  # noqa: E402
 

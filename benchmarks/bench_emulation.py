@@ -17,7 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from bracketry import paths
+from bracketry_base import paths
 from bracketry_emulator.crf import load_pcalib, response_from_pcalib
 from bracketry_emulator.dataset import open_dataset
 from bracketry_emulator.emulation import Emulator, EmulatorConfig, LutCache, apply_lut, kernel

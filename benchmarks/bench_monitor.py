@@ -34,12 +34,12 @@ from typing import Any
 
 import numpy as np
 
-from bracketry import paths
-from bracketry.monitor.hub import PreviewHub
-from bracketry.monitor.server import advisor_report
+from bracketry_base import paths
+from bracketry_rig.monitor.hub import PreviewHub
+from bracketry_rig.monitor.server import advisor_report
 
 ROOT = paths.repo_root()
-sys.path.insert(0, str(ROOT / "tests" / "bracketry" / "monitor"))
+sys.path.insert(0, str(ROOT / "tests" / "bracketry_rig" / "monitor"))
 WIDTH, HEIGHT = 1920, 1200
 BRACKETS_US = (1000, 2000, 4000, 8000, 16000, 32000)
 
@@ -59,9 +59,9 @@ class _Backend:
 
 
 def bench_previews(repeats: int) -> dict[str, float]:
-    from bracketry.cameras.camera import Frame
-    from bracketry.events import TriggerEvent
-    from bracketry.pairing.pairer import PairedSet
+    from bracketry_rig.cameras.camera import Frame
+    from bracketry_rig.events import TriggerEvent
+    from bracketry_rig.pairing.pairer import PairedSet
 
     rng = np.random.default_rng(0)
     frames = [scene_frame(e, rng) for e in BRACKETS_US]

@@ -17,11 +17,11 @@ import sys
 import tempfile
 from pathlib import Path
 
-from bracketry import paths
+from bracketry_base import paths
 
 ROOT = paths.repo_root()
 FIRMWARE = ROOT / "firmware" / "esp32_panel"
-BPROTO = ROOT / "host" / "bracketry" / "wire" / "bproto.py"
+BPROTO = ROOT / "host" / "bracketry_rig" / "wire" / "bproto.py"
 RUNNER = ROOT / "tests" / "firmware" / "esp32_panel" / "panel_mpy_run.mjs"
 
 SCRIPT = """

@@ -31,7 +31,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bracketry import paths
+from bracketry_base import paths
 from bracketry_emulator.dataset import imageio
 from bracketry_emulator.emulation.writer import PNG_COMPRESSIONS, WRITE_PIECE_BYTES, encode_png, write_png
 from bracketry_emulator.extensions import extensions_disabled

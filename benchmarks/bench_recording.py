@@ -35,12 +35,12 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from bracketry.events import TriggerEvent
-from bracketry.pairing.pairer import PairedSet
-from bracketry.recording import topics as T
-from bracketry.recording.decode import decode_image_msg
-from bracketry.recording.reader import RecordingReader
-from bracketry.recording.recorder import Recorder, RecorderConfig
+from bracketry_base.recording import topics as T
+from bracketry_base.recording.decode import decode_image_msg
+from bracketry_base.recording.reader import RecordingReader
+from bracketry_rig.events import TriggerEvent
+from bracketry_rig.pairing.pairer import PairedSet
+from bracketry_rig.recording.recorder import Recorder, RecorderConfig
 
 W, H = 1920, 1200
 NEED_FPS = 2 * 22.0
@@ -112,7 +112,7 @@ def run_ours(out: Path, frames: dict, n_sets: int, compression: str) -> dict[str
 def run_stock(out: Path, frames: dict, n_sets: int) -> dict[str, float]:
     from mcap_ros2.writer import Writer
 
-    from bracketry.recording.msgdefs import MSGDEFS, stamp
+    from bracketry_base.recording.msgdefs import MSGDEFS, stamp
 
     out.mkdir(parents=True, exist_ok=True)
     path = out / "stock.mcap"

@@ -54,8 +54,8 @@ import time
 
 import numpy as np
 
-from bracketry.cli.options import parse_resolution
 from bracketry.sim.frames import cycle_rates, expose_frame, noise_bank, reference_time_s, trigger_time_s
+from bracketry_base.options import parse_resolution
 from bracketry_emulator.extensions import extensions_disabled
 from bracketry_emulator.runtime_policy import apply_profile
 from bracketry_emulator.synth import World

@@ -14,9 +14,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from bracketry.trigger.client import TriggerClient
-from bracketry.trigger.qemu import QemuTrigger, build_firmware
-from bracketry.trigger.simulator import simulate_on_pty
+from bracketry_rig.trigger.client import TriggerClient
+from bracketry_rig.trigger.qemu import QemuTrigger, build_firmware
+from bracketry_rig.trigger.simulator import simulate_on_pty
 
 
 def measure(url: str, n_pings: int, stream_s: float, timeout_s: float) -> dict[str, float]:

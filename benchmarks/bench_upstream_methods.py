@@ -34,7 +34,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # as bracketry emulate (befo
 
 import numpy as np
 
-from bracketry import paths
+from bracketry_base import paths
 from bracketry_emulator.ae import gp as GP
 from bracketry_emulator.ae import upstream as U
 from bracketry_emulator.ae.base import bayer_gray

@@ -6,7 +6,7 @@ wrong length/version, pure garbage), then:
 
 - feeds every record to a fresh C decoder under the sanitizers: the process must exit 0 (no crash, no sanitizer
   report; every decoded frame is re-encoded and decoded again inside the harness);
-- feeds every record to a fresh Python decoder (``bracketry.wire.bproto``): must never raise;
+- feeds every record to a fresh Python decoder (``bracketry_rig.wire.bproto``): must never raise;
 - checks C and Python agree record by record (frames and every counter);
 - checks every corrupted record is rejected (no decoded frame differs from the original frame);
 - prints Python decoder frames/s (median of repeats), C -O2 frames/s, and their ratio.
@@ -28,8 +28,8 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from bracketry import paths
-from bracketry.wire import bproto
+from bracketry_base import paths
+from bracketry_rig.wire import bproto
 
 sys.path.insert(0, str(paths.repo_root() / "tests" / "firmware" / "protocol"))
 # the per-record digest the C fuzz harness prints, shared with the tests

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry import paths
+from bracketry_base import paths
 from bracketry_emulator.dataset import open_dataset
 
 

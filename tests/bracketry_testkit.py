@@ -15,7 +15,8 @@ from pathlib import Path
 
 import pytest
 
-from bracketry import doctor, paths
+from bracketry_base import paths
+from bracketry_rig import doctor
 
 STRICT = os.environ.get("BRACKETRY_STRICT") == "1"
 

@@ -10,7 +10,7 @@ import pytest
 
 os.environ.setdefault("MPLBACKEND", "Agg")
 
-from bracketry.trigger.qemu import QemuTrigger, build_firmware
+from bracketry_rig.trigger.qemu import QemuTrigger, build_firmware
 from bracketry_testkit import MARKER_NEEDS, STRICT, require_marker_components, sample_dir
 
 

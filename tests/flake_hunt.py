@@ -3,7 +3,7 @@
 Usage (from the checkout's root)::
 
     .venv/bin/python tests/flake_hunt.py --runs 10 --hogs 0 --runs-hogged 10 --hogs-hogged 2 \\
-        tests/bracketry/recording tests/bracketry/pairing
+        tests/bracketry_rig/recording tests/bracketry_rig/pairing
 
 Each run is one ``pytest`` process over the given paths (``-p no:cacheprovider``, JUnit XML to a temporary file); a
 test's outcome per run is read from that XML. ``--hogs N`` starts N ``python -c 'while True: pass'`` processes for the

@@ -1,4 +1,4 @@
-"""A camera frame as the pairer reads it (the fields of ``bracketry.cameras.camera.Frame`` it uses), for the pairing
+"""A camera frame as the pairer reads it (the fields of ``bracketry_rig.cameras.camera.Frame`` it uses), for the pairing
 tests, plus the pulse that really exposed it."""
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ import tty
 from collections.abc import Callable
 from pathlib import Path
 
-from bracketry.wire import bproto
+from bracketry_rig.wire import bproto
 
 
 class Pty:

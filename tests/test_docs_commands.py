@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import click
 
 from bracketry.cli import cli
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 from bracketry_testkit import tracked_markdown_files
 
 #: info strings of the fenced blocks whose lines are commands ("" = no info string)

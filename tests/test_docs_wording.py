@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import re
 
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 from bracketry_testkit import tracked_markdown_files
 
 #: phrases that tell a story of changes instead of what is (regular expressions, case-insensitive)

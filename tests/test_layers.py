@@ -3,9 +3,9 @@
     base  <  rig, emulator  <  integration
 
 - **base**: what both packages share, on the core dependencies alone (OpenCV only where a PNG is written): errors,
-  progress, paths, output checks, the CLI's option types, the PNG codec (``bracketry.png``), the recording format
-  with its reader and checker (``bracketry.recording`` but the rig's recorder and session) and the stereo
-  calibration library (``bracketry.calibration``: board, detection, coverage, solve; numpy and OpenCV only).
+  progress, paths, output checks, the CLI's option types, the PNG codec (``bracketry_base.png``), the recording format
+  with its reader and checker (``bracketry_base.recording`` but the rig's recorder and session) and the stereo
+  calibration library (``bracketry_base.calibration``: board, detection, coverage, solve; numpy and OpenCV only).
 - **rig** (the rest of ``bracketry``) and **emulator** (``bracketry_emulator``) are peers: neither imports the other,
   so a rig runs without the emulator's dependencies and the emulator never reaches into the rig.
 - **integration**: what joins them: the simulated rig (``bracketry.sim``), the demo, the test harnesses and the CLI
@@ -31,7 +31,7 @@ import ast
 from dataclasses import dataclass
 from pathlib import Path
 
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 
 BASE, RIG, EMULATOR, INTEGRATION, BENCHMARKS = "base", "rig", "emulator", "integration", "benchmarks"
 #: the layers each layer may import (itself included)
@@ -45,21 +45,21 @@ MAY_IMPORT: dict[str, set[str]] = {
 #: module (or package: all below it) -> layer; the longest listed name that a module starts with decides
 LAYER_TABLE: dict[str, str] = {
     "bracketry": RIG,
-    "bracketry.errors": BASE,
-    "bracketry.progress": BASE,
-    "bracketry.paths": BASE,
-    "bracketry.outputs": BASE,
-    "bracketry.ipv4": BASE,
-    "bracketry.png": BASE,
-    "bracketry.cli.options": BASE,
-    "bracketry.recording.topics": BASE,
-    "bracketry.recording.msgdefs": BASE,
-    "bracketry.recording.decode": BASE,
-    "bracketry.recording.mcap_writer": BASE,
-    "bracketry.recording.reader": BASE,
-    "bracketry.recording.verify": BASE,
-    "bracketry.recording.calibration": BASE,
-    "bracketry.calibration": BASE,
+    "bracketry_base.errors": BASE,
+    "bracketry_base.progress": BASE,
+    "bracketry_base.paths": BASE,
+    "bracketry_base.outputs": BASE,
+    "bracketry_base.ipv4": BASE,
+    "bracketry_base.png": BASE,
+    "bracketry_base.options": BASE,
+    "bracketry_base.recording.topics": BASE,
+    "bracketry_base.recording.msgdefs": BASE,
+    "bracketry_base.recording.decode": BASE,
+    "bracketry_base.recording.mcap_writer": BASE,
+    "bracketry_base.recording.reader": BASE,
+    "bracketry_base.recording.verify": BASE,
+    "bracketry_base.recording.calibration": BASE,
+    "bracketry_base.calibration": BASE,
     "bracketry.sim": INTEGRATION,
     "bracketry.demo": INTEGRATION,
     "bracketry.testing": INTEGRATION,
@@ -271,17 +271,17 @@ def test_upward_imports_are_found() -> None:
     ``from package import module``), imports down or across within a layer are not."""
     modules = {
         "bracketry": ("", True),
-        "bracketry.errors": ("", False),
-        "bracketry.recording.reader": ("from bracketry.errors import BracketryError\n", False),
-        "bracketry.export.borealhdr": (  # rig -> emulator, lazily
-            "from bracketry.recording.reader import RecordingReader\n"
+        "bracketry_base.errors": ("", False),
+        "bracketry_base.recording.reader": ("from bracketry_base.errors import BracketryError\n", False),
+        "bracketry_rig.export.borealhdr": (  # rig -> emulator, lazily
+            "from bracketry_base.recording.reader import RecordingReader\n"
             "def f():\n    from bracketry_emulator.emulation.writer import write_png\n", False),
         "bracketry.sim.rig": ("from bracketry_emulator.synth import World\n", False),  # integration: allowed
-        "bracketry.cameras.fake": ("from bracketry.sim import rig\n", False),  # rig -> integration
+        "bracketry_rig.cameras.fake": ("from bracketry.sim import rig\n", False),  # rig -> integration
         "bracketry_emulator": ("", True),
         "bracketry_emulator.trajectory_io": ("", False),
         "bracketry_emulator.emulation": ("", True),
-        "bracketry_emulator.emulation.writer": ("from bracketry.errors import BracketryError\n", False),
+        "bracketry_emulator.emulation.writer": ("from bracketry_base.errors import BracketryError\n", False),
         "bracketry_emulator.synth": ("", True),
         "bracketry_emulator.vo": ("", True),
         "bracketry_emulator.vo.orbslam": (  # floor 2 -> its neighbour metrics on floor 2: refused; floor 0: allowed
@@ -295,13 +295,13 @@ def test_upward_imports_are_found() -> None:
         "bracketry_emulator.benchmark.slam": ("", False),
         "bracketry_emulator.dataset": ("", True),
         "bracketry_emulator.dataset.mcap_reader": (  # emulator -> rig
-            "from bracketry.recording import reader\nimport bracketry.daemon.rig\n", False),
-        "bracketry.daemon.rig": ("", False),
+            "from bracketry_base.recording import reader\nimport bracketry_rig.daemon.rig\n", False),
+        "bracketry_rig.daemon.rig": ("", False),
     }
     problems = upward_imports(modules)
     assert [p.split(": ")[0] for p in problems] == [
-        "bracketry.cameras.fake:1",
-        "bracketry.export.borealhdr:3",
+        "bracketry_rig.cameras.fake:1",
+        "bracketry_rig.export.borealhdr:3",
         "bracketry_emulator.dataset.mcap_reader:2",
         "bracketry_emulator.report.write:3",
         "bracketry_emulator.vo.orbslam:2",
@@ -319,11 +319,11 @@ def test_upward_imports_are_found() -> None:
 def test_the_tree_with_an_upward_import_fails() -> None:
     """The real tree's sources with one bad lazy import added to a copy of one module fail, naming it."""
     modules = _tree_modules()
-    source, init = modules["bracketry.recording.reader"]
-    modules["bracketry.recording.reader"] = (source + "\n\ndef _bad():\n    from bracketry.daemon import rig\n", init)
+    source, init = modules["bracketry_base.recording.reader"]
+    modules["bracketry_base.recording.reader"] = (source + "\n\ndef _bad():\n    from bracketry_rig.daemon import rig\n", init)
     problems = upward_imports(modules)
-    assert len(problems) == 1 and problems[0].startswith("bracketry.recording.reader:"), problems
-    assert "lazy import of bracketry.daemon.rig: the base layer may not import the rig layer" in problems[0]
+    assert len(problems) == 1 and problems[0].startswith("bracketry_base.recording.reader:"), problems
+    assert "lazy import of bracketry_rig.daemon.rig: the base layer may not import the rig layer" in problems[0]
 
 
 def test_no_import_cycles_between_files() -> None:
@@ -362,5 +362,5 @@ def test_benchmark_scripts_are_covered() -> None:
     """The benchmark scripts are read (their imports checked, cycles included) and no package imports them."""
     modules = _tree_modules()
     assert {"benchmarks.bench_ae", "benchmarks.bench_slam_child"} <= set(modules)
-    assert upward_imports({**modules, "bracketry.errors": ("import benchmarks.bench_ae\n", False)}) == [
-        "bracketry.errors:1: import of benchmarks.bench_ae: the base layer may not import the benchmarks layer"]
+    assert upward_imports({**modules, "bracketry_base.errors": ("import benchmarks.bench_ae\n", False)}) == [
+        "bracketry_base.errors:1: import of benchmarks.bench_ae: the base layer may not import the benchmarks layer"]

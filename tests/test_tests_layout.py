@@ -11,7 +11,7 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 
 TESTS = Path(__file__).resolve().parent
 #: first folder under tests/ -> the code folder it mirrors (None: a folder of its own, no code counterpart)

@@ -14,9 +14,9 @@ from collections.abc import Callable
 
 import pytest
 
-from bracketry.trigger.client import TriggerClient
-from bracketry.wire import bproto
-from bracketry.wire.errors import NackError
+from bracketry_rig.trigger.client import TriggerClient
+from bracketry_rig.wire import bproto
+from bracketry_rig.wire.errors import NackError
 
 PERIOD_US = 45454
 EXPOSURES_US = (1000, 2000, 4000, 8000, 16000, 32000)

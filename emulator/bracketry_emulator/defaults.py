@@ -6,7 +6,7 @@ Exposures in us (in ms on the command line and in output files).
 
 from __future__ import annotations
 
-from bracketry.png import PNG_COMPRESSIONS as PNG_COMPRESSIONS
+from bracketry_base.png import PNG_COMPRESSIONS as PNG_COMPRESSIONS
 
 #: the first target exposure (us) of a method that declares none (the authors: 4 ms)
 DEFAULT_INIT_EXPOSURE_US = 4000.0

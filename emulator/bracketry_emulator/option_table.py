@@ -28,7 +28,8 @@ from typing import Any, Literal, TypeVar
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     SEED,
     WORKERS,
     AliasedOption,
@@ -39,7 +40,6 @@ from bracketry.cli.options import (
     input_dir,
     input_file,
 )
-from bracketry.errors import BracketryError
 
 from .defaults import (
     AE_CAMERAS,

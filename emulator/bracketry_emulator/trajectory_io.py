@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 #: the columns of ``frames.csv``, one row per frame fed to the localisation
 FRAME_FIELDS = ("t_ns", "state", "segment", "n_keypoints", "coverage", "n_stereo", "n_ref_matches", "n_map_matches",

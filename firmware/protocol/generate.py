@@ -8,7 +8,7 @@ Generated, between ``BEGIN GENERATED <part>`` / ``END GENERATED <part>`` markers
   per message, the pack/unpack/check prototypes and the any-message union;
 - ``c/bproto.c``: the pack/unpack functions (byte offsets computed here), the per-message value checks and the
   type dispatch;
-- ``host/bracketry/wire/bproto.py``: the same constants and the ``struct`` layouts the Python codec (CPython and
+- ``host/bracketry_rig/wire/bproto.py``: the same constants and the ``struct`` layouts the Python codec (CPython and
   MicroPython) packs and unpacks with.
 
 Everything outside the markers (framing, CRC, COBS, the streaming decoder, the SET_BRACKETS rule's logic) is written
@@ -37,7 +37,7 @@ TARGETS = {
     "md": HERE / "PROTOCOL.md",
     "h": HERE / "c" / "bproto.h",
     "c": HERE / "c" / "bproto.c",
-    "py": REPO / "host" / "bracketry" / "wire" / "bproto.py",
+    "py": REPO / "host" / "bracketry_rig" / "wire" / "bproto.py",
 }
 _INT = {"u8": ("B", "uint8_t", 1), "u16": ("H", "uint16_t", 2), "u32": ("I", "uint32_t", 4),
         "u64": ("Q", "uint64_t", 8)}

@@ -15,7 +15,7 @@ import click
 import pytest
 from click.testing import CliRunner
 
-from bracketry.cli.options import Number
+from bracketry_base.options import Number
 from bracketry_emulator import option_table
 from bracketry_emulator.ae import scheduler
 from bracketry_emulator.ae.registry import MethodSpec

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 
 pytestmark = pytest.mark.slow
 TUTORIAL = repo_root() / "docs" / "TUTORIAL-plugin.md"

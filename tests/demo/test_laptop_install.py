@@ -13,7 +13,7 @@ import shutil
 
 import pytest
 
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 from bracketry_testkit import missing_component
 from laptop_venv import as_user, copy_source, home_paths, ready_user
 

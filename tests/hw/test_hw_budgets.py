@@ -7,9 +7,9 @@ from pathlib import Path
 import pytest
 
 from bracketry.cli import main
-from bracketry.errors import BracketryError
-from bracketry.hwcalc import bandwidth as bw
-from bracketry.hwcalc import bom, power
+from bracketry_base.errors import BracketryError
+from bracketry_rig.hwcalc import bandwidth as bw
+from bracketry_rig.hwcalc import bom, power
 
 PAPER_CAMERA_MBPS = 872.0
 PAPER_TOTAL_W = 79.0

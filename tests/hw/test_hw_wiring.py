@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pytest
 
-from bracketry import paths
 from bracketry.cli import main
-from bracketry.hwcalc import diagram, wiring
+from bracketry_base import paths
+from bracketry_rig.hwcalc import diagram, wiring
 
 
 def test_hw_wiring_matches_firmware_pins() -> None:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..dataset import open_dataset, read_png12
 from ..dataset.borealhdr import SIDE_FOLDERS, exposure_us_from_folder, find_calibration_dir

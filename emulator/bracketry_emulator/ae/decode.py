@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..dataset import BracketSequence
 

@@ -27,7 +27,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from bracketry.errors import BracketryError, MissingComponentError
+from bracketry_base.errors import BracketryError, MissingComponentError
 
 from .base import check_input
 from .classical import ClassicalAE

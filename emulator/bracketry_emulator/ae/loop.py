@@ -29,7 +29,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..defaults import DEFAULT_INIT_EXPOSURE_US, DEFAULT_MAX_EXPOSURE_US, DEFAULT_MAX_GAIN_DB, DEFAULT_MIN_EXPOSURE_US
 from .base import AEMethod, gain_exposure_us

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..defaults import CAMERAS, MAX_WARMUP_STEPS, PNG_COMPRESSIONS
 from ..emulation import EmulatorConfig

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..stats.controls import CONTROLS_KEYWORD, NON_CAUSAL_METHODS, control_methods
 from .base import AEMethod

@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..dataset import open_dataset
 from ..stages import StageTimes, ae_stage
@@ -145,6 +145,6 @@ class _NoBar:
 def _progress_bar(enabled: bool, total: int) -> Any:
     if not enabled:
         return _NoBar()
-    from bracketry.progress import Progress
+    from bracketry_base.progress import Progress
 
     return Progress("emulate", total=total, unit="step")

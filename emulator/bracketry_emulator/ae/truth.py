@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..emulation import EmulatedImage, EmulatorConfig
 from .emulation_cache import EmulationCache

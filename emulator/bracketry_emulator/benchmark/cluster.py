@@ -31,7 +31,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult, load_cached, run_task
 from bracketry_emulator.metrics.manifest import TrajectorySpec
 from bracketry_emulator.option_table import slurm_walltime as slurm_walltime

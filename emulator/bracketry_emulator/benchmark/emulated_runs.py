@@ -17,7 +17,7 @@ from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 if TYPE_CHECKING:
     from bracketry_emulator.ae.registry import MethodSpec

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.metrics.failure_causes import FrameLog, frame_log, loss_cause, rotation_blur_px
 from bracketry_emulator.trajectory_io import read_frames_csv, read_tum
 

@@ -11,7 +11,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae.runner import LoopConfig
 from bracketry_emulator.benchmark.cluster import SlurmOptions
 from bracketry_emulator.benchmark.slam import SlamOptions, describe

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.defaults import DEFAULT_SLAM_PACE, SLAM_BACKENDS
 from bracketry_emulator.option_table import default, rows
 

@@ -260,7 +260,7 @@ def run_task(task: BenchmarkTask) -> RunResult:
     from bracketry_emulator.runtime_policy import apply_profile
 
     apply_profile("task")  # one core per task (workers side by side), a heap that reuses image-sized temporaries
-    from bracketry.errors import BracketryError
+    from bracketry_base.errors import BracketryError
     from bracketry_emulator.benchmark.emulated_runs import emulate_run
     from bracketry_emulator.benchmark.slam import run_slam
 
@@ -332,7 +332,7 @@ def cycle_period_s(dataset: str) -> float | None:
     """The bracket-cycle period of ``dataset`` (s, rounded to 0.1 ms): the median spacing of its sequences' first
     frames, the closed loop's step period for every method alike; None with fewer than two sequences or when the
     folder cannot be read as a dataset (runs evaluated from existing files: then the runs' own stamps decide)."""
-    from bracketry.errors import BracketryError
+    from bracketry_base.errors import BracketryError
     from bracketry_emulator.dataset import open_dataset
     from bracketry_emulator.metrics.failures import step_period_s
 

@@ -30,7 +30,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..ae.truth import TRUTH_EFFECTS
 from ..stats.mannwhitney import METRICS

@@ -11,7 +11,8 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     EXIT_OK,
     EXIT_PROBLEMS,
     SEED,
@@ -22,7 +23,6 @@ from bracketry.cli.options import (
     output_dir,
     overwrite_option,
 )
-from bracketry.errors import BracketryError
 
 #: the effects ``truth-causes`` switches off (bracketry_emulator.ae.truth.TRUTH_EFFECTS; kept here so that the
 #: command's help does not import the emulator)
@@ -78,7 +78,7 @@ def static_cmd(stack_dir: Path, out_dir: Path | None, overwrite: bool, crf: str,
 
     Exit code 0 when the HigherNoSat goals (median <= 9 DN, max <= 73 DN, noise-corrected) hold, 1 otherwise.
     """
-    from bracketry.outputs import check_output
+    from bracketry_base.outputs import check_output
     from bracketry_emulator.accuracy import open_static_stack, run_static
     from bracketry_emulator.accuracy.plots import plot_static
 

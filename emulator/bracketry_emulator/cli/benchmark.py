@@ -7,7 +7,8 @@ from typing import Any
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     EXIT_OK,
     input_path,
     method_options_options,
@@ -16,7 +17,6 @@ from bracketry.cli.options import (
     quiet_option,
     resume_option,
 )
-from bracketry.errors import BracketryError
 from bracketry_emulator.option_table import BENCHMARK, options_for, pop_settings, record_values
 
 

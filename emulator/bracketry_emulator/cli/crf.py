@@ -8,8 +8,8 @@ from pathlib import Path
 import click
 import numpy as np
 
-from bracketry.cli.options import EXIT_OK, count, input_dir, output_file, overwrite_option
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import EXIT_OK, count, input_dir, output_file, overwrite_option
 
 
 @click.command("calibrate-crf")

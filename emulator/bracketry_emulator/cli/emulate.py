@@ -7,7 +7,8 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     EXIT_OK,
     WORKERS,
     Number,
@@ -18,7 +19,6 @@ from bracketry.cli.options import (
     overwrite_option,
     quiet_option,
 )
-from bracketry.errors import BracketryError
 from bracketry_emulator.defaults import CAMERAS, FUSION_BRACKETS, PNG_COMPRESSIONS
 from bracketry_emulator.option_table import EMULATE, options_for, pop_settings, record_values
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import EXIT_OK, SEED, Integer, input_file, output_file, overwrite_option
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import EXIT_OK, SEED, Integer, input_file, output_file, overwrite_option
 
 
 @click.group("slam")

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     EXIT_OK,
     SEED,
     WORKERS,
@@ -20,7 +21,6 @@ from bracketry.cli.options import (
     overwrite_option,
     quiet_option,
 )
-from bracketry.errors import BracketryError
 from bracketry_emulator.cli.synth_calibration import command as calibration_cmd
 
 
@@ -96,7 +96,7 @@ def _out_dir(out: Path) -> Path:
 
 
 def _progress(desc: str, quiet: bool):
-    from bracketry.progress import Progress
+    from bracketry_base.progress import Progress
 
     bar = Progress(desc, unit="img", enabled=not quiet)
 
@@ -245,7 +245,7 @@ command.add_command(calibration_cmd)  # bracketry synth calibration (its own mod
 def suite_cmd(out: Path, overwrite: bool, size: str, seed: int, workers: int, no_cache: bool, quiet: bool) -> int:
     """A versioned suite of synthetic trajectories with ground truth and DIR/manifest.yaml (subsets forest,
     sun-shadow, glare, day-cycle; split train/test), for ``bracketry benchmark DIR/manifest.yaml``."""
-    from bracketry.progress import Progress
+    from bracketry_base.progress import Progress
     from bracketry_emulator.synth.suite import cache_dir, make_suite
 
     bar = Progress("synth suite", unit="trajectory", enabled=not quiet)

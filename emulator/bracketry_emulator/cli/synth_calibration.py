@@ -7,7 +7,8 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     EXIT_OK,
     SEED,
     Number,
@@ -18,14 +19,13 @@ from bracketry.cli.options import (
     overwrite_option,
     quiet_option,
 )
-from bracketry.errors import BracketryError
 
 
 def load_board_file(path: Path):
     """The board of a ``board.yaml`` (one-line error when it is not one)."""
     import yaml
 
-    from bracketry.calibration.board import BoardSpec
+    from bracketry_base.calibration.board import BoardSpec
 
     try:
         doc = yaml.safe_load(Path(path).read_text())
@@ -53,8 +53,8 @@ def command(out: Path, overwrite: bool, seed: int, resolution: str, n_views: int
     """A hand-held board session seen by the synthetic stereo cameras (lens distortion on, some views blurred,
     partial or over-exposed): left/ and right/ image pairs, truth/left.yaml and truth/right.yaml (the true
     calibration, camera_info), board.yaml and session.json. `bracketry calibrate solve OUT` calibrates it."""
-    from bracketry.calibration.board import BoardSpec
-    from bracketry.progress import Progress
+    from bracketry_base.calibration.board import BoardSpec
+    from bracketry_base.progress import Progress
     from bracketry_emulator.synth import default_calibration, parse_resolution
     from bracketry_emulator.synth.board_session import write_board_session
     from bracketry_emulator.synth.calibration import DEFAULT_BASELINE_M, load_calibration

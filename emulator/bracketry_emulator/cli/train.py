@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import EXIT_OK, SEED, count, input_path, output_file, overwrite_option, quiet_option
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import EXIT_OK, SEED, count, input_path, output_file, overwrite_option, quiet_option
 
 
 @click.group("train")

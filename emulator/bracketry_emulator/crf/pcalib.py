@@ -12,7 +12,7 @@ from typing import Literal
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from .response import N_CODES, Response, TableResponse, UpstreamResponse
 

@@ -1,5 +1,5 @@
-"""Reader of our MCAP recordings (spec: host/bracketry/recording/RECORDING.md), through the recorder's own
-reader (``bracketry.recording.reader``, the one verify and export use: truncated files are read the same way
+"""Reader of our MCAP recordings (spec: host/bracketry_base/recording/RECORDING.md), through the recorder's own
+reader (``bracketry_base.recording.reader``, the one verify and export use: truncated files are read the same way
 everywhere) and ``mcap_ros2``'s CDR decoders.
 
 Per side: ``/stereo/<side>/image_raw`` (sensor_msgs/msg/Image, encoding ``bayer_rggb16``, 12 significant bits
@@ -55,8 +55,8 @@ def image_from_ros(msg: Any, source: str) -> np.ndarray:
 
 
 def _load_frame(path: Path, record_offset: int, channel_id: int, log_time_ns: int, topic: str) -> np.ndarray:
-    from bracketry.recording.decode import decode
-    from bracketry.recording.reader import RecordingReader
+    from bracketry_base.recording.decode import decode
+    from bracketry_base.recording.reader import RecordingReader
 
     source = f"{path}:{topic}@{log_time_ns}"
     try:
@@ -72,10 +72,10 @@ def _load_frame(path: Path, record_offset: int, channel_id: int, log_time_ns: in
 
 def _scan_file(path: Path, sides: tuple[str, ...], problems: list[str]
                ) -> tuple[dict[str, list[Frame]], dict[str, Counter[tuple[int, int]]]]:
-    """One pass over the file with the recorder's own reader (``bracketry.recording.reader``), the one verify and
+    """One pass over the file with the recorder's own reader (``bracketry_base.recording.reader``), the one verify and
     export use: a truncated file (kill -9, power loss) is read up to its last whole record, like they do."""
-    from bracketry.recording.decode import decode
-    from bracketry.recording.reader import RecordingReader
+    from bracketry_base.recording.decode import decode
+    from bracketry_base.recording.reader import RecordingReader
 
     frames: dict[str, list[Frame]] = {s: [] for s in sides}
     order_votes: dict[str, Counter[tuple[int, int]]] = {s: Counter() for s in sides}
@@ -117,7 +117,7 @@ def _scan_file(path: Path, sides: tuple[str, ...], problems: list[str]
 
 def open_mcap(path: Path, sides: tuple[str, ...] | None = None, *, tolerance_ns: int = 2_000_000) -> Dataset:
     """Open one MCAP recording file, or a folder of its split ``*.mcap`` files."""
-    from bracketry.recording.verify import recording_files
+    from bracketry_base.recording.verify import recording_files
 
     try:
         files = recording_files(path)  # a <stem>.repaired.mcap replaces its truncated file, as in verify and export

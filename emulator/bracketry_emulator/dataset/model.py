@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 #: Loads one frame's image: () -> uint16 HxW Bayer codes.
 FrameLoader = Callable[[], np.ndarray]

@@ -109,7 +109,7 @@ def locate(path: str | Path) -> ZipTrajectory:
 
 def _side_file_dir(z: ZipTrajectory) -> Path:
     """The folder holding the trajectory's side files (copied once; see the module docstring)."""
-    from bracketry.paths import user_cache_dir
+    from bracketry_base.paths import user_cache_dir
 
     st = z.zip_path.stat()
     key = hashlib.sha256(f"{z.zip_path}\0{st.st_size}\0{st.st_mtime_ns}".encode()).hexdigest()[:16]

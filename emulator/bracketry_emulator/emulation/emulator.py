@@ -36,7 +36,7 @@ from typing import Literal
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..crf import Lifting, Response, load_response
 from ..crf.response import Rounding

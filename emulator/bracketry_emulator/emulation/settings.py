@@ -6,7 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..defaults import PARITIES
 from .emulator import EmulatorConfig

@@ -11,7 +11,7 @@ One stereo step = one capture: every side's image of a step must come from the s
 :meth:`~.emulator.Emulator.select_stereo`), and all sides carry the same name and timestamp, those of the first
 side's source frame (the authors' SLAM entry program pairs left and right by identical file names).
 
-PNG encoding (``png_compression``): one of :data:`bracketry.png.PNG_COMPRESSIONS`, the PNG writer both packages
+PNG encoding (``png_compression``): one of :data:`bracketry_base.png.PNG_COMPRESSIONS`, the PNG writer both packages
 share (its docstring gives the choices); ``opencv`` is the default of :class:`RunWriter`, as the authors' script
 writes its images. ``stored`` is built in one pass by the compiled ``_pngcodec`` extension where it was built (the
 bytes Python's ``zlib.compress(raw, 0)`` makes, blocks, Adler-32 and CRC included), by zlib elsewhere.
@@ -26,10 +26,10 @@ from typing import IO
 
 import numpy as np
 
-from bracketry import png
-from bracketry.errors import BracketryError
-from bracketry.png import PNG_COMPRESSIONS, write_file
-from bracketry.png import WRITE_PIECE_BYTES as WRITE_PIECE_BYTES
+from bracketry_base import png
+from bracketry_base.errors import BracketryError
+from bracketry_base.png import PNG_COMPRESSIONS, write_file
+from bracketry_base.png import WRITE_PIECE_BYTES as WRITE_PIECE_BYTES
 
 from ..dataset.imageio import png_codec
 from ..dataset.model import BracketSequence
@@ -40,7 +40,7 @@ STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_m
 
 
 def encode_png(image: np.ndarray, compression: str = "stored") -> bytes:
-    """:func:`bracketry.png.encode_png`; ``stored`` built in one pass by the compiled ``_pngcodec`` extension where it
+    """:func:`bracketry_base.png.encode_png`; ``stored`` built in one pass by the compiled ``_pngcodec`` extension where it
     was built (the same bytes, without the copies). Raises ValueError for another dtype, shape or compression."""
     codec = png_codec()
     if compression == "stored" and codec is not None:
@@ -58,7 +58,7 @@ def encode_png_stored(image: np.ndarray) -> bytes:
 
 
 def write_png(path: Path, image: np.ndarray, compression: str = "stored") -> None:
-    """:func:`bracketry.png.write_png`, ``stored`` through the compiled encoder (:func:`encode_png`). Raises OSError
+    """:func:`bracketry_base.png.write_png`, ``stored`` through the compiled encoder (:func:`encode_png`). Raises OSError
     when the file cannot be written (BracketryError for OpenCV's encoder, which gives no reason)."""
     if compression == "stored":
         write_file(path, encode_png(image, compression))

@@ -39,7 +39,7 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..defaults import DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US
 from ..emulation import Emulator, EmulatorConfig

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..defaults import DEFAULT_MAX_EXPOSURE_US, DEFAULT_MIN_EXPOSURE_US
 from .core import N_FRAMES, OBSERVATIONS, discrete_actions, frame_of, next_exposure_us, stats_observation, working_image

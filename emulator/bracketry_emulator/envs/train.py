@@ -23,8 +23,8 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.errors import BracketryError
-from bracketry.progress import Progress
+from bracketry_base.errors import BracketryError
+from bracketry_base.progress import Progress
 
 from . import env_sources
 from .exposure_env import ExposureEnv

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 from ..dataset import open_dataset
 from ..metrics.manifest import TrajectorySpec, load_manifest

@@ -35,7 +35,7 @@ from pathlib import Path
 
 import yaml
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.defaults import MAX_WARMUP_STEPS
 
 #: The splits a manifest entry may name (``split:``): trajectories to train learning methods on, and held-out ones.

@@ -28,7 +28,7 @@ import numpy as np
 import yaml
 from scipy.spatial.transform import Rotation, Slerp
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 REFERENCE_FILE = "reference.yaml"
 FORMATS = ("tum", "kitti", "euroc")

@@ -31,7 +31,7 @@ from typing import IO
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 _HEADER = struct.Struct("<4sqIIII")
 _MAGIC = b"BRKF"

@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 if TYPE_CHECKING:
     from bracketry_emulator.slam.launcher import LaunchedProcess, SlamLauncher

@@ -75,7 +75,7 @@ def _track_builtin(request: dict) -> dict:
 
 
 def _track(request: dict) -> dict:
-    from bracketry.errors import BracketryError
+    from bracketry_base.errors import BracketryError
     from bracketry_emulator.features.coverage import grid_coverage
     from bracketry_emulator.features.orb import OrbExtractor
     from bracketry_emulator.slam.orbslam3 import map_states
@@ -197,7 +197,7 @@ def preload() -> None:
     from bracketry_emulator.runtime_policy import apply_profile
 
     apply_profile("slam_child")
-    import bracketry.errors  # noqa: F401
+    import bracketry_base.errors  # noqa: F401
     import bracketry_emulator.features.coverage
     import bracketry_emulator.features.orb
     import bracketry_emulator.slam.frame_stream

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 #: seconds of the trajectory the check tracks (from its start)
 SETUP_SECONDS = 4.0

@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 DESCRIPTOR_BYTES = 32
 FIELDS = 3 + DESCRIPTOR_BYTES  # parent, is_leaf, 32 bytes, weight

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry.errors import BracketryError
-from bracketry.paths import user_cache_dir
+from bracketry_base.errors import BracketryError
+from bracketry_base.paths import user_cache_dir
 from bracketry_emulator.slam.vocabulary import build_vocabulary, vocabulary_text
 
 #: the default vocabulary's recipe (part of its file name through a hash)

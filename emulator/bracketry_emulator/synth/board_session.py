@@ -1,6 +1,6 @@
 """A calibration board session rendered with the synthetic stereo cameras: the known truth for ``calibrate solve``.
 
-A printed board (:class:`bracketry.calibration.board.BoardSpec`) is moved by hand in front of the rig: each view
+A printed board (:class:`bracketry_base.calibration.board.BoardSpec`) is moved by hand in front of the rig: each view
 places the board at a random distance (it fills 25-85 % of the image width), at a random place in the image
 (some views only partly inside it), tilted up to 40 degrees about its x and y axes and rolled up to 25 degrees.
 Some views are over-exposed (the white squares clip), some are motion-blurred a little (a line kernel of 2-4 px) and
@@ -27,8 +27,8 @@ import cv2
 import numpy as np
 import yaml
 
-from bracketry.calibration.board import BoardSpec
-from bracketry.png import write_png
+from bracketry_base.calibration.board import BoardSpec
+from bracketry_base.png import write_png
 from bracketry_emulator.synth.calibration import CameraIntrinsics, StereoCalibration, write_calibration
 from bracketry_emulator.synth.camera_model import CameraModel
 

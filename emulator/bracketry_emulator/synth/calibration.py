@@ -17,8 +17,8 @@ import cv2
 import numpy as np
 import yaml
 
-from bracketry.calibration.camera_info import camera_info_fields
-from bracketry.errors import BracketryError
+from bracketry_base.calibration.camera_info import camera_info_fields
+from bracketry_base.errors import BracketryError
 
 #: Full resolution of the real cameras (width, height) in pixels.
 NATIVE_SIZE = (1920, 1200)

@@ -33,7 +33,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.synth.kernels import synth_kernels
 
 N_LEVELS = 4096

@@ -67,8 +67,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from bracketry.cli.options import parse_resolution
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import parse_resolution
 from bracketry_emulator.synth.calibration import SIDES, CameraIntrinsics, StereoCalibration
 from bracketry_emulator.synth.render import RenderResult, SideRenderer, pseudo_angle
 from bracketry_emulator.synth.scene import PRESETS, Lighting, Scene, SceneOptions, build_scene

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.synth.noise import ValueNoise, smoothstep
 from bracketry_emulator.synth.trajectory import LoopTrajectory
 

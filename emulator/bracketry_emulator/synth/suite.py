@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 import yaml
 
-from bracketry.errors import BracketryError
-from bracketry.paths import user_cache_dir
+from bracketry_base.errors import BracketryError
+from bracketry_base.paths import user_cache_dir
 from bracketry_emulator.synth.scenario import (
     merge,
     read_scenario_doc,

@@ -12,7 +12,7 @@ from fractions import Fraction
 
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 
 def _fma(a: float, b: float, c: float) -> float:

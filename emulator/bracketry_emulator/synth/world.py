@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.cli.options import parse_resolution as parse_resolution
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import parse_resolution as parse_resolution
 from bracketry_emulator.synth import blur
 from bracketry_emulator.synth.blur import Motion
 from bracketry_emulator.synth.calibration import SIDES, StereoCalibration, default_calibration

@@ -39,7 +39,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.synth.calibration import write_calibration
 from bracketry_emulator.synth.trajectory import mat_mul, quat_from_matrix
 from bracketry_emulator.synth.world import World

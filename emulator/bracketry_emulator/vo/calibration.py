@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 import yaml
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.features.orb import OrbSettings
 from bracketry_emulator.trajectory_io import FRAME_FIELDS, read_segments, write_tum
 from bracketry_emulator.vo.calibration import StereoRectifier

@@ -19,7 +19,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.features.demosaic import to_gray8
 from bracketry_emulator.features.orb import OrbExtractor, OrbSettings
 from bracketry_emulator.trajectory_io import write_frames_csv, write_tum

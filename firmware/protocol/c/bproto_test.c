@@ -1,6 +1,6 @@
 /*
  * Host test harness of the C codec: runs the shared vectors (converted to a line format by
- * `python -m bracketry.wire.vectors --c-text`, see host/bracketry/wire/vectors.py: to_c_text) plus built-in checks.
+ * `python -m bracketry_rig.wire.vectors --c-text`, see host/bracketry_rig/wire/vectors.py: to_c_text) plus built-in checks.
  * Every valid-frame vector is decoded, unpacked into its message struct and compared field by field with the
  * vector's fields, then packed again (from the vector's fields and from the decoded struct) and compared byte for
  * byte; every payload_errors vector must give its NACK code from bproto_unpack_msg.

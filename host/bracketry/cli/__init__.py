@@ -16,8 +16,8 @@ from typing import Any
 import click
 
 from bracketry import __version__
-from bracketry.cli.options import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import EXIT_INTERNAL, EXIT_INTERRUPTED, EXIT_USAGE
 
 #: name -> (module path, attribute, one-line help, extra needed)
 COMMANDS: dict[str, tuple[str, str, str, str | None]] = {

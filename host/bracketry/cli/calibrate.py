@@ -1,7 +1,7 @@
 """``bracketry calibrate``: geometric stereo calibration (``solve``, ``capture``) and the camera response (``crf``,
 also reachable under its old name ``calibrate-crf``).
 
-The commands load, call :mod:`bracketry.calibration` (pure: arrays in, calibration out) and save.
+The commands load, call :mod:`bracketry_base.calibration` (pure: arrays in, calibration out) and save.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from typing import Any
 
 import click
 
-from bracketry.boardcapture.files import check_png_sizes, image_pairs, load_board, read_image
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     EXIT_OK,
     EXIT_PROBLEMS,
     SEED,
@@ -28,7 +28,7 @@ from bracketry.cli.options import (
     overwrite_option,
     quiet_option,
 )
-from bracketry.errors import BracketryError
+from bracketry_rig.boardcapture.files import check_png_sizes, image_pairs, load_board, read_image
 
 #: the ORB-SLAM3 settings file written beside the camera_info YAMLs
 ORBSLAM3_SETTINGS = "orbslam3_stereo.yaml"
@@ -64,8 +64,8 @@ def detect_session(pairs: list[tuple[Path, Path]], board: Any, bayer: bool, quie
                    ) -> tuple[list[Any], list[Any], tuple[int, int]]:
     """Detect the board in every pair; the images must all have one size. Returns the left and right detections
     (None where not found) and the size (width, height)."""
-    from bracketry.calibration.detect import detect, to_gray8
-    from bracketry.progress import Progress
+    from bracketry_base.calibration.detect import detect, to_gray8
+    from bracketry_base.progress import Progress
 
     left: list[Any] = []
     right: list[Any] = []
@@ -121,8 +121,8 @@ def solve_cmd(session: Path, out: Path, overwrite: bool, board_file: Path | None
     exported as a BorealHDR tree: SESSION/camera_left/<exposure>/, camera_right/; the board in SESSION/board.yaml
     or --board): intrinsics and distortion per camera, extrinsics, rectification, with a robust
     selection over random subsets of the views; dropped views are listed in report.json."""
-    from bracketry.calibration.camera_info import camera_info_yaml, kitti_text, rectified_camera, report
-    from bracketry.calibration.solve import solve_stereo
+    from bracketry_base.calibration.camera_info import camera_info_yaml, kitti_text, rectified_camera, report
+    from bracketry_base.calibration.solve import solve_stereo
 
     if board_file is None:
         board_file = session / "board.yaml"
@@ -164,7 +164,7 @@ def solve_cmd(session: Path, out: Path, overwrite: bool, board_file: Path | None
 
 def _orbslam3_settings(sol: Any, fps: float) -> str:
     """ORB-SLAM3 stereo settings of the rectified pair, as the benchmark writes them (needs the emulator)."""
-    from bracketry.calibration.camera_info import rectified_camera
+    from bracketry_base.calibration.camera_info import rectified_camera
 
     try:
         from bracketry_emulator.slam.settings import OrbSlamCamera, settings_yaml
@@ -231,8 +231,12 @@ def capture_cmd(source: Path | None, config_path: Path | None, rig: str | None, 
         return _capture_sim(out, board_file, max_blur_px, monitor_port, rate_hz or 0.0, hold_s, exposure_us,
                             max_pairs, seed, resolution, quiet)
     if config_path is not None:
-        from bracketry.boardcapture.trigger_board import TriggerCaptureOptions, capture_through_trigger, check_options
-        from bracketry.daemon.config import load_config
+        from bracketry_rig.boardcapture.trigger_board import (
+            TriggerCaptureOptions,
+            capture_through_trigger,
+            check_options,
+        )
+        from bracketry_rig.daemon.config import load_config
 
         config = load_config(config_path)
         opts = TriggerCaptureOptions(exposure_us=exposure_us, rate_hz=2.0 if rate_hz is None else rate_hz,
@@ -244,7 +248,7 @@ def capture_cmd(source: Path | None, config_path: Path | None, rig: str | None, 
         status, pairs = capture_through_trigger(config, out, board, board_yaml, opts, monitor_port=monitor_port,
                                                 echo=echo)
     else:
-        from bracketry.boardcapture.folder import capture_folder
+        from bracketry_rig.boardcapture.folder import capture_folder
 
         assert source is not None
         board, board_yaml = _board(board_file, source)
@@ -259,7 +263,7 @@ def _board(board_file: Path | None, source: Path | None) -> tuple[Any, str]:
     ChArUco board."""
     import yaml
 
-    from bracketry.calibration.board import BoardSpec
+    from bracketry_base.calibration.board import BoardSpec
 
     if board_file is None and source is not None:
         board_file = source / "board.yaml"
@@ -277,8 +281,8 @@ def _capture_sim(out: Path, board_file: Path | None, max_blur_px: float, monitor
     itself there) serving a board moved by hand, driven in calibration mode."""
     import sys
 
-    from bracketry.cli.options import parse_resolution
     from bracketry.sim.rig import in_private_netns, monitor_bridge_outside, reexec_in_netns
+    from bracketry_base.options import parse_resolution
 
     size = parse_resolution(resolution)
     board, board_yaml = _board(board_file, None)  # a bad board: one line before anything starts

@@ -9,19 +9,19 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import Integer, IPv4, count, option, output_dir, overwrite_option, positive
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import Integer, IPv4, count, option, output_dir, overwrite_option, positive
 
 
 def _open(address: str, side: str):  # type: ignore[no-untyped-def]
-    from bracketry.cameras.camera import GigECamera
+    from bracketry_rig.cameras.camera import GigECamera
 
     return GigECamera(address, side=side)
 
 
 def _settings(profile: str, pixel_format: str | None, width: int | None, height: int | None, trigger_line: str,
               activation: str, packet_size: int | None, packet_delay: int | None):  # type: ignore[no-untyped-def]
-    from bracketry.cameras.profiles import CameraSettings
+    from bracketry_rig.cameras.profiles import CameraSettings
 
     default_format = "BayerRG12p" if profile == "basler_ace2" else "Mono16"
     return CameraSettings(profile=profile, pixel_format=pixel_format or default_format, width=width, height=height,

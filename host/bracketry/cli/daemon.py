@@ -6,9 +6,9 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import EXIT_OK, input_file
-from bracketry.daemon.config import load_config
-from bracketry.outputs import check_output
+from bracketry_base.options import EXIT_OK, input_file
+from bracketry_base.outputs import check_output
+from bracketry_rig.daemon.config import load_config
 
 
 @click.command("daemon")
@@ -33,8 +33,8 @@ def command(config_path: Path, check: bool, log_level: str, plain_logs: bool, so
         click.echo(f"{config_path}: ok ({len(config.cameras)} cameras, brackets {list(config.brackets_ms)} ms "
                    f"at {config.fps:g} fps, output {config.output_dir})")
         return 0
-    from bracketry.daemon.logs import setup_logging
-    from bracketry.daemon.rig import DaemonOptions, RigDaemon, install_signal_handlers
+    from bracketry_rig.daemon.logs import setup_logging
+    from bracketry_rig.daemon.rig import DaemonOptions, RigDaemon, install_signal_handlers
 
     setup_logging(log_level.upper(), json_lines=not plain_logs)
     width = height = None

@@ -7,7 +7,7 @@ from typing import Any
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.options import (
     EXIT_OK,
     EXIT_PROBLEMS,
     Duration,

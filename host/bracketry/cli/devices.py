@@ -7,9 +7,9 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import input_file, output_file, overwrite_option
-from bracketry.daemon import devices as dev
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import input_file, output_file, overwrite_option
+from bracketry_rig.daemon import devices as dev
 
 
 @click.command("devices")

@@ -6,7 +6,7 @@ import json
 
 import click
 
-from bracketry.doctor import run_all
+from bracketry_rig.doctor import run_all
 
 
 @click.command("doctor")

@@ -6,10 +6,10 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import EXIT_OK, WORKERS, input_path, overwrite_option, quiet_option
-from bracketry.errors import BracketryError
-from bracketry.outputs import check_output
-from bracketry.png import PNG_COMPRESSIONS
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import EXIT_OK, WORKERS, input_path, overwrite_option, quiet_option
+from bracketry_base.outputs import check_output
+from bracketry_base.png import PNG_COMPRESSIONS
 
 
 @click.command("export")
@@ -42,7 +42,7 @@ def command(recording: Path, fmt: str, out: Path, workers: int, keep_unpaired: b
     """
     import os
 
-    from bracketry.recording.verify import recording_files, segment_folders
+    from bracketry_base.recording.verify import recording_files, segment_folders
 
     segments = segment_folders(recording)
     if fmt == "rosbag1" and segments:
@@ -50,13 +50,13 @@ def command(recording: Path, fmt: str, out: Path, workers: int, keep_unpaired: b
                              f"(e.g. {segments[0]})")
     check_output(out, "dir" if fmt == "borealhdr" else "file", overwrite=overwrite,
                  suffixes=(".bag",) if fmt == "rosbag1" else ())
-    from bracketry.recording.reader import RecordingReader
+    from bracketry_base.recording.reader import RecordingReader
 
     for src in segments or [recording]:
         for f in recording_files(src):
             RecordingReader(f)  # not a recording: refused before anything is written
     if fmt == "borealhdr":
-        from bracketry.export.borealhdr import export_borealhdr
+        from bracketry_rig.export.borealhdr import export_borealhdr
 
         workers = workers or os.cpu_count() or 1
         for src, dst in ([(seg, out / seg.name) for seg in segments] or [(recording, out)]):
@@ -77,7 +77,7 @@ def command(recording: Path, fmt: str, out: Path, workers: int, keep_unpaired: b
                 click.echo(f"warning: {summary.unpaired} frame(s) whose other-camera partner was lost: {verb}",
                            err=True)
     else:
-        from bracketry.export.rosbag1 import export_rosbag1
+        from bracketry_rig.export.rosbag1 import export_rosbag1
 
         counts = export_rosbag1(recording, out, overwrite=overwrite)
         click.echo(f"wrote {out}: {sum(counts.values())} messages on {len(counts)} topics")

@@ -6,7 +6,8 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     EXIT_OK,
     EXIT_PROBLEMS,
     Integer,
@@ -17,9 +18,8 @@ from bracketry.cli.options import (
     output_file,
     overwrite_option,
 )
-from bracketry.errors import BracketryError
-from bracketry.hwcalc import bandwidth as bw
-from bracketry.hwcalc import bom, diagram, power, wiring
+from bracketry_rig.hwcalc import bandwidth as bw
+from bracketry_rig.hwcalc import bom, diagram, power, wiring
 
 
 @click.group()

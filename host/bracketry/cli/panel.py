@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import Duration, option, output_file
+from bracketry_base.options import Duration, option, output_file
 
 
 @click.group()
@@ -29,7 +29,7 @@ def simulate_cmd(link_path: str, screen_file: Path | None, duration_s: float | N
     Buttons: type `sensors`, `record`, `sensors long` or `record long` (one per line) on standard input;
     `quit` stops. The LCD is printed to the terminal on every change.
     """
-    from bracketry.panel.sim import simulate
+    from bracketry_rig.panel.sim import simulate
 
     return simulate(link_path, screen_file, duration_s, stdin=sys.stdin, out=None if quiet else sys.stdout)
 
@@ -39,7 +39,7 @@ def simulate_cmd(link_path: str, screen_file: Path | None, duration_s: float | N
 @click.option("--dry-run", is_flag=True, help="Print the mpremote command instead of running it.")
 def deploy_cmd(port: str, dry_run: bool) -> int:
     """Copy the firmware (and the wire codec bproto.py) to the board with mpremote, then reset it."""
-    from bracketry.panel.deploy import deploy
+    from bracketry_rig.panel.deploy import deploy
 
     cmd = deploy(port, dry_run=dry_run)
     if dry_run:

@@ -7,10 +7,10 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, Duration, input_file, option
-from bracketry.daemon.config import load_config
-from bracketry.errors import BracketryError
-from bracketry.outputs import check_output
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import EXIT_OK, EXIT_PROBLEMS, Duration, input_file, option
+from bracketry_base.outputs import check_output
+from bracketry_rig.daemon.config import load_config
 
 
 @click.command("record")
@@ -26,9 +26,9 @@ def command(config_path: Path, duration_s: float, software_trigger: bool, roi: s
     """Bring the sensors up, record for --duration-s, stop cleanly and verify the files (exit 1 if problems)."""
     config = load_config(config_path)
     check_output(config.output_dir, "dir", existing="resume", what="output_dir", parents=True)
-    from bracketry.daemon.logs import setup_logging
-    from bracketry.daemon.rig import DaemonOptions, RigDaemon, install_signal_handlers
-    from bracketry.recording.verify import format_report, verify_recording
+    from bracketry_base.recording.verify import format_report, verify_recording
+    from bracketry_rig.daemon.logs import setup_logging
+    from bracketry_rig.daemon.rig import DaemonOptions, RigDaemon, install_signal_handlers
 
     setup_logging("WARNING", json_lines=False)
     width = height = None

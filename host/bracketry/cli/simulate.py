@@ -13,7 +13,9 @@ from typing import Any
 
 import click
 
-from bracketry.cli.options import (
+from bracketry.sim.clock import MONOTONIC, Clock
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     SEED,
     Duration,
     Integer,
@@ -24,8 +26,6 @@ from bracketry.cli.options import (
     overwrite_option,
     parse_resolution,
 )
-from bracketry.errors import BracketryError
-from bracketry.sim.clock import MONOTONIC, Clock
 
 
 @click.command("simulate")
@@ -60,7 +60,7 @@ def command(seconds: float, out_dir: Path, overwrite: bool, trigger: str, resolu
         raise BracketryError("--duration-s must be at least 1 s")
     res = parse_resolution(resolution)
     if calibration is not None:
-        from bracketry.recording.calibration import read_calibration
+        from bracketry_base.recording.calibration import read_calibration
 
         read_calibration(calibration)  # not a calibration: one line before anything starts
         calibration = calibration.resolve()
@@ -189,9 +189,9 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
     """The simulation inside the private network namespace."""
     import time
 
-    from bracketry.recording.verify import format_report, verify_recording
     from bracketry.sim.rig import SimOptions, SimulatedRig, summary_json
     from bracketry.sim.scenario import run_session
+    from bracketry_base.recording.verify import format_report, verify_recording
 
     # SIGTERM ends the simulation through its clean-up (devices, daemon, renderers, the frames in /dev/shm)
     signal.signal(signal.SIGTERM, lambda signum, _frame: sys.exit(128 + signum))

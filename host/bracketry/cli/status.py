@@ -7,8 +7,8 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import input_file
-from bracketry.daemon.status import query
+from bracketry_base.options import input_file
+from bracketry_rig.daemon.status import query
 
 DEFAULT_SOCKET = Path("/run/bracketry/status.sock")
 
@@ -23,7 +23,7 @@ def command(socket_path: Path | None, config_path: Path | None, as_json: bool) -
     """Ask the running daemon for every sensor's state, FPS, free disk and recording."""
     if socket_path is None:
         if config_path is not None:
-            from bracketry.daemon.config import load_config
+            from bracketry_rig.daemon.config import load_config
 
             socket_path = load_config(config_path).status_socket
         else:

@@ -11,9 +11,9 @@ from typing import Any
 
 import click
 
-from bracketry.cli.options import SEED, Duration, Integer, count, finite, input_file, non_negative, option, positive
-from bracketry.errors import BracketryError
-from bracketry.outputs import check_output
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import SEED, Duration, Integer, count, finite, input_file, non_negative, option, positive
+from bracketry_base.outputs import check_output
 
 PORT_HELP = "Serial port of the trigger: /dev/ttyACM0, a pty path, or socket://127.0.0.1:PORT (QEMU)."
 
@@ -31,7 +31,7 @@ def _parse_exposures(text: str) -> list[int]:
 
 
 def _client(port: str, timeout_s: float) -> Any:
-    from bracketry.trigger.client import TriggerClient
+    from bracketry_rig.trigger.client import TriggerClient
 
     return TriggerClient.open(port, timeout_s=timeout_s)
 
@@ -89,7 +89,7 @@ def simulate(link_path: Path, drift_ppm: float, pulse_jitter_us: float, reply_ji
              seed: int, reboot_every_s: float | None, duration_s: float | None) -> int:
     """Run the behavioural trigger simulator on a pty linked at --link (SIGUSR1: 256 bytes of seeded line noise on
     the wire, a serial-garbage fault)."""
-    from bracketry.trigger.simulator import SimConfig, simulate_on_pty
+    from bracketry_rig.trigger.simulator import SimConfig, simulate_on_pty
 
     check_output(link_path, "file", what="--link")
     config = SimConfig(drift_ppm=drift_ppm, pulse_jitter_us=pulse_jitter_us, reply_jitter_us=reply_jitter_us,
@@ -132,7 +132,7 @@ def simulate(link_path: Path, drift_ppm: float, pulse_jitter_us: float, reply_ji
 @duration_option
 def qemu(elf: Path | None, build: bool, serial: str, tcp_port: int | None, duration_s: float | None) -> int:
     """Boot the real trigger firmware in qemu-system-arm -M netduinoplus2 and print where to connect."""
-    from bracketry.trigger.qemu import QemuTrigger, build_firmware, default_elf
+    from bracketry_rig.trigger.qemu import QemuTrigger, build_firmware, default_elf
 
     if elf is None:
         elf = default_elf()

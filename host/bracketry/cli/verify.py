@@ -7,10 +7,10 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import EXIT_OK, EXIT_PROBLEMS, EXIT_USAGE, output_file, overwrite_option
-from bracketry.errors import BracketryError
-from bracketry.recording.reader import UnreadableRecordingError
-from bracketry.recording.verify import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import EXIT_OK, EXIT_PROBLEMS, EXIT_USAGE, output_file, overwrite_option
+from bracketry_base.recording.reader import UnreadableRecordingError
+from bracketry_base.recording.verify import (
     REPAIRED_SUFFIX,
     check_repair_target,
     expand_segments,

@@ -9,7 +9,8 @@ from pathlib import Path
 
 import click
 
-from bracketry.cli.options import (
+from bracketry_base.errors import BracketryError
+from bracketry_base.options import (
     EXIT_OK,
     EXIT_PROBLEMS,
     Duration,
@@ -21,10 +22,9 @@ from bracketry.cli.options import (
     overwrite_option,
     positive,
 )
-from bracketry.errors import BracketryError
-from bracketry.wire import bproto
-from bracketry.wire.errors import WireError
-from bracketry.wire.text import (
+from bracketry_rig.wire import bproto
+from bracketry_rig.wire.errors import WireError
+from bracketry_rig.wire.text import (
     describe_frame,
     describe_stats,
     frame_to_json,
@@ -111,7 +111,7 @@ def decode(source: str | None, port: str | None, baud: int, duration_s: float | 
             n += 1
         return _summary(dec, as_json, n, len(data))
     assert port is not None
-    from bracketry.wire.link import open_serial
+    from bracketry_rig.wire.link import open_serial
 
     try:
         ser = open_serial(port, baud)
@@ -186,7 +186,7 @@ def encode(msg_type: str, fields: tuple[str, ...], seq: int, payload_hex: str | 
         except OSError as exc:
             raise BracketryError(f"cannot write {out_path}: {exc.strerror}") from exc
     if port is not None:
-        from bracketry.wire.link import open_serial
+        from bracketry_rig.wire.link import open_serial
 
         try:
             ser = open_serial(port)
@@ -214,7 +214,7 @@ def ping(port: str, baud: int, count: int, interval_s: float, timeout_s: float, 
     """Check a live link: HELLO, then COUNT PINGs; print round trips, the clock model and the link counters."""
     import statistics
 
-    from bracketry.wire.link import SerialLink
+    from bracketry_rig.wire.link import SerialLink
 
     try:
         link = SerialLink(port, baud, heartbeat_period_s=None, reconnect=False, name=port)

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, BinaryIO
 
-from bracketry.errors import BracketryError
-from bracketry.progress import Progress
+from bracketry_base.errors import BracketryError
+from bracketry_base.progress import Progress
 from bracketry_emulator.defaults import DEFAULT_SLAM_PACE
 
 
@@ -171,7 +171,7 @@ def _tee(proc: subprocess.Popen[bytes], log: BinaryIO) -> None:
 
 def export_dataset(p: DemoPlan, sim: dict[str, Any], echo: Callable[[str], None]) -> Path:
     """Step 2: export each recorded segment into one BorealHDR tree with calibration and ground truth."""
-    from bracketry.export.borealhdr import export_borealhdr
+    from bracketry_rig.export.borealhdr import export_borealhdr
 
     ds = p.out_dir / "dataset" / "simulated_forest"
     if ds.exists():

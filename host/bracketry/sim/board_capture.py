@@ -1,7 +1,7 @@
 """Board capture on the simulated rig in calibration mode (``bracketry calibrate capture --rig sim``): the two fake
 GigE cameras serve a board moved by hand (:class:`bracketry.sim.board_rig.BoardSource`), configured by their
 profile and fired together by the software-trigger adapter with a one-entry bracket table
-(:class:`bracketry.cameras.lockstep.LockstepPair`). Runs inside the private network namespace."""
+(:class:`bracketry_rig.cameras.lockstep.LockstepPair`). Runs inside the private network namespace."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from bracketry.boardcapture.selection import Echo, FolderBackend, Selection, serve_monitor
+from bracketry_rig.boardcapture.selection import Echo, FolderBackend, Selection, serve_monitor
 
 
 def capture_sim(out: Path, board: Any, board_yaml: str, size: tuple[int, int], *, seed: int = 0,
@@ -19,13 +19,13 @@ def capture_sim(out: Path, board: Any, board_yaml: str, size: tuple[int, int], *
     """Capture until the kept set is enough or ``max_pairs`` pulses; ``out`` gets the kept pairs, ``truth/`` (the
     simulated cameras' calibration) and ``capture.json``. With ``monitor_port`` the page is served here and reached
     from outside the namespace through ``monitor_socket(out)``. Returns the coverage status and the pulses."""
-    from bracketry.cameras.lockstep import LockstepPair
-    from bracketry.cameras.profiles import CameraSettings
-    from bracketry.monitor.calibration_feed import CaptureFeed
-    from bracketry.png import write_png
     from bracketry.sim.board_rig import BoardSource, start_board_cameras
     from bracketry.sim.frames import read_frame_id
     from bracketry.sim.rig import CAMERA_ADDRESSES, monitor_socket
+    from bracketry_base.png import write_png
+    from bracketry_rig.cameras.lockstep import LockstepPair
+    from bracketry_rig.cameras.profiles import CameraSettings
+    from bracketry_rig.monitor.calibration_feed import CaptureFeed
 
     out.mkdir(exist_ok=True)
     feed = CaptureFeed(board, size, max_blur_px)

@@ -8,7 +8,7 @@ over-exposed ones), exposed at the exposure the camera was triggered with (the s
 squares at 60 % of full well at :data:`bracketry_emulator.synth.board_session.EXPOSURE_US`). Each served frame
 carries its view index in row 0 (:func:`bracketry.sim.frames.embed_frame_id`), so a pair whose two images show
 different views is recognised, never used. The rig's default (forest world, bracket cycle) is untouched: this is a
-separate source for :class:`bracketry.cameras.fake.FakeCameraServer`.
+separate source for :class:`bracketry_rig.cameras.fake.FakeCameraServer`.
 """
 
 from __future__ import annotations
@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.calibration.board import BoardSpec
-from bracketry.cameras.triggering import PRIMING_EXPOSURE_US
 from bracketry.sim.frames import embed_frame_id
 from bracketry.sim.rig import CAMERA_ADDRESSES
+from bracketry_base.calibration.board import BoardSpec
+from bracketry_rig.cameras.triggering import PRIMING_EXPOSURE_US
 
 #: views in one simulated hand-held session (frames beyond repeat them)
 DEFAULT_VIEWS = 60
@@ -89,7 +89,7 @@ class BoardSource:
 def start_board_cameras(source: BoardSource) -> dict[str, Any]:
     """Start the two fake cameras serving ``source`` on the simulated rig's addresses (needs the private network
     namespace, :func:`bracketry.sim.rig.in_private_netns`). Returns side -> server (``stop()`` each)."""
-    from bracketry.cameras.fake import FakeCameraServer
+    from bracketry_rig.cameras.fake import FakeCameraServer
 
     servers: dict[str, Any] = {}
     try:

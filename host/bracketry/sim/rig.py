@@ -4,12 +4,12 @@ or server speaking the real protocols.
 - Cameras: two in-process Aravis ``GvFakeCamera`` servers on 127.0.0.2 and 127.0.0.3 (GVCP/GVSP over loopback),
   serving the synthetic world at the exposure of each trigger (ctypes fill-pattern route). Two addresses need a
   private network namespace: ``bracketry simulate`` re-runs itself under ``unshare -n`` (see
-  :mod:`bracketry.cameras.netns`), which also keeps Aravis traffic off every real interface.
+  :mod:`bracketry_rig.cameras.netns`), which also keeps Aravis traffic off every real interface.
 - Trigger: ``bracketry trigger simulate`` on a pty (or the real firmware in QEMU with ``trigger="qemu"``).
 - Panel: ``bracketry panel simulate`` running the actual MicroPython firmware files, on one end of a socat pty
   pair; buttons are pressed through its standard input and its screen is read from its screen file.
 - Daemon: ``bracketry daemon --config sim.toml``; the cameras' ``aravis_fake`` profile has no trigger line, so the
-  daemon's camera trigger is the software one (``bracketry.cameras.triggering.SoftwareTrigger``: TriggerSoftware at
+  daemon's camera trigger is the software one (``bracketry_rig.cameras.triggering.SoftwareTrigger``: TriggerSoftware at
   each TRIGGER event), chosen by the profile layer, never by a "simulated" switch.
 """
 
@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.daemon.status import query
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
+from bracketry_rig.daemon.status import query
 
 CAMERA_ADDRESSES = {"left": "127.0.0.2", "right": "127.0.0.3"}
 NETNS_ENV = "BRACKETRY_IN_NETNS"
@@ -128,7 +128,7 @@ class SimulatedRig:
             self.schedule.wait(progress)
 
     def start_cameras(self) -> None:
-        from bracketry.cameras.fake import FakeCameraServer
+        from bracketry_rig.cameras.fake import FakeCameraServer
 
         for side, addr in CAMERA_ADDRESSES.items():
             self.start_camera(side, FakeCameraServer)
@@ -137,7 +137,7 @@ class SimulatedRig:
     def start_camera(self, side: str, cls: Any = None) -> None:
         """(Re)start the fake camera of ``side``."""
         if cls is None:
-            from bracketry.cameras.fake import FakeCameraServer as cls
+            from bracketry_rig.cameras.fake import FakeCameraServer as cls
         cam = cls(CAMERA_ADDRESSES[side], serial=f"SIM{side.upper()}", image_source=self.schedule.source(side))
         self.cameras[side] = cam.start()
 
@@ -150,7 +150,7 @@ class SimulatedRig:
     def start_trigger(self) -> None:
         """Start the trigger simulator (or QEMU) and make ``self.trigger_url`` point at it."""
         if self.o.trigger == "qemu":
-            from bracketry.trigger.qemu import QemuTrigger
+            from bracketry_rig.trigger.qemu import QemuTrigger
 
             self.qemu = QemuTrigger(serial="tcp", log_path=self.out / "qemu.log").start()
             self.trigger_url = self.qemu.url
@@ -346,10 +346,10 @@ class SimulatedRig:
         """Every recorded frame of ``side`` (this rig's recordings, in order): (stamp_ns of the image, the rendered
         frame index its pixels carry, or None when it carries none). One pass over the recordings gives both
         sides; it is kept until a recording file changes (each pass decompresses every chunk)."""
-        from bracketry.recording import topics as T
-        from bracketry.recording.decode import decode_image_msg
-        from bracketry.recording.reader import RecordingReader
         from bracketry.sim.frames import read_frame_id
+        from bracketry_base.recording import topics as T
+        from bracketry_base.recording.decode import decode_image_msg
+        from bracketry_base.recording.reader import RecordingReader
 
         files = [f for seg in self.recordings() for f in sorted(seg.glob("*.mcap"))]
         key = [(str(f), f.stat().st_size, f.stat().st_mtime_ns) for f in files]
@@ -503,7 +503,7 @@ def in_private_netns() -> bool:
 
 def reexec_in_netns(argv: list[str]) -> int:
     """Run ``python -m bracketry ARGV`` in a private network namespace; returns its exit code."""
-    from bracketry.cameras.netns import netns_argv, netns_available
+    from bracketry_rig.cameras.netns import netns_argv, netns_available
 
     reason = netns_available()
     if reason:

@@ -6,8 +6,8 @@ import signal
 import time
 from typing import Any
 
-from bracketry.errors import BracketryError
 from bracketry.sim.rig import SimulatedRig
+from bracketry_base.errors import BracketryError
 
 ALL = ("cam_left", "cam_right", "trigger")
 

@@ -41,9 +41,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bracketry.errors import BracketryError
 from bracketry.sim.rig import CAMERA_ADDRESSES, NETNS_ENV, SimOptions, SimulatedRig
 from bracketry.testing.http import http_json
+from bracketry_base.errors import BracketryError
 
 ALL = ("cam_left", "cam_right", "trigger")
 SCENARIOS = ("e2e", "faults", "disk", "preview")
@@ -62,7 +62,7 @@ def scenario_argv(scenario: str, out: Path, result: Path, *args: str, tmpfs_mb: 
 def namespaced_argv(inner: list[str], out: Path, tmpfs_mb: int | None, tmpfs_name: str) -> list[str]:
     """``inner`` in a private network namespace holding the fake cameras' addresses (and, with ``tmpfs_mb``, a
     private mount namespace where ``out/disk`` is a tmpfs of that many MiB named ``tmpfs_name``)."""
-    from bracketry.cameras.netns import netns_argv
+    from bracketry_rig.cameras.netns import netns_argv
 
     argv = netns_argv(inner, tuple(CAMERA_ADDRESSES.values()))
     if tmpfs_mb is None:
@@ -306,7 +306,7 @@ def run_faults(s: Session, seconds: float) -> dict[str, Any]:
 def run_disk(s: Session, ballast_mb: int) -> dict[str, Any]:
     """Fill the recording disk with a ballast file while recording; the daemon must stop cleanly and refuse."""
     rig = s.rig
-    from bracketry.daemon.disk import free_mb
+    from bracketry_rig.daemon.disk import free_mb
 
     disk = rig.rec_dir
     _sensors_and_record(s)
@@ -341,7 +341,7 @@ def run_disk(s: Session, ballast_mb: int) -> dict[str, Any]:
     s.step("idle_camera_back")
     rc = rig.stop_daemon(signal.SIGTERM)
     s.step("sigterm", daemon_exit_code=rc)
-    from bracketry.recording.verify import verify_recording
+    from bracketry_base.recording.verify import verify_recording
 
     reports = [verify_recording(seg).as_dict() for seg in rig.recordings()]
     return {"daemon_exit_code": rc, "ballast_mb": written, "verify": reports}
@@ -452,7 +452,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ballast-mb", type=int, default=4096)
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
-    from bracketry.cli.options import parse_resolution
+    from bracketry_base.options import parse_resolution
 
     os.environ[NETNS_ENV] = "1"
     out = args.out

@@ -1,5 +1,5 @@
 """One JSON-over-HTTP call for the harnesses and tests that drive the monitor's endpoints (see
-``host/bracketry/monitor/MONITOR.md``)."""
+``host/bracketry_rig/monitor/MONITOR.md``)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,10 @@
 """Record from two in-process fake cameras software-triggered at a bracket cycle (tests, benchmarks, demos).
 
-Run as ``python -m bracketry.testing.simrun --out DIR ...`` (inside ``bracketry.cameras.netns.netns_argv`` when
+Run as ``python -m bracketry.testing.simrun --out DIR ...`` (inside ``bracketry_rig.cameras.netns.netns_argv`` when
 the cameras need 127.0.0.2/.3). It starts one ``FakeCameraServer`` per side serving ``sim_pixels`` (pixels are a
 known function of side and exposure, so tests can check every exported image exactly), opens them by IP with the
 ``aravis_fake`` profile, generates TRIGGER events at ``fps`` cycling the brackets, fires the cameras at each event
-(``bracketry.cameras.triggering.SoftwareTrigger``, as the daemon does), records, and writes a JSON summary
+(``bracketry_rig.cameras.triggering.SoftwareTrigger``, as the daemon does), records, and writes a JSON summary
 (``--summary``) with what was fired, dropped and served, and the packet-loss ``--seed``. ``--progress FILE`` gets
 one line ``<trigger_seq> <host_ns>`` per fired trigger (flushed), for kill -9 tests.
 """
@@ -23,13 +23,13 @@ from typing import Any
 
 import numpy as np
 
-from bracketry.cameras.camera import GigECamera
-from bracketry.cameras.fake import DEFAULT_SEED, FakeCameraServer
-from bracketry.cameras.profiles import CameraSettings
-from bracketry.cameras.triggering import PRIMING_EXPOSURE_US, SoftwareTrigger
-from bracketry.events import TriggerEvent
-from bracketry.recording.recorder import Recorder, RecorderConfig
-from bracketry.recording.session import RecordingSession
+from bracketry_rig.cameras.camera import GigECamera
+from bracketry_rig.cameras.fake import DEFAULT_SEED, FakeCameraServer
+from bracketry_rig.cameras.profiles import CameraSettings
+from bracketry_rig.cameras.triggering import PRIMING_EXPOSURE_US, SoftwareTrigger
+from bracketry_rig.events import TriggerEvent
+from bracketry_rig.recording.recorder import Recorder, RecorderConfig
+from bracketry_rig.recording.session import RecordingSession
 
 SIDE_OFFSET = {"left": 0, "right": 1000}
 SIDES = ("left", "right")
@@ -74,8 +74,8 @@ def run_with_trigger_simulator(trigger: SoftwareTrigger, session: RecordingSessi
                                period_us: int, n: int, drop_events: set[int], skip: set[tuple[str, int]],
                                progress: Any) -> list[int]:
     """Drive the STM32 trigger simulator through ``TriggerClient``; fire the cameras at each TRIGGER event."""
-    from bracketry.trigger.client import TriggerClient
-    from bracketry.trigger.simulator import SimConfig, simulate_on_pty
+    from bracketry_rig.trigger.client import TriggerClient
+    from bracketry_rig.trigger.simulator import SimConfig, simulate_on_pty
 
     sim, path = simulate_on_pty(config=SimConfig(drop_seqs=frozenset(drop_events)))
     fired: list[int] = []

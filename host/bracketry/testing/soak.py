@@ -44,10 +44,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from bracketry.cameras.netns import netns_available
-from bracketry.cameras.triggering import PRIMING_EXPOSURE_US
 from bracketry.sim.rig import NETNS_ENV, SimOptions, SimulatedRig
 from bracketry.testing.faults import ALL, Session, _sensors_and_record, namespaced_argv, run_on_rig
+from bracketry_rig.cameras.netns import netns_available
+from bracketry_rig.cameras.triggering import PRIMING_EXPOSURE_US
 
 FAULTS = ("cable_pull", "serial_garbage", "disk_full", "sigkill", "camera_restart")
 #: frames served this long before a fault began may be lost with it (the recorder's open chunk, frames in flight)
@@ -180,7 +180,7 @@ class Soak:
         self._all_rec(10.0)
 
     def _disk_full(self, _side: str) -> None:
-        from bracketry.daemon.disk import free_mb
+        from bracketry_rig.daemon.disk import free_mb
 
         disk = self.rig.rec_dir
         ballast = disk / "ballast.bin"
@@ -234,9 +234,9 @@ def run(soak: Soak, seconds: float, faults: tuple[str, ...], gap_s: tuple[float,
 
 def recorded_stamps(rig: SimulatedRig) -> dict[str, Counter[int]]:
     """side -> camera timestamps (trigger stamps) of every frame recorded by this rig, with their counts."""
-    from bracketry.recording import topics as T
-    from bracketry.recording.decode import decode
-    from bracketry.recording.reader import RecordingReader
+    from bracketry_base.recording import topics as T
+    from bracketry_base.recording.decode import decode
+    from bracketry_base.recording.reader import RecordingReader
 
     out: dict[str, Counter[int]] = {side: Counter() for side in T.SIDES}
     topics = {T.frame_meta_topic(side): side for side in T.SIDES}
@@ -251,7 +251,7 @@ def recorded_stamps(rig: SimulatedRig) -> dict[str, Counter[int]]:
 
 def verify_all(rig: SimulatedRig) -> list[dict[str, Any]]:
     """Every recording of this rig verified; a truncated one is repaired and the copy verified too."""
-    from bracketry.recording.verify import repair_recording, verify_recording
+    from bracketry_base.recording.verify import repair_recording, verify_recording
 
     rows = []
     for seg in rig.recordings():
@@ -342,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--fps", type=float, default=10.0)
     ap.add_argument("--quiet", action="store_true")
     args = ap.parse_args(argv)
-    from bracketry.cli.options import parse_resolution
+    from bracketry_base.options import parse_resolution
 
     faults = tuple(f for f in args.faults.split(",") if f)
     unknown = [f for f in faults if f not in FAULTS]

@@ -10,7 +10,7 @@ import pytest
 
 import bracketry
 from bracketry.cli import COMMANDS, HIDDEN_ALIASES, main
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 
 
 def run_cli(*args: str) -> subprocess.CompletedProcess[str]:
@@ -58,7 +58,7 @@ def test_doctor_json_reports_every_component(capsys: pytest.CaptureFixture[str])
 
 def test_doctor_fails_with_fix_when_sample_missing(monkeypatch: pytest.MonkeyPatch, tmp_path,
                                                   capsys: pytest.CaptureFixture[str]) -> None:
-    from bracketry import paths
+    from bracketry_base import paths
 
     monkeypatch.setattr(paths, "repo_root", lambda: tmp_path / "nowhere" / "repo")
     monkeypatch.setenv(paths.SAMPLE_ENV, str(tmp_path / "empty"))

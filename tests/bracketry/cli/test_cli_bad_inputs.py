@@ -22,12 +22,12 @@ import numpy as np
 import pytest
 
 from bracketry.cli import COMMANDS, main
-from bracketry.cli.options import EXIT_INTERNAL, EXIT_PROBLEMS, EXIT_USAGE
-from bracketry.events import TriggerEvent
-from bracketry.pairing.pairer import PairedSet
-from bracketry.paths import repo_root
-from bracketry.recording import topics as T
-from bracketry.recording.recorder import Recorder, RecorderConfig
+from bracketry_base.options import EXIT_INTERNAL, EXIT_PROBLEMS, EXIT_USAGE
+from bracketry_base.paths import repo_root
+from bracketry_base.recording import topics as T
+from bracketry_rig.events import TriggerEvent
+from bracketry_rig.pairing.pairer import PairedSet
+from bracketry_rig.recording.recorder import Recorder, RecorderConfig
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 

@@ -17,11 +17,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bracketry.cameras.netns import netns_available
-from bracketry.recording import topics as T
-from bracketry.recording.decode import decode, decode_image_msg
-from bracketry.recording.reader import RecordingReader
 from bracketry.sim.frames import frame_time_s, read_frame_id
+from bracketry_base.recording import topics as T
+from bracketry_base.recording.decode import decode, decode_image_msg
+from bracketry_base.recording.reader import RecordingReader
+from bracketry_rig.cameras.netns import netns_available
 from bracketry_testkit import missing_component
 
 pytestmark = [pytest.mark.aravis, pytest.mark.socat, pytest.mark.slow]

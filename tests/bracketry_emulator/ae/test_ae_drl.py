@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from ae_scenes import irradiance, render
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae import get_method
 from bracketry_emulator.ae.classical import ClassicalAE
 from bracketry_testkit import STRICT

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae import ConstantExposure, Frame, run_loop
 from bracketry_emulator.ae.base import CameraSetting
 from bracketry_emulator.ae.registry import MethodTraits, method_traits

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from ae_scenes import closed_loop, irradiance, render
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae import get_method
 from bracketry_emulator.ae.classical import ClassicalAE, ConstantExposure, FixAE, classical_step_ms
 from bracketry_emulator.ae.kim import kim_metric

@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from test_ae_runner import tiny_tree
 
-from bracketry import paths
-from bracketry.errors import BracketryError
+from bracketry_base import paths
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae import get_method
 
 PLUGIN_SOURCE = textwrap.dedent('''

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 from bracketry_emulator.ae import get_method, run_methods
 from bracketry_emulator.dataset import open_dataset
 from bracketry_emulator.emulation import Emulator, EmulatorConfig

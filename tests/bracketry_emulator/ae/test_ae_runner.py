@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from ae_scenes import irradiance, render
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae import run_methods
 
 EXPOSURES_MS = (1.0, 2.0, 4.0, 8.0, 16.0, 32.0)

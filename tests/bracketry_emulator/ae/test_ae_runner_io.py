@@ -81,7 +81,7 @@ def test_every_png_compression_is_lossless(tmp_path: Path, compression: str) -> 
 
 
 def test_png_compression_is_checked() -> None:
-    from bracketry.errors import BracketryError
+    from bracketry_base.errors import BracketryError
     from bracketry_emulator.ae import LoopConfig
 
     with pytest.raises(BracketryError, match="--png-compression"):

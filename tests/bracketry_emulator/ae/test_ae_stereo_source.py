@@ -10,7 +10,7 @@ import pytest
 from ae_scenes import irradiance, render
 from test_ae_runner import tiny_tree
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae import run_methods
 from bracketry_emulator.dataset import open_dataset
 from bracketry_emulator.emulation import Emulator, EmulatorConfig, RunWriter

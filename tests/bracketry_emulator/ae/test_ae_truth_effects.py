@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae.truth import TRUTH_EFFECTS, TruthCache, truth_effects
 from bracketry_emulator.emulation import EmulatorConfig
 

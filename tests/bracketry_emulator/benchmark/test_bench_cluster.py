@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.benchmark.cluster import (
     TOKEN_NAME,
     WorkerChecks,

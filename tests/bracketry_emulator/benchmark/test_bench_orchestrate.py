@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from bracketry.cli import main as cli_main
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.benchmark import BenchmarkConfig, RunResult, make_task, run_benchmark
 from bracketry_emulator.benchmark.tasks import load_cached
 from bracketry_emulator.benchmark.toyworld import ToyWorld

@@ -13,7 +13,7 @@ import pytest
 
 from ae_plugin_kit import bracketry, entry_point_plugin, env_with, import_path_plugin
 from bracketry.cli import main as cli_main
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae.registry import MethodSpec, parse_method_options, resolve_methods
 from bracketry_emulator.benchmark import make_task
 from bracketry_emulator.metrics.manifest import expand_datasets

@@ -9,7 +9,7 @@ import pytest
 import yaml
 from result_rows import metric_rows
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.benchmark.truth_causes import truth_causes, variant_dataset, write_truth_causes
 from bracketry_emulator.metrics.manifest import load_manifest
 

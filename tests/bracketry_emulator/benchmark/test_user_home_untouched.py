@@ -9,7 +9,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 from bracketry_emulator.synth.suite import _link_tree
 
 IMPORT_ALL = """

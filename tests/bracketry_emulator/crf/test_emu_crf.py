@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from bracketry.cli import main
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.crf import SrgbResponse, load_pcalib, load_response, save_pcalib
 from bracketry_emulator.crf.calibrate import calibrate_response
 from bracketry_emulator.dataset import open_dataset

@@ -97,9 +97,9 @@ def test_emu_reads_the_rig_recorder_output(tmp_path: Path) -> None:
     import time
     from types import SimpleNamespace
 
-    from bracketry.events import TriggerEvent
-    from bracketry.pairing.pairer import PairedSet
-    from bracketry.recording.recorder import Recorder, RecorderConfig
+    from bracketry_rig.events import TriggerEvent
+    from bracketry_rig.pairing.pairer import PairedSet
+    from bracketry_rig.recording.recorder import Recorder, RecorderConfig
 
     irr = radiance_map(24, 32)
     rng = np.random.default_rng(1)

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bracketry.paths import repo_root
+from bracketry_base.paths import repo_root
 from bracketry_emulator.dataset import DatasetError, open_dataset
 from bracketry_emulator.dataset.ziptree import ZipPngLoader, locate
 

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.crf import load_pcalib, srgb_eotf
 from bracketry_emulator.dataset import open_dataset, read_png12
 from bracketry_emulator.emulation import (

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_testkit import STRICT
 from emu_synthetic import radiance_map, write_tree
 

@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from bracketry import paths
+from bracketry_base import paths
 from bracketry_testkit import STRICT
 from emu_synthetic import radiance_map, write_tree
 

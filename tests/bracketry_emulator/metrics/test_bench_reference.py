@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.benchmark import BenchmarkConfig, SlamOptions, run_benchmark
 from bracketry_emulator.benchmark.toyworld import ToyWorld
 from bracketry_emulator.metrics import evaluate_run

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae.registry import resolve_methods
 from bracketry_emulator.report.tables import controls_table, method_labels, relabel
 from bracketry_emulator.stats.controls import (

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from bracketry.calibration.board import BoardSpec
-from bracketry.calibration.detect import detect, to_gray8
 from bracketry.cli import main
+from bracketry_base.calibration.board import BoardSpec
+from bracketry_base.calibration.detect import detect, to_gray8
 from bracketry_emulator.synth.board_session import BoardRenderer, background_field, random_views
 from bracketry_emulator.synth.calibration import default_calibration, load_calibration
 from bracketry_emulator.vo.calibration import StereoRectifier

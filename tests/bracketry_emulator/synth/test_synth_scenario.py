@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from bracketry.errors import BracketryError
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.synth import World, world_from_dataset, world_from_scenario, write_trajectory
 from bracketry_emulator.synth.scenario import (
     scenario_from_dict,

@@ -214,7 +214,7 @@ def test_the_suite_manifest_declares_a_warmup_the_benchmark_takes(tmp_path: Path
     """The suite's walks start with a running camera: its manifest declares warmup_steps, each trajectory spec
     carries it (an entry may override it), the benchmark's loop of that trajectory takes it unless
     --warmup-steps overrides it; a bad value is one line."""
-    from bracketry.errors import BracketryError
+    from bracketry_base.errors import BracketryError
     from bracketry_emulator.ae import LoopConfig
     from bracketry_emulator.benchmark.orchestrate import spec_loop
 
@@ -241,7 +241,7 @@ def test_the_demo_suite_declares_rte_windows_its_short_walks_hold(tmp_path: Path
     """The demo walks (10 s, 8-25 m) are mostly shorter than the paper's windows (5-50 m): the manifest declares
     2-8 m windows, which every spec carries (an entry may override them); the full suite keeps the paper's; bad
     ones: one line."""
-    from bracketry.errors import BracketryError
+    from bracketry_base.errors import BracketryError
 
     assert "windows_m" not in suite.manifest_doc("full", 0)
     doc = suite.manifest_doc("demo", 0)

@@ -13,11 +13,11 @@ from pathlib import Path
 
 import pytest
 
-from bracketry import paths
+from bracketry_base import paths
 
 HERE = Path(__file__).resolve().parent
 FIRMWARE = paths.firmware_dir() / "esp32_panel"
-BPROTO = paths.repo_root() / "host" / "bracketry" / "wire" / "bproto.py"
+BPROTO = paths.repo_root() / "host" / "bracketry_rig" / "wire" / "bproto.py"
 CHECKS = HERE / "panel_core_checks.py"
 VECTOR_CHECKS = HERE / "panel_vector_checks.py"
 VECTORS = paths.firmware_dir() / "protocol" / "protocol_vectors.json"

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from bracketry.wire import bproto
+from bracketry_rig.wire import bproto
 from bracketry_testkit import stop_process
 from panel_pty import Pty, read_screen, start_simulator, wait_for
 

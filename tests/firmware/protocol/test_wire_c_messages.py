@@ -12,8 +12,8 @@ import random
 import subprocess
 from pathlib import Path
 
-from bracketry import paths
-from bracketry.wire import bproto, vectors
+from bracketry_base import paths
+from bracketry_rig.wire import bproto, vectors
 from bracketry_testkit import build_c_under_asan
 
 C_DIR = paths.firmware_dir() / "protocol" / "c"

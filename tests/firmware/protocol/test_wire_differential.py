@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from wire_corpus import frames_fnv1a, make_corpus
 
-from bracketry import paths
-from bracketry.wire import bproto
+from bracketry_base import paths
+from bracketry_rig.wire import bproto
 from bracketry_testkit import build_c_under_asan
 
 C_DIR = paths.firmware_dir() / "protocol" / "c"

@@ -14,8 +14,8 @@ import sys
 from pathlib import Path
 from types import ModuleType
 
-from bracketry import paths
-from bracketry.wire import bproto
+from bracketry_base import paths
+from bracketry_rig.wire import bproto
 
 PROTO = paths.repo_root() / "firmware" / "protocol"
 

@@ -10,8 +10,8 @@ import cobs.cobs as cobs_pkg
 import pytest
 import wire_vectors_check
 
-from bracketry import paths
-from bracketry.wire import bproto, vectors
+from bracketry_base import paths
+from bracketry_rig.wire import bproto, vectors
 from bracketry_testkit import missing_component
 from crc16_reference import crc16_bitwise
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import random
 
-from bracketry.wire import bproto
+from bracketry_rig.wire import bproto
 
 
 def frames_fnv1a(frames: list[bproto.Frame]) -> int:

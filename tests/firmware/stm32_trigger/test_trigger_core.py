@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from bracketry import paths
+from bracketry_base import paths
 from bracketry_testkit import missing_component
 
 FW_DIR = paths.firmware_dir() / "stm32_trigger"

@@ -11,9 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from bracketry import paths
-from bracketry.trigger.client import TriggerClient
-from bracketry.trigger.simulator import open_pty
+from bracketry_base import paths
+from bracketry_rig.trigger.client import TriggerClient
+from bracketry_rig.trigger.simulator import open_pty
 from bracketry_testkit import missing_component, stop_process
 from trigger_scenario import run_scenario
 

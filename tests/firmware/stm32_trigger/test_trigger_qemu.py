@@ -9,8 +9,8 @@ from pathlib import Path
 
 import pytest
 
-from bracketry.trigger.client import TriggerClient
-from bracketry.trigger.qemu import QemuTrigger
+from bracketry_rig.trigger.client import TriggerClient
+from bracketry_rig.trigger.qemu import QemuTrigger
 from trigger_scenario import EXPOSURES_US, check_events, collect_events, run_scenario
 
 pytestmark = pytest.mark.qemu
