@@ -1,12 +1,17 @@
 """No module imports upward across the layers (ARCHITECTURE.md, "Layers").
 
-    base  <  rig, emulator  <  integration
+    base  <  rig, emulator  <  integration        (packages: bracketry_base < bracketry_rig, bracketry_emulator <
+                                                   bracketry)
+
+Each layer is a top-level package and folder of its own (:data:`LAYER_TABLE`): a package's imports, lazy ones
+included, go down the table only, and no package imports another that imports it back (:func:`package_imports`).
 
 - **base**: what both packages share, on the core dependencies alone (OpenCV only where a PNG is written): errors,
   progress, paths, output checks, the CLI's option types, the PNG codec (``bracketry_base.png``), the recording format
-  with its reader and checker (``bracketry_base.recording`` but the rig's recorder and session) and the stereo
+  with its reader and checker (``bracketry_base.recording``; the rig's recorder and session are
+  ``bracketry_rig.recording``) and the stereo
   calibration library (``bracketry_base.calibration``: board, detection, coverage, solve; numpy and OpenCV only).
-- **rig** (the rest of ``bracketry``) and **emulator** (``bracketry_emulator``) are peers: neither imports the other,
+- **rig** (``bracketry_rig``) and **emulator** (``bracketry_emulator``) are peers: neither imports the other,
   so a rig runs without the emulator's dependencies and the emulator never reaches into the rig.
 - **integration**: what joins them: the simulated rig (``bracketry.sim``), the demo, the test harnesses and the CLI
   (``bracketry.cli``; its ``COMMANDS`` name the emulator's commands as strings and load them when used).
@@ -42,30 +47,12 @@ MAY_IMPORT: dict[str, set[str]] = {
     INTEGRATION: {BASE, RIG, EMULATOR, INTEGRATION},
     BENCHMARKS: {BASE, RIG, EMULATOR, INTEGRATION, BENCHMARKS},
 }
-#: module (or package: all below it) -> layer; the longest listed name that a module starts with decides
+#: top-level package -> layer: each layer is a package (and a folder) of its own, so a module's layer is its package's
 LAYER_TABLE: dict[str, str] = {
-    "bracketry": RIG,
-    "bracketry_base.errors": BASE,
-    "bracketry_base.progress": BASE,
-    "bracketry_base.paths": BASE,
-    "bracketry_base.outputs": BASE,
-    "bracketry_base.ipv4": BASE,
-    "bracketry_base.png": BASE,
-    "bracketry_base.options": BASE,
-    "bracketry_base.recording.topics": BASE,
-    "bracketry_base.recording.msgdefs": BASE,
-    "bracketry_base.recording.decode": BASE,
-    "bracketry_base.recording.mcap_writer": BASE,
-    "bracketry_base.recording.reader": BASE,
-    "bracketry_base.recording.verify": BASE,
-    "bracketry_base.recording.calibration": BASE,
-    "bracketry_base.calibration": BASE,
-    "bracketry.sim": INTEGRATION,
-    "bracketry.demo": INTEGRATION,
-    "bracketry.testing": INTEGRATION,
-    "bracketry.cli": INTEGRATION,
-    "bracketry.__main__": INTEGRATION,
+    "bracketry_base": BASE,
+    "bracketry_rig": RIG,
     "bracketry_emulator": EMULATOR,
+    "bracketry": INTEGRATION,
     "benchmarks": BENCHMARKS,
 }
 #: the emulator's sub-packages and top-level modules by floor (0 = ground); every module of the emulator is on one
@@ -81,7 +68,8 @@ EMULATOR_FLOORS: dict[str, int] = {
     "bracketry_emulator.cli": 5,
 }
 #: the source folder of each package
-PACKAGES = {"bracketry": Path("host/bracketry"), "bracketry_emulator": Path("emulator/bracketry_emulator"),
+PACKAGES = {"bracketry_base": Path("host/bracketry_base"), "bracketry_rig": Path("host/bracketry_rig"),
+            "bracketry_emulator": Path("emulator/bracketry_emulator"), "bracketry": Path("host/bracketry"),
             "benchmarks": Path("benchmarks")}
 
 
@@ -194,6 +182,34 @@ def upward_imports(modules: dict[str, tuple[str, bool]], table: dict[str, str] =
     return problems
 
 
+def package_imports(modules: dict[str, tuple[str, bool]]) -> dict[str, set[str]]:
+    """Top-level package -> the other top-level packages its modules import (module level or lazy; not
+    ``TYPE_CHECKING``). ``modules``: name -> (source, is ``__init__``)."""
+    known = set(modules)
+    out: dict[str, set[str]] = {m.split(".")[0]: set() for m in modules}
+    for module, (source, is_init) in modules.items():
+        mine = module.split(".")[0]
+        for imp in imports_of(module, source, is_init, known):
+            theirs = imp.target.split(".")[0]
+            if not imp.typing_only and theirs != mine:
+                out[mine].add(theirs)
+    return out
+
+
+def package_problems(graph: dict[str, set[str]], table: dict[str, str] = LAYER_TABLE) -> list[str]:
+    """One line per package import that does not go down the layer table (a peer or a higher layer), and per
+    pair of packages that import each other."""
+    problems = []
+    for pkg, targets in sorted(graph.items()):
+        for t in sorted(targets):
+            mine, theirs = table.get(pkg), table.get(t)
+            if mine is None or theirs is None or theirs not in MAY_IMPORT[mine] or mine == theirs:
+                problems.append(f"{pkg} imports {t}: the {mine} layer may not import the {theirs} layer")
+            if pkg in graph.get(t, set()) and pkg < t:
+                problems.append(f"{pkg} and {t} import each other")
+    return problems
+
+
 def import_cycles(modules: dict[str, tuple[str, bool]]) -> list[list[str]]:
     """The import cycles between files: each group of modules (sorted; groups sorted) that reach each other by
     imports that run (module level or lazy; not ``TYPE_CHECKING``). ``modules``: name -> (source, is ``__init__``).
@@ -258,6 +274,31 @@ def test_no_module_imports_upward() -> None:
     assert upward_imports(modules) == []
 
 
+def test_packages_import_only_down_the_table() -> None:
+    """At package level: each layer's package imports only packages of lower layers, none imports another that
+    imports it back, and every package of the tree has a layer."""
+    graph = package_imports(_tree_modules())
+    assert set(graph) == set(LAYER_TABLE) == set(PACKAGES)
+    assert package_problems(graph) == []
+    assert graph["bracketry_base"] == set()
+    assert graph["bracketry_rig"] == graph["bracketry_emulator"] == {"bracketry_base"}
+
+
+def test_package_problems_are_found() -> None:
+    """On synthetic package graphs: an import up, one across to a peer and a pair importing each other are
+    reported; imports down are not."""
+    assert package_problems({"bracketry_base": set(), "bracketry_rig": {"bracketry_base"},
+                             "bracketry": {"bracketry_rig", "bracketry_base"}}) == []
+    assert package_problems({"bracketry_base": {"bracketry_rig"}, "bracketry_rig": {"bracketry_base"}}) == [
+        "bracketry_base imports bracketry_rig: the base layer may not import the rig layer",
+        "bracketry_base and bracketry_rig import each other"]
+    assert package_problems({"bracketry_rig": {"bracketry_emulator"}, "bracketry_emulator": set()}) == [
+        "bracketry_rig imports bracketry_emulator: the rig layer may not import the emulator layer"]
+    lazy = {"bracketry_base": ("", True), "bracketry_base.png": ("def f():\n    import bracketry.cli\n", False),
+            "bracketry": ("", True), "bracketry.cli": ("", True)}
+    assert package_imports(lazy) == {"bracketry_base": {"bracketry"}, "bracketry": set()}
+
+
 def test_layer_table_names_only_existing_modules() -> None:
     """A renamed or removed module must leave the tables too (else an entry silently stops applying)."""
     known = set(_tree_modules())
@@ -300,19 +341,19 @@ def test_upward_imports_are_found() -> None:
     }
     problems = upward_imports(modules)
     assert [p.split(": ")[0] for p in problems] == [
-        "bracketry_rig.cameras.fake:1",
-        "bracketry_rig.export.borealhdr:3",
         "bracketry_emulator.dataset.mcap_reader:2",
         "bracketry_emulator.report.write:3",
         "bracketry_emulator.vo.orbslam:2",
+        "bracketry_rig.cameras.fake:1",
+        "bracketry_rig.export.borealhdr:3",
     ], problems
     assert "lazy import of bracketry_emulator.emulation.writer: the rig layer may not import the emulator" \
-        in problems[1]
-    assert "lazy import of bracketry_emulator.benchmark.slam: floor 3 may not import floor 4" in problems[3]
-    assert "import of bracketry_emulator.metrics.evaluate: bracketry_emulator.vo may not import its neighbour" \
         in problems[4]
+    assert "lazy import of bracketry_emulator.benchmark.slam: floor 3 may not import floor 4" in problems[1]
+    assert "import of bracketry_emulator.metrics.evaluate: bracketry_emulator.vo may not import its neighbour" \
+        in problems[2]
     # a module of no layer is reported
-    assert upward_imports({"elsewhere": ("", False)}, table={"bracketry": RIG}) == [
+    assert upward_imports({"elsewhere": ("", False)}, table={"bracketry_rig": RIG}) == [
         "elsewhere: in no layer (add it to the layer table)"]
 
 
@@ -320,7 +361,8 @@ def test_the_tree_with_an_upward_import_fails() -> None:
     """The real tree's sources with one bad lazy import added to a copy of one module fail, naming it."""
     modules = _tree_modules()
     source, init = modules["bracketry_base.recording.reader"]
-    modules["bracketry_base.recording.reader"] = (source + "\n\ndef _bad():\n    from bracketry_rig.daemon import rig\n", init)
+    bad = "\n\ndef _bad():\n    from bracketry_rig.daemon import rig\n"
+    modules["bracketry_base.recording.reader"] = (source + bad, init)
     problems = upward_imports(modules)
     assert len(problems) == 1 and problems[0].startswith("bracketry_base.recording.reader:"), problems
     assert "lazy import of bracketry_rig.daemon.rig: the base layer may not import the rig layer" in problems[0]

@@ -1,6 +1,7 @@
 """The tests folder mirrors the code (tests/README.md): every test file sits in a folder that exists in the code.
 
-``tests/bracketry/<x>/`` mirrors ``host/bracketry/<x>/``, ``tests/bracketry_emulator/<x>/`` mirrors
+``tests/<package>/<x>/`` mirrors ``host/<package>/<x>/`` for ``bracketry_base``, ``bracketry_rig`` and
+``bracketry``, ``tests/bracketry_emulator/<x>/`` mirrors
 ``emulator/bracketry_emulator/<x>/``, ``tests/firmware/<x>/`` mirrors ``firmware/<x>/``, ``tests/hw/`` mirrors ``hw/``;
 ``tests/demo/`` holds the end-to-end runs. Python files under tests/ have unique names, because pytest's default
 "prepend" import mode (no ``__init__.py`` anywhere under tests/) imports test files and their helpers by file name.
@@ -16,6 +17,8 @@ from bracketry_base.paths import repo_root
 TESTS = Path(__file__).resolve().parent
 #: first folder under tests/ -> the code folder it mirrors (None: a folder of its own, no code counterpart)
 MIRRORS: dict[str, Path | None] = {
+    "bracketry_base": repo_root() / "host" / "bracketry_base",
+    "bracketry_rig": repo_root() / "host" / "bracketry_rig",
     "bracketry": repo_root() / "host" / "bracketry",
     "bracketry_emulator": repo_root() / "emulator" / "bracketry_emulator",
     "firmware": repo_root() / "firmware",
@@ -65,9 +68,9 @@ def test_every_test_file_mirrors_a_code_folder() -> None:
 
 
 def test_mirror_check_fails_on_a_misplaced_test(tmp_path: Path) -> None:
-    bad = [tmp_path / "wire" / "test_x.py", tmp_path / "bracketry" / "nosuchpackage" / "test_y.py",
+    bad = [tmp_path / "wire" / "test_x.py", tmp_path / "bracketry_rig" / "nosuchpackage" / "test_y.py",
            tmp_path / "test_z.py", tmp_path / "demo" / "deeper" / "test_w.py"]
-    good = [tmp_path / "bracketry" / "wire" / "test_ok.py", tmp_path / "bracketry" / "test_ok2.py",
+    good = [tmp_path / "bracketry_rig" / "wire" / "test_ok.py", tmp_path / "bracketry" / "test_ok2.py",
             tmp_path / "firmware" / "stm32_trigger" / "test_ok3.py", tmp_path / "demo" / "test_ok4.py"]
     mirrors = {**MIRRORS}
     problems = mirror_problems(tmp_path, mirrors, bad + good)

@@ -40,8 +40,8 @@ STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_m
 
 
 def encode_png(image: np.ndarray, compression: str = "stored") -> bytes:
-    """:func:`bracketry_base.png.encode_png`; ``stored`` built in one pass by the compiled ``_pngcodec`` extension where it
-    was built (the same bytes, without the copies). Raises ValueError for another dtype, shape or compression."""
+    """:func:`bracketry_base.png.encode_png`; ``stored`` built in one pass by the compiled ``_pngcodec`` extension
+    where it was built (the same bytes, without the copies). Raises ValueError for another dtype, shape or compression."""
     codec = png_codec()
     if compression == "stored" and codec is not None:
         png.check_image(image, compression)
@@ -58,8 +58,8 @@ def encode_png_stored(image: np.ndarray) -> bytes:
 
 
 def write_png(path: Path, image: np.ndarray, compression: str = "stored") -> None:
-    """:func:`bracketry_base.png.write_png`, ``stored`` through the compiled encoder (:func:`encode_png`). Raises OSError
-    when the file cannot be written (BracketryError for OpenCV's encoder, which gives no reason)."""
+    """:func:`bracketry_base.png.write_png`, ``stored`` through the compiled encoder (:func:`encode_png`). Raises
+    OSError when the file cannot be written (BracketryError for OpenCV's encoder, which gives no reason)."""
     if compression == "stored":
         write_file(path, encode_png(image, compression))
     else:

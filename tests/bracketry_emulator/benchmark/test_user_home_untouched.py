@@ -14,8 +14,8 @@ from bracketry_emulator.synth.suite import _link_tree
 
 IMPORT_ALL = """
 import importlib, pkgutil
-import bracketry, bracketry_emulator
-for pkg in (bracketry, bracketry_emulator):
+import bracketry, bracketry_base, bracketry_emulator, bracketry_rig
+for pkg in (bracketry_base, bracketry_rig, bracketry_emulator, bracketry):
     for m in pkgutil.walk_packages(pkg.__path__, pkg.__name__ + "."):
         if not m.name.endswith("__main__"):
             importlib.import_module(m.name)

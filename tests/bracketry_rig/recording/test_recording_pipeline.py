@@ -63,7 +63,8 @@ def assert_fake_was_exact(summary: dict, skipped: dict[str, set[int]] | None = N
     """Both fakes served exactly one frame per pulse they were fired for, with that pulse's exposure.
 
     The fake camera stamps and exposes each frame at its trigger and never merges two triggers
-    (``bracketry_rig.cameras.fake``), whatever the load: a test whose fake did otherwise is a fake's defect, not luck."""
+    (``bracketry_rig.cameras.fake``), whatever the load: a test whose fake did otherwise is a fake's defect, not
+    luck."""
     for s in ("left", "right"):
         want = [BRACKETS[k % 6] for k in range(summary["fired"]) if k not in (skipped or {}).get(s, set())]
         served = [e for e in summary["served_exposures_us"][s] if e != PRIMING_EXPOSURE_US]
