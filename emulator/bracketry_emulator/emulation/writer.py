@@ -41,7 +41,8 @@ STEPS_HEADER = ("step", "timestamp_ns", "target_exposure_ms", "source_exposure_m
 
 def encode_png(image: np.ndarray, compression: str = "stored") -> bytes:
     """:func:`bracketry_base.png.encode_png`; ``stored`` built in one pass by the compiled ``_pngcodec`` extension
-    where it was built (the same bytes, without the copies). Raises ValueError for another dtype, shape or compression."""
+    where it was built (the same bytes, without the copies). Raises ValueError for another dtype, shape or
+    compression."""
     codec = png_codec()
     if compression == "stored" and codec is not None:
         png.check_image(image, compression)
