@@ -1,12 +1,11 @@
 """The bracket advisor: the scene's dynamic range, how much of it a bracket table covers, and a table for this light.
 
 Inputs are the latest bracket frames of one camera as luminance arrays (see
-:func:`bracketry_rig.monitor.core.luminance`) of one shape, each with its exposure. The scene's *radiance* is
-estimated per pixel in DN per microsecond of exposure from the longest bracket that exposes it well (best signal to noise); a pixel under-exposed in every bracket
-only has an upper bound (``low_dn / longest``), one over-exposed in every bracket a lower bound
-(``high_dn / shortest``). A pixel is *covered* by a table when at least one of its exposures puts it in the
-well-exposed window ``(low_dn, high_dn)`` of :func:`bracketry_rig.monitor.core.exposure_limits_dn`.
-Pure numpy, no I/O.
+:func:`bracketry_rig.monitor.core.luminance`) of one shape, each with its exposure. The scene's *radiance* is estimated
+per pixel in DN per microsecond of exposure from the longest bracket that exposes it well (best signal to noise); a
+pixel under-exposed in every bracket only has an upper bound (``low_dn / longest``), one over-exposed in every bracket a
+lower bound (``high_dn / shortest``). A pixel is *covered* by a table when at least one of its exposures puts it in the
+well-exposed window ``(low_dn, high_dn)`` of :func:`bracketry_rig.monitor.core.exposure_limits_dn`. Pure numpy, no I/O.
 """
 
 from __future__ import annotations
