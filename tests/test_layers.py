@@ -9,8 +9,8 @@ included, go down the table only, and no package imports another that imports it
 - **base**: what both packages share, on the core dependencies alone (OpenCV only where a PNG is written): errors,
   progress, paths, output checks, the CLI's option types, the PNG codec (``bracketry_base.png``), the recording format
   with its reader and checker (``bracketry_base.recording``; the rig's recorder and session are
-  ``bracketry_rig.recording``) and the stereo
-  calibration library (``bracketry_base.calibration``: board, detection, coverage, solve; numpy and OpenCV only).
+  ``bracketry_rig.recording``) and the stereo calibration library (``bracketry_base.calibration``: board,
+  detection, coverage, solve; numpy and OpenCV only).
 - **rig** (``bracketry_rig``) and **emulator** (``bracketry_emulator``) are peers: neither imports the other,
   so a rig runs without the emulator's dependencies and the emulator never reaches into the rig.
 - **integration**: what joins them: the simulated rig (``bracketry.sim``), the demo, the test harnesses and the CLI

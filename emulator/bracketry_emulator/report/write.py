@@ -29,6 +29,7 @@ from bracketry_emulator.report import html_page, plots
 from bracketry_emulator.report.latex import write_latex
 from bracketry_emulator.report.tables import (
     METRIC_UNITS,
+    PAPER_TRAJECTORIES,
     cause_table,
     controls_table,
     failed_runs_table,
@@ -199,8 +200,9 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
               *([("Control rows", ctl_rows)] if len(ctl_rows) > 1 else []),
               *([(failed_title, failed_rows)] if len(failed_rows) > 1 else []),
               ("Successful trajectories per subset", suc_shown),
-              *([(f"Successful trajectories beside the paper's (ORB-SLAM2, 59 trajectories; Kendall's tau of the "
-                  f"counts {_fmt_tau(paper_tau)})", relabel(paper_rows, labels))] if len(paper_rows) > 1 else []),
+              *([(f"Successful trajectories beside the paper's (ORB-SLAM2, {PAPER_TRAJECTORIES} trajectories; "
+                  f"Kendall's tau of the counts {_fmt_tau(paper_tau)})", relabel(paper_rows, labels))]
+                if len(paper_rows) > 1 else []),
               ("Why runs lost track (cause of the first loss) beside the paper's reading", relabel(cause_rows, labels)),
               ("Summary", sum_shown),
               ("Medians and spread over repeats", med_shown)]
