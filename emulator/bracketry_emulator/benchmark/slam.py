@@ -211,12 +211,15 @@ def combine_repeats(runs: list[dict]) -> dict:
 
     Failed repeats (``error``) are left out of the medians; with none left the result carries the first error.
     The per-frame lists and windows come from the repeat whose RTE is closest to the median; ``failure_runs`` lists
-    ``{"repeat", "time_s", "cause"}`` of every repeat that lost track (:mod:`~.failure_analysis`).
+    ``{"repeat", "time_s", "cause"}`` of every repeat that lost track (:mod:`~.failure_analysis`). The oracle's
+    ``oracle_source`` names the candidate of each repeat, in repeat order, ``/``-separated (:mod:`~.oracle_rows`).
     """
+    sources = {"oracle_source": "/".join(str(r.get("oracle_source", "")) for r in runs)} \
+        if any("oracle_source" in r for r in runs) else {}
     ok = [r for r in runs if not r.get("error")]
     if not ok:
         out = dict(runs[0])
-        out.update(repeats=len(runs), repeats_ok=0)
+        out.update(repeats=len(runs), repeats_ok=0, **sources)
         return out
     rte = np.array([r.get("rte_pct", np.nan) for r in ok], float)
     if np.isfinite(rte).any():
@@ -235,5 +238,5 @@ def combine_repeats(runs: list[dict]) -> dict:
     out["success"] = sum(bool(r["success"]) for r in ok) * 2 > len(ok)  # the majority of the repeats
     out["failure_runs"] = [{"repeat": int(r.get("repeat", 0)), "time_s": float(r["time_before_failure_s"]),
                             "cause": str(r["failure_cause"])} for r in ok if r.get("failure_cause")]
-    out.update(repeats=len(runs), repeats_ok=len(ok), errors=[r["error"] for r in runs if r.get("error")])
+    out.update(repeats=len(runs), repeats_ok=len(ok), errors=[r["error"] for r in runs if r.get("error")], **sources)
     return out

@@ -24,7 +24,7 @@ from bracketry_emulator.stats.stability import name_seed, shown_symbol, verdict_
 RESULT_COLUMNS = ("trajectory", "subset", "method", "slam", "repeats", "n_frames", "success", "time_before_failure_s",
                   "duration_s", "tracked_fraction", "tracked_distance_fraction", "n_segments", "coverage_mean",
                   "matches_mean", "keypoints_mean", "rte_pct", "rte_pct_spread", "rre_deg_per_m",
-                  "rre_deg_per_m_spread", "s_per_frame", "reference", "error")
+                  "rre_deg_per_m_spread", "s_per_frame", "reference", "error", "oracle_source")
 
 
 def _fmt(v, digits: int = 3) -> str:
@@ -47,6 +47,18 @@ def _cell(r: dict, c: str) -> str:
 def results_table(results: list[dict]) -> list[list[str]]:
     """One row per (trajectory, method); with repeats: medians, spreads (max - min), failed repeats' errors."""
     return [list(RESULT_COLUMNS)] + [[_cell(r, c) for c in RESULT_COLUMNS] for r in results]
+
+
+def oracle_sources(results: list[dict]) -> dict[str, int]:
+    """{method: runs of it the oracle row took} over the oracle's runs (repeats too; ``oracle``: its own step
+    search's), most taken first, then by name (:mod:`~bracketry_emulator.benchmark.oracle_rows`); empty without an
+    oracle row."""
+    counts: dict[str, int] = {}
+    for r in results:
+        for m in str(r.get("oracle_source") or "").split("/"):
+            if m:
+                counts[m] = counts.get(m, 0) + 1
+    return dict(sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
 
 
 def failed_runs_table(results: list[dict]) -> list[list[str]]:

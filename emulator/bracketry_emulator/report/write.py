@@ -36,6 +36,7 @@ from bracketry_emulator.report.tables import (
     failure_causes_rows,
     medians_table,
     method_labels,
+    oracle_sources,
     paired_tables,
     paired_verdicts_table,
     relabel,
@@ -47,6 +48,7 @@ from bracketry_emulator.report.tables import (
     summary_table,
     windows_table,
 )
+from bracketry_emulator.stats.controls import NON_CAUSAL_METHODS
 from bracketry_emulator.stats.stability import N_RESAMPLES, STABLE_SHARE
 
 
@@ -85,6 +87,20 @@ def _qualitative_images(results: list[dict], methods: list[str]) -> tuple[str, d
         if img is not None:
             images[m] = img
     return traj, images
+
+
+def _oracle_text(results: list[dict], methods: list[str]) -> str:
+    """The report's clause on the oracle row (empty without one): what it is and which runs it took."""
+    if not any(m.lower() in NON_CAUSAL_METHODS for m in methods):
+        return ""
+    sources = oracle_sources(results)
+    taken = (f"; runs taken (results.csv oracle_source): {', '.join(f'{m} {n}' for m, n in sources.items())}"
+             if sources else "")
+    return (" the oracle is NON-CAUSAL, the best exposure sequence found (no camera can run it: an upper reference, "
+            "not a method): per trajectory and repeat, the best whole run among its own step search's (which reads "
+            "the next step's images) and every other row's on that trajectory, ranked by success, then time before "
+            "failure, then distance tracked, then RTE, so it keeps at least as many trajectories as any row, at no "
+            f"SLAM run beyond its step search's{taken};")
 
 
 def write_report(results: list[dict], out_dir: str | Path, reference: str, methods: list[str],
@@ -180,9 +196,9 @@ def write_report(results: list[dict], out_dir: str | Path, reference: str, metho
     if plugins:
         intro += " Plugins (name: source, options): " + "; ".join(plugins) + "."
     if len(ctl_rows) > 1:
-        intro += (" Control rows (marked): the oracle is NON-CAUSAL (it reads the next step's images, so no camera "
-                  "can run it: an upper reference, not a method); constant exposures frame the results, the grid's "
-                  "best and worst ranked by successful trajectories, then time before failure, then RTE.")
+        intro += " Control rows (marked):" + _oracle_text(results, methods) + (
+            " constant exposures frame the results, the grid's best and worst ranked by successful trajectories, "
+            "then time before failure, then RTE.")
     intro += (" Paired tests (every method runs on the same trajectories): Wilcoxon signed-rank against the reference "
               "with the rank-biserial effect r (a run that never tracked ranks worst on RTE and RRE instead of being "
               "left out), and Friedman across methods with Kendall's W.")
