@@ -1,7 +1,12 @@
-"""The oracle (method id ``oracle``): per step, the exposure of a fine grid that tracks best on its own among those
-that keep the link to the recent frames (a stand-in for SLAM's local map). NON-CAUSAL: it reads the next step's
-brackets, which no camera can. A control row that frames the benchmark's results (how well any exposure choice could
-do), not an AE method.
+"""The oracle's step search (method id ``oracle``): per step, the exposure of a fine grid that tracks best on its own
+among those that keep the link to the recent frames (a stand-in for SLAM's local map). NON-CAUSAL: it reads the next
+step's brackets, which no camera can. The oracle is a control row that frames the benchmark's results (the best
+exposure sequence found), not an AE method: this search proposes its own candidate sequence, and the benchmark's
+oracle row is the best whole run of each trajectory and repeat among this search's closed-loop run and every other
+row's (:mod:`bracketry_emulator.benchmark.oracle_rows`: success, then time before failure, distance tracked, RTE), so
+it keeps at least as many walks as any row benchmarked beside it, at no SLAM run beyond this search's. A one-step
+score alone cannot promise that (ORB-SLAM3 is not deterministic run to run, and what keeps its map is more than the
+next frame's tracks).
 
 Two scores of a candidate exposure ``e`` for step k+1, at step k::
 

@@ -53,6 +53,7 @@ def command(datasets: tuple[Path, ...], **given: Any) -> int:
     from bracketry_emulator.ae import LoopConfig, parse_method_options
     from bracketry_emulator.benchmark import BenchmarkConfig, RunResult, run_benchmark
     from bracketry_emulator.benchmark.cluster import SlurmOptions
+    from bracketry_emulator.benchmark.oracle_rows import ORACLE
     from bracketry_emulator.benchmark.slam import slam_options
 
     out_dir: Path = given.pop("out_dir")
@@ -83,6 +84,8 @@ def command(datasets: tuple[Path, ...], **given: Any) -> int:
 
     def done(r: RunResult) -> None:
         rep = f" (repeat {r.repeat + 1})" if slam_repeats > 1 else ""
+        if r.method == ORACLE:  # its own run: the report's oracle row is the best of its candidates (oracle_rows)
+            rep = f" (step search){rep}"
         if r.error:
             click.echo(f"failed {r.trajectory} / {r.method}{rep}: {r.error}")
             return

@@ -1,7 +1,8 @@
 """Control rows of a benchmark: what frames the AE methods' results without being an AE method.
 
-- the **oracle** (non-causal: it reads the next step's images, :mod:`bracketry_emulator.ae.oracle`): how well an
-  exposure choice could do by the oracle's score;
+- the **oracle** (non-causal: its step search reads the next step's images, :mod:`bracketry_emulator.ae.oracle`):
+  the best exposure sequence found, per trajectory the best whole run among the step search's and every other row's
+  (:mod:`bracketry_emulator.benchmark.oracle_rows`), an upper bound of the rows' successes;
 - **constant exposures** ``constant-<ms>`` of a grid (:data:`CONTROL_CONSTANTS_MS`): the best of the grid is what a
   well-chosen fixed exposure achieves on this dataset, the worst a known-bad control the statistics should flag.
 
