@@ -10,9 +10,10 @@ time before failure, then distance tracked, then RTE (smaller first), each as
 to the row first in the benchmark's order. ``oracle_source`` names the candidate taken (``oracle``: its own run).
 
 So the oracle's successes, on every suite and whatever the seed (ORB-SLAM3 is not deterministic run to run), are at
-least those of any row benchmarked beside it: it is an upper bound of the rows by construction. Cost: no SLAM run
-beyond the step search's own (the other candidates are the benchmark's rows). Benchmarked alone, its row is its
-own run.
+least those of any row benchmarked beside it: it is an upper bound of the rows by construction (per run; combined
+over repeats, a row's success is the majority of its repeats whose SLAM ran, so a row with crashed SLAM runs counts
+over fewer repeats). Cost: no SLAM run beyond the step search's own (the other candidates are the benchmark's rows).
+Benchmarked alone, its row is its own run.
 """
 
 from __future__ import annotations
