@@ -49,7 +49,7 @@ def natural_texture(rng: np.random.Generator, n: int = _TEXELS, octaves: int = _
     amp = 1.0
     for k in range(octaves - 1, -1, -1):
         s = 2 ** k
-        v += amp * np.kron(rng.uniform(-1.0, 1.0, (n // s, n // s)), np.ones((s, s)))
+        v += amp * np.repeat(np.repeat(rng.uniform(-1.0, 1.0, (n // s, n // s)), s, axis=0), s, axis=1)
         amp *= 0.5
     return np.clip(_MEAN_LEVEL + v * (_STD_LEVEL / v.std()), 20, 235).astype(np.uint8)
 
