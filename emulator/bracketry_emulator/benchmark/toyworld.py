@@ -56,7 +56,7 @@ def natural_texture(rng: np.random.Generator, n: int = _TEXELS, octaves: int = _
 
 def mip_levels(texture: np.ndarray) -> list[np.ndarray]:
     """float32 mip levels of a square power-of-two ``texture``: level l has texels of 2**l x 2**l (2x2 means)."""
-    levels = [texture.astype(np.float32)]
+    levels: list[np.ndarray] = [texture.astype(np.float32)]
     while levels[-1].shape[0] > 1:
         levels.append(cv2.resize(levels[-1], None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA))
     return levels
@@ -112,16 +112,17 @@ class ToyWorld:
             footprint = t[hit] * d2[hit] / (self.fx_px * np.abs(d_w[hit][:, axis]) * _BLOCK_M)
             lod = np.clip(np.log2(np.maximum(footprint, 1e-9)), 0.0, len(levels) - 1.001)
             base = np.floor(lod).astype(np.int64)
-            frac = lod - base
-            value = np.zeros(len(base))
-            for level, weight in ((base, 1.0 - frac), (base + 1, frac)):
+            frac: np.ndarray = lod - base
+            mixed = np.zeros(len(base))
+            blend: list[tuple[np.ndarray, np.ndarray]] = [(base, 1.0 - frac), (base + 1, frac)]
+            for level, weight in blend:
                 for lv in np.unique(level):
                     m = level == lv
                     tex = levels[lv]
                     ia = np.floor(p[m, a] / 2 ** lv).astype(np.int64) % tex.shape[1]
                     ib = np.floor(p[m, b] / 2 ** lv).astype(np.int64) % tex.shape[0]
-                    value[m] += weight[m] * tex[ib, ia]
-            img[hit] = value
+                    mixed[m] += weight[m] * tex[ib, ia]
+            img[hit] = mixed
             best_t[hit] = t[hit]
         return np.clip(np.rint(img), 0, 255).astype(np.uint8)
 
