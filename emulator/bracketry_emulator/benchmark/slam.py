@@ -59,11 +59,14 @@ class SlamOptions:
         return cls(**doc)
 
     def key_json(self) -> dict[str, Any]:
-        """The options that decide a run's result (cache key): not the vocabulary's path but its content; the
-        built-in VO has none of its own."""
+        """The options that decide a run's result (cache key): not the vocabulary's path but its content, and how
+        ORB-SLAM3's extractor is sized (:data:`~bracketry_emulator.slam.settings.ORB_SIZING`); the built-in VO has
+        none of its own."""
+        from bracketry_emulator.slam.settings import ORB_SIZING
+
         if self.backend == "builtin":
             return {"backend": "builtin"}
-        doc: dict[str, Any] = {"vocabulary_id": self.vocabulary_id}
+        doc: dict[str, Any] = {"vocabulary_id": self.vocabulary_id, "orb_sizing": ORB_SIZING}
         for s in rows("slam"):  # the table's SLAM rows that decide results (key: always, or changed from default)
             v = getattr(self, s.target)
             if s.key == "always" or (s.key == "changed" and v != s.default_value):

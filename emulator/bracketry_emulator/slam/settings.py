@@ -16,8 +16,8 @@ What ORB-SLAM3's ``Settings`` parser demands, learnt the hard way:
 * ``loopClosing: 0`` turns the loop-closing thread off, and with it relocalisation (keyframes reach the
   place-recognition database only through that thread).
 
-The ORB extractor is the paper's by default; :data:`ORB_SIZING` ``field`` sizes it for what the paper's setup sees
-(:func:`field_orb_settings`). The
+The ORB extractor is sized for what the paper's setup sees (:data:`ORB_SIZING` ``field``, the default:
+:func:`field_orb_settings`); ``paper`` (:data:`PAPER_ORB` whatever the image size) stays selectable. The
 authors ran ORB-SLAM2 on 1920x1200 images with 3000 features, scale factor 1.2, 13 levels, FAST 15/5
 (norlab-ulaval/ORB_SLAM2, branch TFR2024, ``Main/stereo/calib_files/stereo-september-2023.yaml``). Its extractor
 spreads the 3000 over the levels geometrically (level l gets a share proportional to 1.2^-l), so each level is one
@@ -29,7 +29,9 @@ needs for ORB-SLAM's stereo initialisation (``Tracking::StereoInitialization``),
 extractor fills two thirds of its budget still initialises. Scale factor 1.2 and FAST 15/5 are the paper's (a
 per-level step and thresholds in 8-bit levels, neither depends on the image size); the levels run as far as the
 pyramid keeps :data:`MIN_TOP_LEVEL_PX` px on the short side (11 at 640x400, 7 at 320x200), near the paper's
-coarsest level (135 of 1200 px, 11 % of the short side; ours 16 % and 34 %).
+coarsest level (135 of 1200 px, 11 % of the short side; ours 16 % and 34 %). ``field`` is the default: on the
+demo-size suite (10 walks, 140 runs, 320x200) it tracks about as many runs as ``paper`` at 5.2 CPU-s a run against
+about 12 (``emulator/DATASET.md``, "ORB-SLAM3's extractor").
 """
 
 from __future__ import annotations
@@ -42,9 +44,10 @@ from bracketry_emulator.features.orb import OrbSettings
 
 #: smallest short side (px) of ORB-SLAM3's coarsest pyramid level that we let it use
 MIN_TOP_LEVEL_PX = 64
-#: how ORB-SLAM3's extractor is sized: "field" (the paper's features at the scales our image resolves,
-#: :func:`field_orb_settings`) or "paper" (its 3000 features and 13 levels whatever the image size)
-ORB_SIZING = "paper"
+#: how ORB-SLAM3's extractor is sized: "field" (the default: the paper's features at the scales our image resolves,
+#: :func:`field_orb_settings`) or "paper" (its 3000 features and 13 levels whatever the image size); part of the
+#: benchmark's cache key
+ORB_SIZING = "field"
 #: the paper's image width (px) and ORB extractor (ORB-SLAM2 on 1920x1200)
 PAPER_WIDTH_PX = 1920
 PAPER_ORB = OrbSettings(n_features=3000, scale_factor=1.2, n_levels=13, ini_th_fast=15, min_th_fast=5)

@@ -16,8 +16,9 @@ import pytest
 
 from bracketry.cli import main as cli_main
 from bracketry_emulator.benchmark import BenchmarkConfig, run_benchmark
-from bracketry_emulator.benchmark.slam import combine_repeats, slam_options
+from bracketry_emulator.benchmark.slam import SlamOptions, combine_repeats, slam_options
 from bracketry_emulator.benchmark.toyworld import ToyWorld
+from bracketry_emulator.slam import settings as slam_settings
 from bracketry_emulator.slam.orbslam3 import OrbSlam3Options, SlamRunError, map_states, run_orbslam3
 from bracketry_emulator.slam.settings import (
     MIN_FIELD_FEATURES,
@@ -133,6 +134,16 @@ def test_bench_field_orb_settings_follow_the_papers_view() -> None:
     assert (mid.n_features, mid.n_levels) == (794, 11) and (small.n_features, small.n_levels) == (750, 7)
     assert big.n_features == 1345 and big.n_levels == 13
     assert {(o.scale_factor, o.ini_th_fast, o.min_th_fast) for o in (big, mid, small)} == {(1.2, 15, 5)}
+
+
+def test_bench_orb_sizing_is_field_and_in_the_cache_key(monkeypatch: pytest.MonkeyPatch) -> None:
+    """``field`` by default; a result of one sizing is never reused for the other (the built-in VO's keys stay)."""
+    assert slam_settings.ORB_SIZING == "field" and slam_orb_settings(320, 200) == field_orb_settings(320, 200)
+    assert slam_orb_settings(320, 200, sizing="paper") == PAPER_ORB
+    orb = SlamOptions(backend="orbslam3", vocabulary="voc.txt", vocabulary_id="voc.txt:0")
+    field_key, builtin_key = orb.key_json(), SlamOptions.builtin().key_json()
+    monkeypatch.setattr(slam_settings, "ORB_SIZING", "paper")
+    assert orb.key_json() != field_key and SlamOptions.builtin().key_json() == builtin_key
 
 
 def test_bench_map_states_splits_segments() -> None:
