@@ -53,6 +53,11 @@ Deliberate deviations in the metric (both modes keep the authors' constants):
   tests/bracketry_emulator/ae/test_ae_kim_climbs.py, where AE50 settles at 0.25 ms). A pixel beside a clipped one
   (3x3) gets weight 0 too: its Sobel gradient runs into the clipped value (an edge of up to 255 codes against a
   saturated sun or snow field, as large at every exposure that clips it), which rewarded saturation the same way.
+  Instead the clipped pixels take the saturation mask's penalty as the paper means it for saturated areas: the
+  activation at entropy 0 (-0.96) times their share of the image times the mean gradient of the pixels that kept
+  their weight. Without it, saturating most of a bright view cost only the weight share it held, so a thin strip of
+  strong texture (a shoreline, trunks) exposed long beat the faint texture of the whole view exposed short (a
+  frozen lake where AE50 settles at 0.6 ms: 4 -> 1 -> 14.7 -> 2 -> 4.4 -> 4.8 ms).
   tests/bracketry_emulator/ae/test_ae_kim_direction.py checks direction on static views of five kinds.
 - Speed: gray area-downscaled to ``work_width`` = 480 columns (Kim's T-RO paper itself works on 94x60 images).
 """
@@ -101,12 +106,18 @@ def kim_metric(gray8: np.ndarray, alpha: float = 16.0, tau: float = 4.0, mask_be
     # clipped pixels and their 3x3 neighbours (whose Sobel gradient runs into the clipped value) get neither reward
     # nor penalty: their share of the weight is lost (module docstring: "Clipped pixels")
     clipped = ((codes == 0) | (codes == 255)).astype(np.uint8)
-    w[cv2.dilate(clipped, np.ones((3, 3), np.uint8)) > 0] = 0.0
+    near = cv2.dilate(clipped, np.ones((3, 3), np.uint8)) > 0
+    w[near] = 0.0
     hmin, hmax = float(h.min()), float(h.max())
     hn = (h - hmin) / (hmax - hmin) if hmax > hmin else np.zeros_like(h)
     act = 2.0 / (1.0 + np.exp(-alpha * hn + tau)) - 1.0
     mask = hn < mask_below
-    return float(np.sum(w * g) + np.sum(act * mask * w) * float(g.mean()))
+    value = float(np.sum(w * g) + np.sum(act * mask * w) * float(g.mean()))
+    # clipped pixels take the mask's penalty at entropy 0 and their share of the image, scaled by the mean gradient
+    # of the pixels that kept their weight (module docstring: "Clipped pixels")
+    g_kept = float(g[~near].mean()) if not near.all() else 0.0
+    act_clipped = 2.0 / (1.0 + np.exp(tau)) - 1.0
+    return value + act_clipped * float(clipped.mean()) * g_kept
 
 
 class KimAE:
@@ -146,6 +157,8 @@ class KimAE:
         check_input(image, exposure_us)
         gray = work_gray_for(image, self.work_width, meta)
         value = kim_metric(gray / 16.0)
+        if value == 0.0 and self._points:  # no gradient at all (clipped or flat): no better than the worst seen
+            value = min(0.0, min(p[1] for p in self._points))
         self._points.insert(0, (float(np.log(exposure_us / 1000.0)), value))
         del self._points[self.window:]
         if self._held is not None:

@@ -147,7 +147,7 @@ def test_kim_weights_follow_the_paper_sign() -> None:
 def test_kim_metric_gives_clipped_pixels_no_weight() -> None:
     """A saturated block beside a textured one: the saturated pixels get entropy 0, they and their 3x3 neighbours
     weight 0 (kim.py, "Clipped pixels"), so the metric is what the other textured pixels give with the weights
-    normalised over the whole image."""
+    normalised over the whole image, less the clipped share's penalty."""
     tex = np.tile(np.array([1, 1, 101, 101], dtype=np.float64), (4, 1))
     img = np.hstack([tex, np.full((4, 4), 255.0)])
     clipped = img == 255
@@ -162,7 +162,8 @@ def test_kim_metric_gives_clipped_pixels_no_weight() -> None:
     g = gx**2 + gy**2
     hn = (h - h.min()) / (h.max() - h.min())
     act = 2.0 / (1.0 + np.exp(-16.0 * hn + 4.0)) - 1.0
-    expected = float(np.sum(w * g) + np.sum(act * (hn < 0.6) * w) * g.mean())
+    penalty = (2.0 / (1.0 + math.exp(4.0)) - 1.0) * clipped.mean() * g[~beside].mean()  # clipped share, kept G
+    expected = float(np.sum(w * g) + np.sum(act * (hn < 0.6) * w) * g.mean() + penalty)
     assert kim_metric(img) == pytest.approx(expected, rel=1e-9)
     assert np.sum(w) < 0.75  # the saturated half's weight is lost, not moved to the textured half
     assert np.all(w[:, 3] == 0) and np.all(w[:, 2] > 0)  # the gradient into the clipped block earns nothing
