@@ -2,16 +2,18 @@
 
 Kinds: sunlit snow beside a forest edge, the same with the sun and its glare in view, a frozen lake under a bright
 sky, a dusk forest (dark trunks and canopy against the sky), a campus (sunlit and shaded blocks with windows). Every
-shape, share and contrast is drawn from ``rng``; :func:`at_ae50` scales a view so AE50 settles at a chosen exposure.
+shape, share and contrast is drawn from ``rng``; :func:`sample_view` is a view of the real sample; :func:`at_ae50`
+scales a view so AE50 settles at a chosen exposure.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 
 import cv2
 import numpy as np
-from ae_scenes import closed_loop, irradiance
+from ae_scenes import RESPONSE, closed_loop, irradiance
 
 from bracketry_emulator.ae import get_method
 
@@ -91,3 +93,18 @@ def at_ae50(irr: np.ndarray, target_us: float, rounds: int = 4) -> tuple[np.ndar
         settled_us = closed_loop(get_method("ae50"), irr, 4000.0, 12)[-1]
         irr = irr * settled_us / target_us
     return irr, closed_loop(get_method("ae50"), irr, 4000.0, 12)[-1]
+
+
+def sample_view(sequence: Path, index: int = 0) -> np.ndarray:
+    """A static view of the real sample: its left brackets of sequence ``index`` (1..32 ms) merged to linear
+    irradiance (each pixel from the longest bracket where it is neither clipped nor below code 60), area-resized to
+    HxW."""
+    merged: np.ndarray | None = None
+    for ms in (1.0, 2.0, 4.0, 8.0, 16.0, 32.0):
+        path = sorted((sequence / "camera_left" / f"{ms}").glob("*.png"))[index]
+        codes = cv2.imread(str(path), cv2.IMREAD_UNCHANGED).astype(np.int64)
+        rate = RESPONSE.icrf[np.clip(codes, 0, 4095)] / (ms * 1000.0)
+        usable = (codes < 4000) & (codes > 60)
+        merged = rate if merged is None else np.where(usable, rate, merged)
+    assert merged is not None
+    return cv2.resize(merged, (W, H), interpolation=cv2.INTER_AREA)

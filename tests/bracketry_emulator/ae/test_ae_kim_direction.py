@@ -1,5 +1,5 @@
 """Kim (default mode) goes AE50's way from 4 ms on static views no one tuned it to (static_views.py: five kinds,
-three seeds each, bright and dark), and ends within a factor of AE50.
+three seeds each, and two views of the real sample, bright and dark), and ends within a factor of AE50.
 
 "AE50's way": AE50 settles far from the 4 ms start (0.6 ms on a bright view, 20 ms on a dark one, factors 6.7 and
 5); Kim's median exposure over its last 3 of 10 steps must be on the same side of 4 ms, and within FACTOR of AE50's
@@ -10,10 +10,12 @@ metric peaks rather than at AE50's mean, but not more than one of its steps away
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 from ae_scenes import closed_loop
-from static_views import KINDS, at_ae50
+from static_views import KINDS, at_ae50, sample_view
 
 from bracketry_emulator.ae import get_method
 
@@ -42,7 +44,17 @@ def _cases() -> list:
 
 @pytest.mark.parametrize("kind,seed,level", _cases())
 def test_kim_goes_ae50s_way_on_static_views(kind: str, seed: int, level: str) -> None:
-    irr, ae50_us = at_ae50(KINDS[kind](np.random.default_rng(seed)), LEVELS_US[level])
+    _check(KINDS[kind](np.random.default_rng(seed)), level)
+
+
+@pytest.mark.parametrize("index", [0, 2])
+@pytest.mark.parametrize("level", list(LEVELS_US))
+def test_kim_goes_ae50s_way_on_the_real_samples_views(borealhdr_sequence: Path, index: int, level: str) -> None:
+    _check(sample_view(borealhdr_sequence, index), level)
+
+
+def _check(view: np.ndarray, level: str) -> None:
+    irr, ae50_us = at_ae50(view, LEVELS_US[level])
     assert abs(np.log(ae50_us / LEVELS_US[level])) < np.log(1.1), ae50_us
     kim = closed_loop(get_method("kim"), irr, START_US, 10)
     settled_us = float(np.median(kim[-3:]))
