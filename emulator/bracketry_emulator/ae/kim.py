@@ -17,7 +17,10 @@ made to climb. A sliding window of the newest 5 (exposure, metric) pairs; a GP o
 metric in units of the window's largest value, prior mean the window's smallest normalised value, kernel
 1 * RBF(ln 2), noise 1e-3; 50 candidates log-spaced over 0.5..35 ms, of which those within a factor of 4 of the
 window's best exposure are eligible; GP-MI acquisition x = argmax(mu + sqrt(ln 8) (sqrt(sigma^2 + eta) - sqrt(eta))),
-eta starting at 1 and accumulating sigma^2(x); converged when sigma(x) <= 0.05, then the argmax of the GP mean on
+eta starting at 1 and accumulating sigma^2(x); converged when sigma(x) <= 0.05 and the window's best exposure has a
+measurement on each side at least a factor sqrt(2) away (or lies at a range end; otherwise the next exposure is the
+best times or divided by 2, towards the unmeasured side: a plateau or a rising edge of the metric is not taken for
+its peak), then the argmax of the GP mean on
 1000 log-spaced exposures, held while the metric there stays within 15 % of its first value (itself at least half
 the window's best): a static scene is not explored again, a change of scene restarts the search with eta = 1.
 A window whose metric is 0 everywhere (saturated or black: nothing to fit) steps by the factor of 4 towards
@@ -47,7 +50,15 @@ Deliberate deviations in the metric (both modes keep the authors' constants):
   largest entropy term of all for p near 1/e: it set the top of the min-max normalisation, so the textured pixels
   fell under the saturation mask and took its penalty, and on a bright scene the metric rose with saturation (the GP
   then explored towards longer exposures: 4 -> 1 -> 14.7 ms on the bright snow view of
-  tests/bracketry_emulator/ae/test_ae_kim_climbs.py, where AE50 settles at 0.25 ms).
+  tests/bracketry_emulator/ae/test_ae_kim_climbs.py, where AE50 settles at 0.25 ms). A pixel beside a clipped one
+  (3x3) gets weight 0 too: its Sobel gradient runs into the clipped value (an edge of up to 255 codes against a
+  saturated sun or snow field, as large at every exposure that clips it), which rewarded saturation the same way.
+  Instead the clipped pixels take the saturation mask's penalty as the paper means it for saturated areas: the
+  activation at entropy 0 (-0.96) times their share of the image times the mean gradient of the pixels that kept
+  their weight. Without it, saturating most of a bright view cost only the weight share it held, so a thin strip of
+  strong texture (a shoreline, trunks) exposed long beat the faint texture of the whole view exposed short (a
+  frozen lake where AE50 settles at 0.6 ms: 4 -> 1 -> 14.7 -> 2 -> 4.4 -> 4.8 ms).
+  tests/bracketry_emulator/ae/test_ae_kim_direction.py checks direction on static views of five kinds.
 - Speed: gray area-downscaled to ``work_width`` = 480 columns (Kim's T-RO paper itself works on 94x60 images).
 """
 
@@ -70,6 +81,9 @@ HOLD_TOLERANCE = 0.15
 NOISE_VAR = 1e-3
 #: converged when the chosen candidate's posterior std is below this (units of the largest metric of the window)
 SIGMA_CONVERGED = 0.05
+#: converged only once the best exposure has a measurement on each side at least this far (ln exposure ms): a
+#: factor of sqrt(2), half the GP length scale
+BRACKET_LN = 0.5 * LENGTH_LN
 
 
 def kim_metric(gray8: np.ndarray, alpha: float = 16.0, tau: float = 4.0, mask_below: float = 0.6) -> float:
@@ -89,12 +103,21 @@ def kim_metric(gray8: np.ndarray, alpha: float = 16.0, tau: float = 4.0, mask_be
     mu, sigma = float(h.mean()), float(h.std())
     w = np.exp(-((h - mu) ** 2) / (2 * sigma**2)) if sigma > 0 else np.ones_like(h)
     w /= w.sum()
-    w[(codes == 0) | (codes == 255)] = 0.0  # ... and neither reward nor penalty: their share of the weight is lost
+    # clipped pixels and their 3x3 neighbours (whose Sobel gradient runs into the clipped value) get neither reward
+    # nor penalty: their share of the weight is lost (module docstring: "Clipped pixels")
+    clipped = ((codes == 0) | (codes == 255)).astype(np.uint8)
+    near = cv2.dilate(clipped, np.ones((3, 3), np.uint8)) > 0
+    w[near] = 0.0
     hmin, hmax = float(h.min()), float(h.max())
     hn = (h - hmin) / (hmax - hmin) if hmax > hmin else np.zeros_like(h)
     act = 2.0 / (1.0 + np.exp(-alpha * hn + tau)) - 1.0
     mask = hn < mask_below
-    return float(np.sum(w * g) + np.sum(act * mask * w) * float(g.mean()))
+    value = float(np.sum(w * g) + np.sum(act * mask * w) * float(g.mean()))
+    # clipped pixels take the mask's penalty at entropy 0 and their share of the image, scaled by the mean gradient
+    # of the pixels that kept their weight (module docstring: "Clipped pixels")
+    g_kept = float(g[~near].mean()) if not near.all() else 0.0
+    act_clipped = 2.0 / (1.0 + np.exp(tau)) - 1.0
+    return value + act_clipped * float(clipped.mean()) * g_kept
 
 
 class KimAE:
@@ -134,6 +157,8 @@ class KimAE:
         check_input(image, exposure_us)
         gray = work_gray_for(image, self.work_width, meta)
         value = kim_metric(gray / 16.0)
+        if value == 0.0 and self._points:  # no gradient at all (clipped or flat): no better than the worst seen
+            value = min(0.0, min(p[1] for p in self._points))
         self._points.insert(0, (float(np.log(exposure_us / 1000.0)), value))
         del self._points[self.window:]
         if self._held is not None:
@@ -160,6 +185,10 @@ class KimAE:
         i = int(np.argmax(mu + phi))
         self._eta += float(sd[i] ** 2)
         if sd[i] <= self.sigma_converged:
+            lo, hi = float(self.candidates_ln[0]), float(self.candidates_ln[-1])
+            side = unbracketed_side(x, y, lo, hi, BRACKET_LN)
+            if side != 0:  # the best is an edge of what was measured: step on past it by one length scale
+                return float(np.exp(np.clip(best_ln + side * self.length_ln, lo, hi))) * 1000.0
             self.converged = True
             mu_fine, _ = gp_posterior(x, y, self.fine_ln, self.length_ln, self.noise_var)
             best_ms = float(np.exp(self.fine_ln[int(np.argmax(mu_fine))]))
@@ -167,6 +196,17 @@ class KimAE:
             return best_ms * 1000.0
         self.converged = False
         return float(np.exp(cand[i])) * 1000.0
+
+
+def unbracketed_side(x: np.ndarray, y: np.ndarray, lo_ln: float, hi_ln: float, gap_ln: float) -> int:
+    """The side of the best measured exposure with no measurement: +1 (none longer), -1 (none shorter), 0 (both
+    sides measured, or the missing side is beyond the range ``lo_ln``..``hi_ln``). x: ln(exposure ms), y: metric
+    (float64 1-D, same length); a measurement within 1 % of the best's exposure or of a range end counts as there."""
+    best = float(x[int(np.argmax(y))])
+    tol = 0.01
+    above = best >= hi_ln - tol or bool(np.any(x > best + gap_ln))
+    below = best <= lo_ln + tol or bool(np.any(x < best - gap_ln))
+    return 1 if not above else (-1 if not below else 0)
 
 
 def gp_posterior(x: np.ndarray, y: np.ndarray, xq: np.ndarray, length: float, noise_var: float

@@ -145,8 +145,9 @@ def test_kim_weights_follow_the_paper_sign() -> None:
 
 
 def test_kim_metric_gives_clipped_pixels_no_weight() -> None:
-    """A saturated block beside a textured one: the saturated pixels get entropy 0 and weight 0 (kim.py, "Clipped
-    pixels"), so the metric is what the textured pixels give with the weights normalised over the whole image."""
+    """A saturated block beside a textured one: the saturated pixels get entropy 0, they and their 3x3 neighbours
+    weight 0 (kim.py, "Clipped pixels"), so the metric is what the other textured pixels give with the weights
+    normalised over the whole image, less the clipped share's penalty."""
     tex = np.tile(np.array([1, 1, 101, 101], dtype=np.float64), (4, 1))
     img = np.hstack([tex, np.full((4, 4), 255.0)])
     clipped = img == 255
@@ -154,15 +155,18 @@ def test_kim_metric_gives_clipped_pixels_no_weight() -> None:
     p = np.bincount(codes.ravel(), minlength=256) / img.size
     h = np.where(clipped, 0.0, -p[codes] * np.log2(np.where(p[codes] > 0, p[codes], 1.0)))
     w = np.exp(-((h - h.mean()) ** 2) / (2 * h.var()))
-    w = np.where(clipped, 0.0, w / w.sum())
+    beside = clipped | np.roll(clipped, -1, axis=1)  # the textured column next to the block (3x3 dilation)
+    w = np.where(beside, 0.0, w / w.sum())
     gx = cv2.Sobel(img, cv2.CV_64F, 1, 0, ksize=3)
     gy = cv2.Sobel(img, cv2.CV_64F, 0, 1, ksize=3)
     g = gx**2 + gy**2
     hn = (h - h.min()) / (h.max() - h.min())
     act = 2.0 / (1.0 + np.exp(-16.0 * hn + 4.0)) - 1.0
-    expected = float(np.sum(w * g) + np.sum(act * (hn < 0.6) * w) * g.mean())
+    penalty = (2.0 / (1.0 + math.exp(4.0)) - 1.0) * clipped.mean() * g[~beside].mean()  # clipped share, kept G
+    expected = float(np.sum(w * g) + np.sum(act * (hn < 0.6) * w) * g.mean() + penalty)
     assert kim_metric(img) == pytest.approx(expected, rel=1e-9)
     assert np.sum(w) < 0.75  # the saturated half's weight is lost, not moved to the textured half
+    assert np.all(w[:, 3] == 0) and np.all(w[:, 2] > 0)  # the gradient into the clipped block earns nothing
 
 
 def test_zhang_soft_percentile_weights_hand_computed() -> None:
