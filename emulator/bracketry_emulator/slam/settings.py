@@ -44,7 +44,7 @@ from bracketry_emulator.features.orb import OrbSettings
 MIN_TOP_LEVEL_PX = 64
 #: how ORB-SLAM3's extractor is sized: "field" (the paper's features at the scales our image resolves,
 #: :func:`field_orb_settings`) or "paper" (its 3000 features and 13 levels whatever the image size)
-ORB_SIZING = "paper"
+ORB_SIZING = "field"
 #: the paper's image width (px) and ORB extractor (ORB-SLAM2 on 1920x1200)
 PAPER_WIDTH_PX = 1920
 PAPER_ORB = OrbSettings(n_features=3000, scale_factor=1.2, n_levels=13, ini_th_fast=15, min_th_fast=5)
