@@ -58,7 +58,7 @@ class SizeSpec:
 
 
 #: the demo's 10 s walks cover 8-25 m: most are shorter than the paper's windows (5-50 m), so they declare 2-8 m ones
-SIZES = {"demo": SizeSpec((320, 200), 10.0, 0.25, (2.0, 4.0, 6.0, 8.0)), "full": SizeSpec((640, 400), 60.0, 0.5)}
+SIZES = {"demo": SizeSpec((320, 200), 10.0, 1.0, (2.0, 4.0, 6.0, 8.0)), "full": SizeSpec((640, 400), 60.0, 0.5)}
 
 #: the manifest's ``warmup_steps``: each walk is a stretch of a longer recording, so the benchmark's closed loops first
 #: take this many steps on its first view (~4 s of bracket cycles; AE50 settles from 4 ms to any exposure of the
