@@ -72,7 +72,7 @@ from bracketry_base.options import parse_resolution
 from bracketry_emulator.synth.calibration import SIDES, CameraIntrinsics, StereoCalibration
 from bracketry_emulator.synth.render import RenderResult, SideRenderer, pseudo_angle
 from bracketry_emulator.synth.scene import PRESETS, Lighting, Scene, SceneOptions, build_scene
-from bracketry_emulator.synth.trajectory import LoopTrajectory, mat_mul
+from bracketry_emulator.synth.trajectory import RIG_PITCH_DEG, LoopTrajectory, mat_mul
 
 FORMAT_VERSION = 1
 #: folder of the shipped scenario files
@@ -186,7 +186,7 @@ class Scenario:
         base = LoopTrajectory(radius_m=radius, wobble=r.wobble, speed_kmh=r.pace_kmh)
         phase = _theta_of_fraction(base, r.start_fraction)
         return LoopTrajectory(radius_m=radius, wobble=r.wobble, speed_kmh=r.pace_kmh, phase_rad=phase,
-                              turn_deg=r.turn_deg, turn_period_s=r.turn_period_s)
+                              pitch_deg=RIG_PITCH_DEG, turn_deg=r.turn_deg, turn_period_s=r.turn_period_s)
 
     def lighting(self) -> Lighting:
         """Sun and sky of the scenario's time of day and weather."""

@@ -313,6 +313,13 @@ def _fresh_snow_weight(table: np.ndarray, half_m: float, texel_m: float, n: int)
 
 #: RMS of a :class:`ValueNoise` field of 5 octaves (0.28 measured over 10^6 samples; divides it to unit RMS)
 _FINE_RMS = 0.28
+#: RMS contrast (std / mean of the albedo) of the forest ground's 1/f texture: the real sample's ground at 320x200
+#: has a median local contrast of 0.21 (8x8-pixel blocks of the linear green level, 16 ms, emulator/DATASET.md)
+GROUND_RMS_CONTRAST = 0.2
+#: albedo of the forest snow and of its scattered litter (twigs and needles covering part of a texel: a Michelson
+#: contrast of 0.31 against the snow, where a bare dark twig (0.12) would give 0.76)
+SNOW_ALBEDO = 0.86
+SPECK_ALBEDO = 0.45
 
 
 def _ground_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.ndarray, half_m: float,
@@ -348,18 +355,21 @@ def _base_albedo(preset: str, noises: dict[str, ValueNoise], path_dist_m: np.nda
     # small scattered objects (twigs, needles, stones): texture for visual odometry
     specks = smoothstep(0.42, 0.5, field("speck"))
     if preset == "forest-winter":
-        snow = np.float32(0.86) + np.float32(0.06) * fine
-        snow = snow * (1 - specks) + specks * np.float32(0.12)
+        # every ground surface carries a 1/f texture of the real ground's local contrast (tracks, sastrugi, needle
+        # litter, dirt); the specks are scattered litter partly covering a texel (emulator/DATASET.md)
+        tex = np.float32(GROUND_RMS_CONTRAST / _FINE_RMS) * fine
+        snow = np.float32(SNOW_ALBEDO) * (1 + tex)
+        snow = snow * (1 - specks) + specks * np.float32(SPECK_ALBEDO)
         bare = smoothstep(0.32, 0.40, big)  # bare patches: litter and earth
         trail = 1.0 - smoothstep(0.55, 0.95, path_dist_m + 0.25 * fine)
         out = []
         for snow_c, litter_c, trail_c in ((1.0, 0.15, 0.46), (1.02, 0.115, 0.43), (1.07, 0.085, 0.39)):
             a = snow * np.float32(snow_c)
-            a = a * (1 - bare) + bare * np.float32(litter_c) * (1 + 0.4 * fine)
-            a = a * (1 - trail) + trail * np.float32(trail_c) * (1 + 0.25 * mid)
+            a = a * (1 - bare) + bare * np.float32(litter_c) * (1 + tex)
+            a = a * (1 - trail) + trail * np.float32(trail_c) * (1 + tex)
             out.append(a.astype(np.float32))
         return out
-    grass = 1 + 0.35 * fine + 0.5 * specks
+    grass = 1 + np.float32(GROUND_RMS_CONTRAST / _FINE_RMS) * fine + 0.5 * specks
     path = 1.0 - smoothstep(1.0, 1.3, path_dist_m)
     plaza = smoothstep(0.30, 0.36, big)
     # paving slabs of the plazas: 1.2 m grid of dark joints

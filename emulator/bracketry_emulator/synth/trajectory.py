@@ -95,6 +95,12 @@ def matrix_from_quat(q: np.ndarray) -> np.ndarray:
     ])
 
 
+#: downward pitch of the rig's optical axis on a scenario's walk: the real sample's horizon (the foot of the treeline)
+#: lies at row 34 of 200 (fy 195, cy 97 at 320x200: atan(63 / 195) = 18 degrees), its view holds no sky; a level
+#: camera would fill half its view with sky and silhouettes of trunks (emulator/DATASET.md)
+RIG_PITCH_DEG = 18.0
+
+
 @dataclass
 class LoopTrajectory:
     """A closed, smooth loop walked at constant speed, with a walking gait.
