@@ -219,9 +219,16 @@ def test_each_step_equals_the_authors_given_their_previous_exposure(borealhdr_sa
     difference cannot come from an earlier step."""
     tr = traces()
     imgs, meta = _synth_images(borealhdr_sample, synth_short, tr)
+    outcomes = kim_outcomes()
     for m in METHODS:
-        trace = tr[("synth_seed18_run2" if m == "kim" else "synth_seed18", "4", m)]
+        trace = tr[("synth_seed18", "4", m)]
         for k, (t, ours, theirs) in enumerate(_one_step(m, trace, imgs, meta)):
+            if m == "kim":
+                # their Kim's GP draws from NumPy's unseeded global generator: ours must be one of the exposures it
+                # chooses given this history (kim_gp_outcomes.csv), and theirs where it has only one
+                assert any(abs(ours - o) < 1e-3 for o in outcomes[k + 1]), (k, ours, outcomes[k + 1])
+                if len(outcomes[k + 1]) > 1:
+                    continue
             assert step_matches(ours, theirs, t, SYNTH_STEP_REL), (m, k, ours, theirs)
 
 
@@ -274,14 +281,15 @@ def test_closed_loop_equals_the_authors_on_a_synthetic_trajectory(borealhdr_samp
                      write_images=False)
     run = run_methods(synth_short, list(METHODS), tmp_path / "out", workers=1, config=cfg, progress=False)
     assert (tmp_path / "out" / "summary.json").read_text().count('"mode": "upstream"') == 1
+    outcomes = kim_outcomes()
     for m in METHODS:
         ours = run.runs[m].exposures_ms
         assert len(ours) == 4
-        theirs = tr[("synth_seed18_run2" if m == "kim" else "synth_seed18", "4", m)][:4]
+        theirs = tr[("synth_seed18", "4", m)][:4]
         assert ours[0] == theirs[0], m
-        assert all(step_matches(o, th, t, SYNTH_STEP_REL) for o, th, t in zip(ours[1:], theirs[1:], theirs[:-1],
-                                                                              strict=True)), (m, ours, theirs)
-    outcomes = kim_outcomes()
+        # Kim: where their GP can choose between exposures, its run's choice is one draw (checked below)
+        steps = [k for k in range(1, 4) if m != "kim" or len(outcomes[k]) == 1]
+        assert all(step_matches(ours[k], theirs[k], theirs[k - 1], SYNTH_STEP_REL) for k in steps), (m, ours, theirs)
     for k, t in enumerate(run.runs["kim"].exposures_ms[1:], start=1):
         assert any(abs(t - o) < 1e-3 for o in outcomes[k]), (k, t, outcomes[k])
 
