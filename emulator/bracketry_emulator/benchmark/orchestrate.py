@@ -14,6 +14,7 @@ from typing import Any
 from bracketry_base.errors import BracketryError
 from bracketry_emulator.ae.runner import LoopConfig
 from bracketry_emulator.benchmark.cluster import SlurmOptions
+from bracketry_emulator.benchmark.oracle_rows import oracle_best_runs
 from bracketry_emulator.benchmark.slam import SlamOptions, describe
 from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult, load_cached, make_task, run_task
 from bracketry_emulator.defaults import DEFAULT_ALPHA, DEFAULT_REFERENCE, DEFAULT_STATS_METHODS
@@ -299,8 +300,6 @@ def run_benchmark(config: BenchmarkConfig, *, on_done: OnDone | None = None,
     for r in runs:  # this invocation's SLAM and metrics seconds (cached results did no work now)
         if not r.cached and r.stages:
             stages.merge(r.stages)
-    from bracketry_emulator.benchmark.oracle_rows import oracle_best_runs
-
     results = group_repeats(oracle_best_runs([r.to_json() for r in runs]))  # the oracle: the best run of its rows
     results.sort(key=lambda r: (r["trajectory"], method_ids.index(r["method"])))
     files: dict[str, Path] = {}
