@@ -43,14 +43,15 @@ def _world(name: str, **kw: object):
     return world_from_scenario(scenario_from_dict(doc), resolution=(160, 100), detail=0.25, **kw)
 
 
-def test_canopy_and_open_snow_span_12_stops_in_one_view() -> None:
+def test_canopy_and_open_snow_span_11_stops_in_one_view() -> None:
+    # a dense spruce stand passes about 5 % of the open light (forest-canopy.yaml): 4.3 stops below the open snow
     world = _world("forest_canopy_a")
     stops = [view_dynamic_range_stops(world.radiance("left", t).radiance) for t in (2.0, 6.0, 10.0)]
-    assert min(stops) >= 12.0, stops
+    assert min(stops) >= 11.0, stops
     # the preset alone (no canopy) does not
     plain = world_from_scenario(scenario_from_dict({"preset": "forest-winter", "sun": {"hour": 11.5}}),
                                 resolution=(160, 100), detail=0.25)
-    assert view_dynamic_range_stops(plain.radiance("left", 6.0).radiance) < 12.0
+    assert view_dynamic_range_stops(plain.radiance("left", 6.0).radiance) < 8.0
 
 
 def test_sun_and_shadow_change_the_brightness_8x_within_2_s() -> None:
