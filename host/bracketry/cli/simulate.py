@@ -52,9 +52,13 @@ from bracketry_base.options import (
 @click.option("--calibration", type=input_dir(), default=None,
               help="Stereo calibration folder (bracketry calibrate solve --out) the rig config names "
                    "(rig.calibration): every recording carries it and export writes it as calibration/.")
+@click.option("--render-ahead", is_flag=True,
+              help="Start recording only once the renderer will stay ahead of the cameras for the whole recording, "
+                   "however long that takes (default: at the latest 7 s after the start; a renderer behind then "
+                   "holds the world, which a loaded machine shows as repeated frames).")
 def command(seconds: float, out_dir: Path, overwrite: bool, trigger: str, resolution: str, fps: float, preset: str,
             seed: int, no_world: bool, monitor_port: int | None, world_seconds: float | None,
-            keep_frames: bool, calibration: Path | None) -> int:
+            keep_frames: bool, calibration: Path | None, render_ahead: bool) -> int:
     """Run the simulated backpack: fake GigE cameras, trigger, panel firmware and the daemon under test."""
     if seconds < 1.0:
         raise BracketryError("--duration-s must be at least 1 s")
@@ -83,13 +87,14 @@ def command(seconds: float, out_dir: Path, overwrite: bool, trigger: str, resolu
                                     *(["--monitor", str(monitor_port)] if monitor_port is not None else []),
                                     *(["--world-seconds", str(world_seconds)] if world_seconds else []),
                                     *(["--keep-frames"] if keep_frames else []),
-                                    *(["--calibration", str(calibration)] if calibration else [])])
+                                    *(["--calibration", str(calibration)] if calibration else []),
+                                    *(["--render-ahead"] if render_ahead else [])])
         finally:
             if bridge is not None:
                 bridge.terminate()
                 bridge.wait(timeout=10)
     return run(out_dir, seconds, trigger, res, fps, preset, seed, not no_world, monitor_port, world_seconds,
-               keep_frames, calibration)
+               keep_frames, calibration, lead_deadline_s=None if render_ahead else LEAD_DEADLINE_S)
 
 
 def _end_with_sigterm(proc: subprocess.Popen) -> None:
@@ -153,10 +158,12 @@ LEAD_STEP_S = 0.1
 
 
 def wait_for_lead(schedule: Any, seconds: float, fps: float, started_mono_s: float,
-                  progress: RenderProgress | None = None, clock: Clock = MONOTONIC) -> None:
+                  progress: RenderProgress | None = None, clock: Clock = MONOTONIC,
+                  deadline_s: float | None = LEAD_DEADLINE_S) -> None:
     """Before recording: wait until the renderer, at the rate it has shown over the last second, will keep ahead of
     the cameras for the whole recording (every recorded frame then shows its own rendered frame: no world held), but
-    no longer than :data:`LEAD_DEADLINE_S` after the start, and at least until two seconds of frames are there.
+    no longer than ``deadline_s`` after the start (None: no deadline, at the latest until the recording's frames are
+    all rendered), and at least until two seconds of frames are there.
 
     ``progress``: samples taken since the renderer was started (:class:`RenderProgress`), so the last second may lie
     while the rig was starting (without them the second is measured from now: ~1-2 s before every recording).
@@ -168,7 +175,7 @@ def wait_for_lead(schedule: Any, seconds: float, fps: float, started_mono_s: flo
     while True:
         now_s, k = clock.now_s(), schedule.rendered()
         progress.sample(now_s, k)
-        if k >= needed or now_s >= started_mono_s + LEAD_DEADLINE_S:
+        if k >= needed or (deadline_s is not None and now_s >= started_mono_s + deadline_s):
             return
         rate = progress.rate(now_s, k)  # frames per second per side
         if rate is not None and k + rate * seconds >= needed + fps:  # ahead until the end, one second to spare
@@ -185,8 +192,10 @@ def _read_frame_ids(rig: Any) -> None:
 
 def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: float, preset: str, seed: int,
         world: bool, monitor_port: int | None = None, world_seconds: float | None = None,
-        keep_frames: bool = False, calibration: Path | None = None) -> int:
-    """The simulation inside the private network namespace."""
+        keep_frames: bool = False, calibration: Path | None = None,
+        lead_deadline_s: float | None = LEAD_DEADLINE_S) -> int:
+    """The simulation inside the private network namespace (``lead_deadline_s``: :func:`wait_for_lead`'s deadline;
+    None waits for the renderer's lead however long it takes)."""
     import time
 
     from bracketry.sim.rig import SimOptions, SimulatedRig, summary_json
@@ -206,7 +215,7 @@ def run(out_dir: Path, seconds: float, trigger: str, res: tuple[int, int], fps: 
         rig.prepare_frames()  # rendered ahead in a separate process while the rig starts and records
         render_progress = RenderProgress(rig.schedule)  # its recent rate is known when the rig is up
         rig.start()
-        wait_for_lead(rig.schedule, seconds, fps, started_mono_s, render_progress)
+        wait_for_lead(rig.schedule, seconds, fps, started_mono_s, render_progress, deadline_s=lead_deadline_s)
         render_progress.stop()
         session = run_session(rig, seconds)
         render_done_ns = rig.schedule.render_done_ns()

@@ -138,7 +138,7 @@ def record(p: DemoPlan, echo: Callable[[str], None]) -> dict[str, Any]:
     # Real-time-ish priority for the simulated devices when we may (root): a starved fake camera misses triggers.
     prio = ["nice", "-n", "-10"] if os.geteuid() == 0 and shutil.which("nice") else []
     cmd = [*prio, sys.executable, "-m", "bracketry", "simulate", "--duration-s", f"{p.seconds:g}", "--out",
-           str(rig_dir), "--overwrite", "--resolution", f"{w}x{h}", "--fps", f"{p.fps:g}"]
+           str(rig_dir), "--overwrite", "--resolution", f"{w}x{h}", "--fps", f"{p.fps:g}", "--render-ahead"]
     echo(f"[1/{_steps(p)}] recording {p.seconds:g} s on the simulated backpack ({w}x{h}, {p.fps:g} fps): "
          f"bracketry {' '.join(cmd[len(prio) + 3:])}")
     log_path = p.out_dir / "simulate.log"

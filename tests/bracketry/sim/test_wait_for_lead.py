@@ -63,6 +63,35 @@ def test_a_renderer_not_fast_enough_holds_the_recording_until_the_deadline() -> 
     assert clock.now_s() >= started + LEAD_DEADLINE_S
 
 
+def test_without_a_deadline_a_slow_renderer_holds_the_recording_until_it_stays_ahead() -> None:
+    """``deadline_s=None`` (``simulate --render-ahead``, what the demo records with): half real time, the recording
+    waits past the deadline until the frames still to render take no longer than the recording itself (with a
+    second to spare): 946 needed at 11/s against 22/s of triggers."""
+    clock = SteppedClock(100.0)
+    started = clock.now_s() - (LEAD_DEADLINE_S - 1.5)
+    renderer = Renderer(clock, started, fast=11.0)
+    wait_for_lead(renderer, seconds=40.0, fps=22.0, started_mono_s=started, clock=clock, deadline_s=None)
+    k = renderer.rendered()
+    assert clock.now_s() > started + LEAD_DEADLINE_S
+    assert k + 11.0 * 40.0 >= 42 * 22 + 22  # ahead until the end of the recording
+    assert k - 11 + 11.0 * 40.0 < 42 * 22 + 22  # and not a look later than needed (one step renders ~1 frame)
+
+
+def test_without_a_deadline_a_renderer_that_stops_is_waited_for_until_every_frame_is_there() -> None:
+    """A renderer that renders everything at once after a stall: the wait ends when the frames are all there."""
+    clock = SteppedClock(100.0)
+    started = clock.now_s()
+
+    class Burst(Renderer):
+        def rendered(self) -> int:
+            return 300 if self.clock.now_s() - self.t0_s >= 30.0 else super().rendered()
+
+    burst = Burst(clock, started, fast=22.0, fast_s=2.0, slow=0.0)
+    burst.n_frames = 300
+    wait_for_lead(burst, seconds=40.0, fps=22.0, started_mono_s=started, clock=clock, deadline_s=None)
+    assert 30.0 <= clock.now_s() - started < 30.0 + 2 * LEAD_STEP_S
+
+
 def test_the_last_second_counts_not_the_average_since_the_start() -> None:
     """100 frames/s for 0.3 s, then 5/s (the rig took the CPU): the average since the start (~24/s) would let a
     40 s recording at 10 fps start; the last second (5/s) holds it until the deadline."""
