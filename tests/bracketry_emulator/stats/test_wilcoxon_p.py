@@ -59,3 +59,23 @@ def test_permutation_case_does_not_call_scipys_wilcoxon(monkeypatch: pytest.Monk
 
     monkeypatch.setattr(paired, "wilcoxon", refuse)
     assert wilcoxon_p(d) == want
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_normal_approximation_is_scipys_bit_for_bit(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    for k in range(200):
+        n = int(rng.integers(1, 30))
+        d = rng.normal(size=n) if k % 3 == 0 else rng.integers(-5, 6, size=n) * float(rng.choice([0.5, 0.1, 3.7]))
+        if not np.any(d != 0):
+            continue
+        assert wilcoxon_p(d, "approx") == _scipy_p(d, "approx"), d
+
+
+def test_normal_approximation_does_not_call_scipys_wilcoxon(monkeypatch: pytest.MonkeyPatch) -> None:
+    from bracketry_emulator.stats import paired
+
+    d = np.array([1.0, 1.0, -2.0, 3.0, 0.0, 0.0, -4.5, 6.0])
+    want = _scipy_p(d, "approx")
+    monkeypatch.setattr(paired, "wilcoxon", lambda *_a, **_k: pytest.fail("scipy's wilcoxon called"))
+    assert wilcoxon_p(d, "approx") == want
