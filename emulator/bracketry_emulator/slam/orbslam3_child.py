@@ -103,11 +103,12 @@ def _track(request: dict) -> dict:
 
     import pyorbslam3
 
-    from bracketry_emulator.slam.quiescence import LockstepStats, thread_ids, wait_idle
+    from bracketry_emulator.slam.quiescence import LockstepStats, ThreadSampler, thread_ids, wait_idle
 
     own_threads = thread_ids()  # ours (and the frame reader's): every thread born after them is ORB-SLAM3's
     lockstep = bool(opts.get("lockstep"))
     waits = LockstepStats()
+    sampler = ThreadSampler(own_threads)  # its descriptors stay open across the run's waits
     t_load = time.perf_counter()
     slam = pyorbslam3.Slam(opts["vocabulary"], str(settings_file), pyorbslam3.Sensor.STEREO)
     load_s = time.perf_counter() - t_load
@@ -134,7 +135,7 @@ def _track(request: dict) -> dict:
         kp.append(len(xy))
         cov.append(grid_coverage(xy, gl.shape[1], gl.shape[0], 20))
         if lockstep and k == 0:  # each frame meets the map its predecessors left: ORB-SLAM3's own threads idle
-            wait_idle(own_threads, waits)
+            wait_idle(own_threads, waits, sample=sampler)
         elif not lockstep:
             due = t_start + ((t_ns - times_ns[0]) * 1e-9 if pace is None else k * float(pace))
             wait = due - time.perf_counter()
@@ -153,9 +154,10 @@ def _track(request: dict) -> dict:
         # at once and culls points) the count races it (574 or 573 for the same frame). In lockstep it is read
         # once that work is done (and the next frame meets the same map); else as the track call returns.
         if lockstep:
-            wait_idle(own_threads, waits)
+            wait_idle(own_threads, waits, sample=sampler)
         matches.append((len(slam.tracked_map_points()) if lockstep else int(res.num_tracked_points)) if ok else 0)
     slam.shutdown()
+    sampler.close()
     states, segments = map_states([r if p is not None else "LOST" for r, p in zip(raw_states, poses)])
     with (out / "frames.csv").open("w") as fh:
         fh.write(",".join(FRAME_FIELDS) + "\n")

@@ -8,6 +8,7 @@ import threading
 from bracketry_emulator.slam.quiescence import (
     LockstepStats,
     ThreadSample,
+    ThreadSampler,
     busy_now,
     run_ns_between,
     sample_threads,
@@ -104,3 +105,33 @@ def test_real_threads_of_this_process_are_read_from_proc() -> None:
     finally:
         stop.set()
         worker.join()
+
+
+def test_a_sampler_rereads_its_open_files_and_drops_an_ended_thread() -> None:
+    before = thread_ids()
+    stop, spin_until = threading.Event(), threading.Event()
+
+    def work() -> None:
+        while not spin_until.is_set():  # runs on a CPU until told, then sleeps on the event
+            pass
+        stop.wait()
+
+    worker = threading.Thread(target=work)
+    worker.start()
+    with ThreadSampler(before) as sampler:
+        try:
+            (tid,) = thread_ids() - before
+            first = sampler()[tid]
+            while sampler()[tid].run_ns == first.run_ns:  # the same descriptors, read again: the run time moves
+                pass
+            spin_until.set()
+            assert wait_idle(before, LockstepStats(), max_wait_s=30.0, sample=sampler)
+            again = sampler()[tid]
+            assert again.state == "S" and again.run_ns > first.run_ns
+            assert again.state == sample_threads({tid})[tid].state
+        finally:
+            spin_until.set()
+            stop.set()
+            worker.join()
+        assert sampler() == {}  # ended: left out, its descriptors closed
+        assert sampler._fds == {}
