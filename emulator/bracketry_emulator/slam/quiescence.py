@@ -63,12 +63,16 @@ def sample_threads(tids: Iterable[int]) -> dict[int, ThreadSample]:
     out = {}
     for tid in tids:
         try:
-            stat = _read(f"{TASK_DIR}/{tid}/stat")
-            run_ns = int(_read(f"{TASK_DIR}/{tid}/schedstat").split()[0])
+            out[tid] = _parse(_read(f"{TASK_DIR}/{tid}/stat"), _read(f"{TASK_DIR}/{tid}/schedstat"))
         except (OSError, ValueError, IndexError):
             continue  # ended meanwhile
-        out[tid] = ThreadSample(chr(stat[stat.rindex(b")") + 2]), run_ns)
     return out
+
+
+def _parse(stat: bytes, schedstat: bytes) -> ThreadSample:
+    """A thread's sample from its ``stat`` (the state letter after the command's closing parenthesis) and
+    ``schedstat`` (first field: nanoseconds on a CPU) bytes; ValueError or IndexError when either is cut short."""
+    return ThreadSample(chr(stat[stat.rindex(b")") + 2]), int(schedstat.split()[0]))
 
 
 def _read(path: str) -> bytes:
@@ -135,9 +139,7 @@ class ThreadSampler:
         if fds is None:
             return None
         try:
-            stat = os.pread(fds[0], 4096, 0)
-            run_ns = int(os.pread(fds[1], 4096, 0).split()[0])
-            return ThreadSample(chr(stat[stat.rindex(b")") + 2]), run_ns)
+            return _parse(os.pread(fds[0], 4096, 0), os.pread(fds[1], 4096, 0))
         except (OSError, ValueError, IndexError):
             return None
 
