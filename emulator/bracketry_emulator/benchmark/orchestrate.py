@@ -40,13 +40,14 @@ class BenchmarkConfig:
     on). ``loop``: the closed-loop settings; what :meth:`LoopConfig.to_json` holds is part of every cache key, and a
     setting it cannot hold is refused (the cameras written, the images and ``overwrite`` are the benchmark's own).
     ``export_orbslam`` / ``slam_dir``: see :func:`~bracketry_emulator.benchmark.tasks.make_task`.
-    Without ``slam_dir`` and ``export_orbslam`` (locally or on a cluster) SLAM gets the emulated images in memory
-    (:mod:`~bracketry_emulator.benchmark.stream`: every run of a trajectory is fed by its one closed-loop pass) and
-    PNGs are written only with ``write_images``; otherwise the closed loops write PNGs and SLAM reads them.
+    Without ``slam_dir`` and ``export_orbslam`` (locally or on a cluster) SLAM gets the emulated images as raw frame
+    records (:mod:`~bracketry_emulator.benchmark.stream`: every run of a trajectory is spooled by its one closed-loop
+    pass, then its SLAM runs go one more at a time than ``workers``) and PNGs are written only with ``write_images``;
+    otherwise the closed loops write PNGs and SLAM reads them.
     ``slam``: SLAM options (:func:`~bracketry_emulator.benchmark.slam.slam_options`; default: the built-in VO);
     with ``repeats`` > 1 every (trajectory, method) runs that many times and the results carry the median and
-    spread (statistics on the medians). Fed in memory, every run of a trajectory runs at once; on the PNG route
-    paced ORB-SLAM3 runs mostly wait, so locally twice ``workers`` of them run at once. An unresolved ORB-SLAM3
+    spread (statistics on the medians). On the PNG route paced ORB-SLAM3 runs mostly wait, so locally twice
+    ``workers`` of them run at once. An unresolved ORB-SLAM3
     vocabulary is resolved after the other input was checked. ``stats_methods``: the methods the statistics (and
     their Bonferroni count) cover: ``paper`` (default: the benchmarked methods among the paper's eight; ``zhang``
     and plugins are reported but not tested), ``all`` (every benchmarked method) or a list.
@@ -168,18 +169,21 @@ def _shared_closed_loops(specs: list[TrajectorySpec], tasks: list[BenchmarkTask]
 
 def _streamed(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], out: Path, loop: LoopConfig, workers: int,
               progress: bool, stages: Any, on_done: OnDone | None) -> list[RunResult]:
-    """Per trajectory, the tasks still to run (not cached, no existing run) in one in-memory pass (see
+    """Per trajectory, the tasks still to run (not cached, no existing run): one closed-loop pass that spools their
+    frames, whose SLAM runs then go while the next trajectory's pass runs (see
     :mod:`~bracketry_emulator.benchmark.stream`); returns their results."""
-    from bracketry_emulator.benchmark.stream import stream_trajectory
+    from bracketry_emulator.benchmark.stream import SlamRuns, slam_at_once, spool_trajectory
 
-    out_results: list[RunResult] = []
-    for spec in specs:
-        todo = _todo(tasks, spec.name)
-        if todo:
-            out_results += stream_trajectory(spec, todo, out, _spec_loop(todo, loop), workers=workers,
-                                             progress=progress,
-                                             stages=stages, on_done=on_done)
-    return out_results
+    done: list[BenchmarkTask] = []
+    with SlamRuns(slam_at_once(workers), on_done) as runs:
+        for spec in specs:
+            todo = _todo(tasks, spec.name)
+            if todo:
+                runs.submit(*spool_trajectory(spec, todo, out, _spec_loop(todo, loop), workers=workers,
+                                              progress=progress and not done,  # then the SLAM runs' bar only
+                                              stages=stages))
+                done += todo
+        return runs.results(done)
 
 
 def _run_local(tasks: list[BenchmarkTask], workers: int, on_done: OnDone | None) -> list[RunResult]:

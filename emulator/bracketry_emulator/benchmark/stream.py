@@ -1,15 +1,20 @@
-"""One pass per trajectory: the closed loops of every method feed their SLAM runs in memory, then the metrics.
+"""One pass per trajectory: the closed loops of every method write their SLAM runs' frames, then the SLAM runs a
+few at a time, then the metrics.
 
-For each trajectory the SLAM runs of every task still to do (method x repeat) start first, one child process each
-(:func:`~bracketry_emulator.slam.orbslam3.start_child`, ORB-SLAM3 or the built-in VO: a crash stays one failed
-run), forked by this process's SLAM fork server (:mod:`~bracketry_emulator.slam.launcher`: Python and the child's
-imports paid once per benchmark, not once per run) or, without one, started as ``python -m``. Each gets a
-named pipe (``vo/<trajectory>/<run>/frames.fifo``); then one closed-loop pass over the trajectory
-(each bracket frame decoded once for every method) hands every step's stereo images to the method's runs through
-:class:`~bracketry_emulator.slam.frame_stream.FrameFeed`: the same arrays the PNG writer would encode, named by the
-same timestamps, so SLAM sees the same pixels as from PNG files, without the encode/decode round trip. PNGs are
-written only when asked (``write_images``). The runs consume while the loop produces; when all are fed, each run's
-exit is collected, then its metrics (timed, cached like any task).
+For each trajectory one closed-loop pass over the tasks still to do (method x repeat; each bracket frame decoded
+once for every method) hands every step's stereo images to a
+:class:`~bracketry_emulator.slam.frame_stream.FrameSpool` per run (``vo/<trajectory>/<run>/frames.stream``): the
+same arrays the PNG writer would encode, named by the same timestamps, so SLAM sees the same pixels as from PNG
+files, without the encode/decode round trip. PNGs are written only when asked (``write_images``). Then the runs'
+SLAM child processes (:func:`~bracketry_emulator.slam.orbslam3.start_child`, ORB-SLAM3 or the built-in VO: a crash
+stays one failed run), forked by this process's SLAM fork server (:mod:`~bracketry_emulator.slam.launcher`: Python
+and the child's imports paid once per benchmark, not once per run) or, without one, started as ``python -m``, at
+most ``slam_workers`` at a time (:class:`SlamRuns`, on a thread: the next trajectory's closed loops run
+meanwhile): each reads its spool (deleted when the run ends). In lockstep (each frame once
+ORB-SLAM3's threads are idle) a run keeps about three quarters of a core busy, so one run more than cores fills the
+machine; seven side by side on two cores cost about a quarter more CPU for the same runs (their idle threads poll,
+their caches thrash: ``docs/RESULTS.md``). Each run's exit is collected as it ends, then its metrics (timed, cached
+like any task).
 
 ORB-SLAM3's settings need the frame rate before the first frame: a stream's comes from the dataset (the bracket-
 cycle rate of the sequences' first frames, over the frames SLAM will track), which rounds to the same integer as a
@@ -19,7 +24,10 @@ run folder's image times.
 from __future__ import annotations
 
 import contextlib
+import os
 import shutil
+import subprocess
+import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -32,8 +40,10 @@ if TYPE_CHECKING:
     from bracketry_emulator.ae.registry import MethodSpec
     from bracketry_emulator.ae.runner import LoopConfig
     from bracketry_emulator.benchmark.tasks import BenchmarkTask, RunResult
+    from bracketry_emulator.slam.orbslam3 import SlamChild
 
-FIFO_NAME = "frames.fifo"
+#: a run's frames between its closed loop and its SLAM child, in ``vo/<trajectory>/<run>/``
+SPOOL_NAME = "frames.stream"
 
 
 def stream_fps(dataset_path: str | Path, max_frames: int | None) -> tuple[float, int]:
@@ -53,78 +63,185 @@ def stream_fps(dataset_path: str | Path, max_frames: int | None) -> tuple[float,
     return ((len(times) - 1) / span_s if len(times) > 1 and span_s > 0 else 1.0), n_steps
 
 
-def _request(task: BenchmarkTask, fifo: Path, fps: float, n_steps: int) -> dict:
+def _request(task: BenchmarkTask, stream: Path, fps: float, n_steps: int) -> dict:
     """The child's request; ``preview_index``: the run's middle frame, kept as the report's qualitative image."""
-    return {**_backend_request(task, fifo, fps), "preview_index": n_steps // 2}
+    return {**_backend_request(task, stream, fps), "preview_index": n_steps // 2}
 
 
-def _backend_request(task: BenchmarkTask, fifo: Path, fps: float) -> dict:
+def _backend_request(task: BenchmarkTask, stream: Path, fps: float) -> dict:
     from bracketry_emulator.benchmark.slam import orbslam3_options
     from bracketry_emulator.slam.orbslam3 import orbslam3_request
 
     if task.slam.backend == "builtin":
-        return {"backend": "builtin", "run_dir": None, "frames_fifo": str(fifo), "fps": fps,
+        return {"backend": "builtin", "run_dir": None, "frames_fifo": str(stream), "fps": fps,
                 "calibration_dir": task.calibration, "max_frames": task.max_frames}
-    return orbslam3_request(None, str(task.calibration), orbslam3_options(task.slam), task.max_frames, fifo, fps)
+    return orbslam3_request(None, str(task.calibration), orbslam3_options(task.slam), task.max_frames, stream, fps)
 
 
 def stream_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Path, loop: LoopConfig, *,
                       workers: int, progress: bool, stages: StageTimes,
-                      on_done: Callable[[RunResult], None] | None = None) -> list[RunResult]:
-    """Closed loops (settings ``loop``, its ``write_images`` included) + SLAM (in memory) + metrics of ``tasks`` (all
-    of trajectory ``spec``, none cached, none with an existing run); returns their results. See the module
-    docstring."""
-    from bracketry_emulator.benchmark.tasks import complete_task
-    from bracketry_emulator.slam.frame_stream import FrameFeed
-    from bracketry_emulator.slam.launcher import LauncherError, shared_launcher
-    from bracketry_emulator.slam.orbslam3 import SlamChild, SlamRunError, start_child, wait_child
+                      on_done: Callable[[RunResult], None] | None = None,
+                      slam_workers: int | None = None) -> list[RunResult]:
+    """Closed loops (settings ``loop``, its ``write_images`` included) + SLAM + metrics of ``tasks`` (all of
+    trajectory ``spec``, none cached, none with an existing run); returns their results in task order, each also
+    to ``on_done`` as it ends. ``workers``: the closed loop's processes (0: one per CPU); ``slam_workers``: SLAM
+    runs at a time (default :func:`slam_at_once`). See the module docstring."""
+    with SlamRuns(slam_workers or slam_at_once(workers), on_done) as runs:
+        runs.submit(*spool_trajectory(spec, tasks, out, loop, workers=workers, progress=progress, stages=stages))
+        return runs.results(tasks)
+
+
+def slam_at_once(workers: int) -> int:
+    """SLAM runs alive at once for ``workers`` (the benchmark's ``--workers``; 0: one per CPU): one more. A lockstep
+    run keeps about three quarters of a core busy (between frames it waits for ORB-SLAM3's threads to stay idle a
+    quiet window): two runs on two cores left a quarter of them idle in the demo, seven cost a quarter more CPU
+    (``docs/RESULTS.md``)."""
+    return 1 + max(1, workers if workers > 0 else (os.cpu_count() or 1))
+
+
+def spool_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Path, loop: LoopConfig, *,
+                     workers: int, progress: bool, stages: StageTimes
+                     ) -> tuple[list[BenchmarkTask], dict[str, Path], float, int]:
+    """The closed loops of ``tasks`` (one trajectory's) with every run's frames spooled to
+    ``vo/<trajectory>/<run>/frames.stream``: (tasks, {method: run folder}, the streams' frame rate, steps), what
+    :meth:`SlamRuns.submit` takes. A failed closed loop leaves no spool."""
+    from bracketry_emulator.slam.frame_stream import FrameSpool
 
     if spec.calibration_dir() is None:
         raise BracketryError(f"{spec.path}: no calibration/ folder with left/right camera_info YAMLs")
     fps, n_steps = stream_fps(spec.path, tasks[0].max_frames)
-    children: dict[str, SlamChild] = {}
-    errors: dict[str, str] = {}
-    feeds: dict[str, list[FrameFeed]] = {}
     methods = list(dict.fromkeys(t.method_spec for t in tasks))
-    ok = False
-    launcher = shared_launcher()  # the children forked by one server that imported their modules once
-    try:
-        for t in tasks:
-            vo_dir = t.vo_path
-            vo_dir.mkdir(parents=True, exist_ok=True)
-            fifo = FrameFeed.make_fifo(vo_dir / FIFO_NAME)
-            try:
-                children[t.key] = start_child(_request(t, fifo, fps, n_steps), vo_dir, launcher=launcher)
-            except SlamRunError as exc:  # e.g. a vocabulary gone missing: this run fails, the others go on
-                errors[t.key] = str(exc)
-                continue
-            feeds.setdefault(t.method, []).append(FrameFeed(fifo, reader_pid=children[t.key].proc.pid))
-        run_dirs = emulate_feeding(spec.path, methods, out / "runs" / spec.name, feeds, loop, workers=workers,
-                                   progress=progress, stages=stages)
-        ok = True
-    finally:
-        if not ok:  # the closed loop failed: its SLAM runs wait for frames that will never come
-            for child in children.values():
-                with contextlib.suppress(OSError):
-                    child.proc.kill()
-                with contextlib.suppress(ChildProcessError, LauncherError):
-                    child.proc.wait()
-    results = []
+    spools: dict[str, list[FrameSpool]] = {}
     for t in tasks:
-        run_dir = run_dirs[t.method]
-        info, error = None, errors.get(t.key)
-        started = children.get(t.key)
-        if started is not None:
-            try:
-                info = wait_child(started)
-            except SlamRunError as exc:
-                error = str(exc)
-        (t.vo_path / FIFO_NAME).unlink(missing_ok=True)
+        t.vo_path.mkdir(parents=True, exist_ok=True)
+        spools.setdefault(t.method, []).append(FrameSpool(t.vo_path / SPOOL_NAME))
+    try:
+        run_dirs = emulate_feeding(spec.path, methods, out / "runs" / spec.name, spools, loop, workers=workers,
+                                   progress=progress, stages=stages)
+    except BaseException:
+        for t in tasks:
+            (t.vo_path / SPOOL_NAME).unlink(missing_ok=True)
+        raise
+    return tasks, run_dirs, fps, n_steps
+
+
+#: how often the SLAM runs in flight are checked for their end (s)
+_POLL_S = 0.02
+
+#: held by a :class:`SlamRuns` thread while it works (starts, collects, computes metrics, reports), never while it
+#: waits; a fork of this process (the closed loop's workers) takes it first, so no forked child inherits a lock
+#: that thread held (stdout's, the fork server's) at the fork
+_BUSY = threading.Lock()
+os.register_at_fork(before=_BUSY.acquire, after_in_parent=_BUSY.release, after_in_child=_BUSY.release)
+
+
+class SlamRuns:
+    """The SLAM children of spooled runs (:meth:`submit`), started in submission order with at most ``at_once``
+    alive, by a thread of this process (so the next trajectory's closed loops run meanwhile); each run's metrics
+    as it ends, also to ``on_done`` (called on that thread). Used as a context manager: leaving it on an error
+    kills the runs still alive and deletes the spools left."""
+
+    def __init__(self, at_once: int, on_done: Callable[[RunResult], None] | None = None) -> None:
+        self.at_once = max(1, at_once)
+        self.on_done = on_done
+        self._waiting: list[tuple[BenchmarkTask, Path, dict]] = []
+        self._done: dict[str, RunResult] = {}
+        self._cond = threading.Condition()
+        self._closed = False
+        self._stop = False
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._loop, name="bracketry-slam-runs", daemon=True)
+        self._thread.start()
+
+    def __enter__(self) -> SlamRuns:
+        return self
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> None:
+        with self._cond:
+            self._closed = True
+            self._stop = self._stop or exc_type is not None
+            self._cond.notify_all()
+        self._thread.join()
+
+    def submit(self, tasks: list[BenchmarkTask], run_dirs: dict[str, Path], fps: float, n_steps: int) -> None:
+        """Queue the SLAM runs of ``tasks`` (what :func:`spool_trajectory` returns)."""
+        with self._cond:
+            self._raise()
+            self._waiting += [(t, run_dirs[t.method], _request(t, t.vo_path / SPOOL_NAME, fps, n_steps))
+                              for t in tasks]
+            self._cond.notify_all()
+
+    def results(self, tasks: list[BenchmarkTask]) -> list[RunResult]:
+        """Wait for every submitted run; the results of ``tasks`` in their order."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify_all()
+        self._thread.join()
+        self._raise()
+        return [self._done[t.key] for t in tasks]
+
+    def _raise(self) -> None:
+        if self._error is not None:
+            raise self._error
+
+    def _finish(self, t: BenchmarkTask, run_dir: Path, info: dict | None, error: str | None) -> None:
+        from bracketry_emulator.benchmark.tasks import complete_task
+
+        (t.vo_path / SPOOL_NAME).unlink(missing_ok=True)
         result = complete_task(t, run_dir, info, error)
-        if on_done:
-            on_done(result)
-        results.append(result)
-    return results
+        self._done[t.key] = result
+        if self.on_done:
+            self.on_done(result)
+
+    def _loop(self) -> None:
+        from bracketry_emulator.slam.launcher import LauncherError, shared_launcher
+        from bracketry_emulator.slam.orbslam3 import SlamRunError, child_ended, start_child, wait_child
+
+        running: dict[str, tuple[BenchmarkTask, Path, SlamChild]] = {}
+        try:
+            launcher = shared_launcher()  # the children forked by one server that imported their modules once
+            while True:
+                with self._cond:
+                    if self._stop:
+                        return
+                    starts: list[tuple[BenchmarkTask, Path, dict]] = []
+                    while self._waiting and len(running) + len(starts) < self.at_once:
+                        starts.append(self._waiting.pop(0))
+                    if not running and not starts:
+                        if self._closed and not self._waiting:
+                            return
+                        self._cond.wait()
+                        continue
+                with _BUSY:
+                    for t, run_dir, request in starts:
+                        try:
+                            running[t.key] = (t, run_dir, start_child(request, t.vo_path, launcher=launcher))
+                        except SlamRunError as exc:  # e.g. a vocabulary gone missing: this run fails, the rest go on
+                            self._finish(t, run_dir, None, str(exc))
+                    ended = [key for key, (_t, _r, child) in running.items() if child_ended(child)]
+                    for key in ended:
+                        t, run_dir, child = running.pop(key)
+                        try:
+                            info, error = wait_child(child), None
+                        except SlamRunError as exc:
+                            info, error = None, str(exc)
+                        self._finish(t, run_dir, info, error)
+                if not ended and not starts:
+                    with self._cond:
+                        self._cond.wait(_POLL_S)
+        except BaseException as exc:  # raised in the caller's thread by submit() or results()
+            self._error = exc
+        finally:
+            for t, _r, child in running.values():  # stopped: no run outlives the benchmark
+                with contextlib.suppress(OSError, LauncherError):
+                    child.proc.kill()
+                with contextlib.suppress(ChildProcessError, LauncherError, subprocess.TimeoutExpired):
+                    child.proc.wait(30.0)
+                (t.vo_path / SPOOL_NAME).unlink(missing_ok=True)
+            with self._cond:
+                for t, _r, _q in self._waiting:
+                    (t.vo_path / SPOOL_NAME).unlink(missing_ok=True)
+                self._waiting.clear()
 
 
 def emulate_feeding(dataset_path: Path, methods: Sequence[str | MethodSpec], runs_dir: Path,

@@ -39,8 +39,9 @@ def command(datasets: tuple[Path, ...], **given: Any) -> int:
     Per trajectory, the closed loops of all methods (unless the dataset already holds a method's emulated run) run
     in one pass that decodes each bracket sequence once; then per (trajectory, method) ORB-SLAM3 stereo (each run
     in its own process, its output in a log beside the run; a failed run is a line in the report) or the built-in
-    VO, RTE/RRE with evo, the distance tracked and the failure metrics. SLAM gets the emulated images in memory
-    as the closed loops make them (PNGs only with --write-images or --export-orbslam). Results are cached under
+    VO, RTE/RRE with evo, the distance tracked and the failure metrics. SLAM gets the emulated images as raw
+    frames the closed loops spool (PNGs only with --write-images or --export-orbslam), one run more at a time than
+    --workers. Results are cached under
     OUT/cache, so the same command with --resume continues an interrupted one. The report is written to OUT/report
     (CSV, Markdown, HTML, figures). Exit code 0. With ORB-SLAM3 the vocabulary is checked first and a set-up check
     (ORB-SLAM3 on the first seconds of a trajectory's middle bracket, no AE) must pass: else one error line, exit 2.

@@ -1,9 +1,12 @@
-"""Stereo frames through a named pipe: how the benchmark hands emulated images to a SLAM child process in memory.
+"""Stereo frames as a stream of records: how the benchmark hands emulated images to a SLAM child process.
 
-The closed loop writes each step's images into a FIFO (:class:`FrameFeed`, one per SLAM run) instead of PNG files;
-the SLAM child (:mod:`bracketry_emulator.slam.orbslam3_child`) reads them (:func:`read_stream`). The images are the
-arrays the PNG route would have encoded (:meth:`~bracketry_emulator.emulation.EmulatedImage.to_depth`: uint16
-12-bit RGGB mosaics, or uint8 at depth 8), named by the same timestamp, so SLAM receives the same pixels.
+The closed loop writes each step's images as records (one writer per SLAM run) instead of PNG files; the SLAM child
+(:mod:`bracketry_emulator.slam.orbslam3_child`) reads them (:func:`read_stream`). The images are the arrays the PNG
+route would have encoded (:meth:`~bracketry_emulator.emulation.EmulatedImage.to_depth`: uint16 12-bit RGGB mosaics,
+or uint8 at depth 8), named by the same timestamp, so SLAM receives the same pixels. Two writers: :class:`FrameFeed`
+into a named pipe the child reads as the loop runs (the set-up check), :class:`FrameSpool` into a file the child
+reads once the loop is done (the benchmark: its SLAM runs then share the cores a few at a time, see
+:mod:`bracketry_emulator.benchmark.stream`).
 
 Wire format (little-endian), one record per stereo frame::
 
@@ -12,7 +15,7 @@ Wire format (little-endian), one record per stereo frame::
 
 and a last record of kind 1 whose ``t_ns`` is the number of frames sent (no pixels). A stream that ends without it
 (the producer failed) is an error for the reader. A named pipe rather than the child's stdin: the closed loop may
-run in forked worker processes, which open the FIFO by path.
+run in forked worker processes, which open the FIFO (or the spool file) by path.
 """
 
 from __future__ import annotations
@@ -163,6 +166,9 @@ class FrameFeed:
     the story. ``depth``: the emulated images' code depth (12: uint16, 8: uint8), as the PNG writer would store them.
     """
 
+    #: what a failed write means (the start of :attr:`failed`)
+    _write_error = "the SLAM process stopped reading"
+
     def __init__(self, path: str | Path, sides: tuple[str, ...] = ("left", "right"), depth: int = 12,
                  open_timeout_s: float = 120.0, reader_pid: int | None = None) -> None:
         self.path = Path(path)
@@ -211,7 +217,7 @@ class FrameFeed:
             write_frame(self._fh, t_ns, left, right)
             self.n_frames += 1
         except (BrokenPipeError, ConnectionResetError, OSError) as exc:
-            self.failed = f"the SLAM process stopped reading: {exc}"
+            self.failed = f"{self._write_error}: {exc}"
             self._drop()
 
     def write_step(self, step: int, seq: object, side_images: dict, target_us: float) -> None:
@@ -232,7 +238,7 @@ class FrameFeed:
             try:
                 write_end(self._fh, self.n_frames)
             except (BrokenPipeError, ConnectionResetError, OSError) as exc:
-                self.failed = f"the SLAM process stopped reading: {exc}"
+                self.failed = f"{self._write_error}: {exc}"
         self._drop()
 
     def _drop(self) -> None:
@@ -240,3 +246,22 @@ class FrameFeed:
             with contextlib.suppress(OSError):
                 self._fh.close()
             self._fh = None
+
+
+class FrameSpool(FrameFeed):
+    """The writer of one SLAM run's frames into the file ``path`` (created, or replaced), for a child started once the
+    closed loop is done: :meth:`write_step` for each step, then :meth:`close` (the end record). A write that fails
+    (a full disk) stops the spool and says why in :attr:`failed`; the child then reads a stream without its end
+    record and the run fails with that error."""
+
+    _write_error = "cannot write the frame spool"
+
+    def __init__(self, path: str | Path, sides: tuple[str, ...] = ("left", "right"), depth: int = 12) -> None:
+        super().__init__(path, sides, depth)
+
+    def _open(self) -> IO[bytes] | None:
+        try:
+            return open(self.path, "wb", buffering=1 << 20)
+        except OSError as exc:
+            self.failed = f"cannot write the frame spool {self.path}: {exc.strerror or exc}"
+            return None

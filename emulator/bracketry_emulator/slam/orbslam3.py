@@ -160,6 +160,24 @@ def wait_child(child: SlamChild) -> dict:
     return {**json.loads(result_file.read_text()), "wall_s": wall_s, "cpu_s": cpu_s}
 
 
+def child_ended(child: SlamChild) -> bool:
+    """True once ``child`` has exited or is past its timeout (without collecting it: :func:`wait_child` then
+    returns, or kills it, at once); a fork server gone counts as ended."""
+    if time.perf_counter() > child.started + child.timeout_s:
+        return True
+    if isinstance(child.proc, subprocess.Popen):  # peek (WNOWAIT): wait_child reaps it with its CPU time
+        try:
+            return os.waitid(os.P_PID, child.proc.pid, os.WEXITED | os.WNOHANG | os.WNOWAIT) is not None
+        except ChildProcessError:
+            return True
+    from bracketry_emulator.slam.launcher import LauncherError
+
+    try:
+        return child.proc.poll() is not None
+    except LauncherError:
+        return True
+
+
 def _timed_out(child: SlamChild) -> SlamRunError:
     return SlamRunError(f"the SLAM run did not finish within {child.timeout_s:g} s (log: {child.log})")
 

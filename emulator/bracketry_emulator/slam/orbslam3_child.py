@@ -1,10 +1,10 @@
 """A SLAM run's child process (:func:`bracketry_emulator.slam.orbslam3.start_child`): ``python -m ... REQUEST.json``.
 
-Reads the run's pairs (a run folder's PNGs, or the closed loop's images through the FIFO ``frames_fifo``, see
-:mod:`.frame_stream`), rectifies them as the built-in VO does (same row correction), feeds ORB-SLAM3 at the requested
-pace or in lockstep (each frame once ORB-SLAM3's own threads are idle, :mod:`.quiescence`) (or, ``backend: builtin``,
-tracks them with the built-in VO), and writes ``frames.csv``, ``CameraTrajectory<n>.txt``, ``settings.yaml`` and,
-last, ``slam.json`` (its presence tells the parent the run finished). Exit code 0 on success, 1 with a one-line
+Reads the run's pairs (a run folder's PNGs, or the closed loop's images through ``frames_fifo``, a FIFO or a spool file,
+see :mod:`.frame_stream`), rectifies them as the built-in VO does (same row correction), feeds ORB-SLAM3 at the
+requested pace or in lockstep (each frame once ORB-SLAM3's own threads are idle, :mod:`.quiescence`) (or, ``backend:
+builtin``, tracks them with the built-in VO), and writes ``frames.csv``, ``CameraTrajectory<n>.txt``, ``settings.yaml``
+and, last, ``slam.json`` (its presence tells the parent the run finished). Exit code 0 on success, 1 with a one-line
 message otherwise.
 """
 
@@ -24,7 +24,8 @@ import numpy as np
 
 def _frames(request: dict) -> tuple[Iterator[tuple[int, np.ndarray, np.ndarray]], float | None]:
     """The run's stereo frames as (t_ns, left gray8, right gray8) and, from a run folder, its frame rate (a stream's
-    comes with the request): from ``frames_fifo`` (in memory, see :mod:`.frame_stream`) or ``run_dir`` (PNGs)."""
+    comes with the request): from ``frames_fifo`` (a FIFO or a spool file of frame records, see :mod:`.frame_stream`) or
+    ``run_dir`` (PNGs)."""
     from bracketry_emulator.vo.runner import png_frames, raw_to_gray8
 
     if request.get("frames_fifo"):

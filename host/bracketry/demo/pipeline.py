@@ -11,10 +11,10 @@ Steps (each prints progress, each output kept under ``out_dir``):
    walks in the subsets forest, sun-shadow, glare, day-cycle, where the exposure decides), linked from the user
    cache when rendered before. It renders beside steps 1-2 at the lowest priority (``nice -n 19``, log
    ``suite.log``): the real-time recording leaves most of a core idle, and the rig keeps its priority.
-4. ``benchmark/``: every paper AE method (DRL when ``--drl-weights`` / ``BRACKETRY_DRL_WEIGHTS`` names its weights)
-   in closed loop on the emulated images of the recording (subset ``rig``) and the suite, fed in memory to stereo
-   SLAM (no emulated PNG is written), RTE/RRE, failures, statistics against AE50 over all those trajectories,
-   report (Markdown, HTML, CSV, plots, and where the time went).
+4. ``benchmark/``: every paper AE method (DRL when ``--drl-weights`` / ``BRACKETRY_DRL_WEIGHTS`` names its weights) in
+   closed loop on the emulated images of the recording (subset ``rig``) and the suite, fed to stereo SLAM as raw frames,
+   three runs at a time (no emulated PNG is written), RTE/RRE, failures, statistics against AE50 over all those
+   trajectories, report (Markdown, HTML, CSV, plots, and where the time went).
 """
 
 from __future__ import annotations
@@ -271,9 +271,10 @@ def benchmark(p: DemoPlan, dataset: Path, echo: Callable[[str], None], suite_man
         datasets += load_manifest(suite_manifest)
     where = f" on the recording and {len(datasets) - 1} suite trajectories" if suite_manifest is not None else ""
     n = _steps(p)
+    slam_name = "ORB-SLAM3" if p.slam == "orbslam3" else "the built-in VO"
     echo(f"[{n}/{n}] benchmarking {len(methods)} AE methods ({', '.join(methods)}){where}: closed loops (each "
-         f"bracket decoded once for all) feeding {'ORB-SLAM3' if p.slam == 'orbslam3' else 'the built-in VO'} in "
-         f"memory (one process per method, no PNG round trip), then metrics per method")
+         f"bracket decoded once for all) spooling raw frames for {slam_name} (one process per method, "
+         f"{p.workers + 1} at a time, no PNG round trip), then metrics per method")
     bar: Any = None
 
     def done(r: Any) -> None:  # a RunResult

@@ -1,5 +1,6 @@
-"""The benchmark feeds SLAM in memory: the images that reach SLAM are the PNG route's, bit for bit; the results are
-the same; PNGs only when asked; the report ends with the stage table."""
+"""The benchmark feeds SLAM raw frames, spooled by the closed loops: the images that reach SLAM are the PNG route's,
+bit for bit; the results are the same; PNGs only when asked; the report ends with the stage table; the SLAM runs go
+as many at a time as the workers."""
 
 from __future__ import annotations
 
@@ -55,7 +56,7 @@ def test_streamed_images_equal_the_written_pngs(world: Path, tmp_path: Path, wor
 
 
 def test_streamed_slam_results_equal_the_png_route(world: Path, tmp_path: Path) -> None:
-    """The built-in VO (deterministic) fed in memory gives the same per-frame log and trajectory as run on the PNG
+    """The built-in VO (deterministic) fed spooled frames gives the same per-frame log and trajectory as run on the PNG
     files of the same closed loop; the report ends with the stage table; without --write-images no PNG is written."""
     res = run_benchmark(BenchmarkConfig([world], ["ae50"], tmp_path / "b", reference="ae50", windows_m=(1.0,),
                                         write_images=True))
@@ -68,7 +69,7 @@ def test_streamed_slam_results_equal_the_png_route(world: Path, tmp_path: Path) 
     assert tums and tums == sorted(p.name for p in streamed_dir.glob("CameraTrajectory*.txt"))
     for name in tums:
         assert (streamed_dir / name).read_text() == (vo.out_dir / name).read_text()
-    assert not (streamed_dir / "frames.fifo").exists()
+    assert not (streamed_dir / "frames.stream").exists()
     left = list_side_images(r["run_dir"], "left")  # the kept middle frame (qualitative figure) is the PNG route's
     preview = cv2.imread(str(streamed_dir / "preview_left.png"), cv2.IMREAD_UNCHANGED)
     assert np.array_equal(preview, read_gray8(left[len(left) // 2][1]))
@@ -90,3 +91,24 @@ def test_streamed_slam_results_equal_the_png_route(world: Path, tmp_path: Path) 
     again = run_benchmark(BenchmarkConfig([world], ["ae50"], tmp_path / "c", reference="ae50", windows_m=(1.0,)))
     assert again.results[0]["cached"] and "came from the cache" in (again.out_dir / "report" / "report.md"
                                                                     ).read_text()
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_slam_runs_go_one_more_at_a_time_than_workers(world: Path, tmp_path: Path, workers: int) -> None:
+    """The closed loops spool every run's frames; the SLAM children then go at most ``workers`` + 1 at a time (a run's
+    life: from its request.json, written as it starts, to its slam.json, written as it ends), each reads its whole
+    spool, and no spool is left."""
+    methods = ["ae50", "shim", "fix", "ae30", "ae70"]
+    res = run_benchmark(BenchmarkConfig([world], methods, tmp_path / "b", reference="ae50", windows_m=(1.0,),
+                                        workers=workers))
+    lives = []
+    for r in res.results:
+        assert not r.get("error") and r["slam_input"] == "stream"
+        vo = Path(r["vo_dir"])
+        assert not (vo / "frames.stream").exists() and not (vo / "frames.fifo").exists()
+        steps = len((Path(r["run_dir"]) / "steps.csv").read_text().splitlines()) - 1
+        assert json.loads((vo / "slam.json").read_text())["n_frames"] == steps > 5
+        lives.append(((vo / "request.json").stat().st_mtime_ns, (vo / "slam.json").stat().st_mtime_ns))
+    assert len(lives) == len(methods)
+    for start, _end in lives:  # runs alive when this one started (itself included)
+        assert sum(1 for s, e in lives if s <= start < e) <= workers + 1

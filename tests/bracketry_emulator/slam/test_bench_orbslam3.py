@@ -243,7 +243,7 @@ def test_bench_combine_repeats_median_and_failures() -> None:
 
 @pytest.fixture(scope="module")
 def bracketed(tmp_path_factory) -> Path:
-    """A bracketed synthetic trajectory (the closed loops run on it, so SLAM is fed in memory)."""
+    """A bracketed synthetic trajectory (the closed loops run on it, so SLAM reads their spooled frames)."""
     d = tmp_path_factory.mktemp("orbslam3_stream") / "walk"
     assert cli_main(["synth", "trajectory", "--out", str(d), "--seconds", "3", "--resolution", "320x240",
                      "-q"]) == 0
@@ -251,7 +251,7 @@ def bracketed(tmp_path_factory) -> Path:
 
 
 def test_bench_orbslam3_fed_in_memory(bracketed: Path, vocabulary: Path, tmp_path: Path) -> None:
-    """ORB-SLAM3 children get the closed loops' images through their FIFOs (no PNG written): every frame reaches
+    """ORB-SLAM3 children get the closed loops' images through their spool files (no PNG written): every frame reaches
     SLAM, the settings are those the PNG route writes (same frame rate), the child's CPU time is measured."""
     slam = slam_options("orbslam3", vocabulary, pace=0.0)
     res = run_benchmark(BenchmarkConfig([bracketed], ["ae50", "fix"], tmp_path / "out", reference="ae50",
@@ -272,7 +272,7 @@ def test_bench_orbslam3_fed_in_memory(bracketed: Path, vocabulary: Path, tmp_pat
 
 def test_bench_orbslam3_failing_children_do_not_hold_the_closed_loop(bracketed: Path, tmp_path: Path) -> None:
     """Every ORB-SLAM3 child exits on a broken vocabulary after its first frame: each run is one failed-run line,
-    the closed loop (which was feeding them) and the benchmark finish. (The vocabulary check and the set-up check
+    the closed loop (which spooled their frames) and the benchmark finish. (The vocabulary check and the set-up check
     would refuse this vocabulary before any run: both are bypassed here, a vocabulary id given and no set-up
     check, to exercise failing children.)"""
     bad = tmp_path / "bad.txt"

@@ -1,4 +1,5 @@
-"""Stereo frames through a named pipe (the benchmark's in-memory route to SLAM): exact pixels, clear failures."""
+"""Stereo frames as records through a named pipe or a spool file (the benchmark's route to SLAM): exact pixels, clear
+failures."""
 
 from __future__ import annotations
 
@@ -16,6 +17,7 @@ from bracketry_emulator.emulation.emulator import EmulatedImage
 from bracketry_emulator.emulation.writer import RunWriter
 from bracketry_emulator.slam.frame_stream import (
     FrameFeed,
+    FrameSpool,
     StreamError,
     iter_records,
     read_stream,
@@ -101,3 +103,27 @@ def test_feed_gives_up_on_a_reader_that_is_gone(tmp_path: Path) -> None:
     feed.send(1, a, b)
     feed.close()
     assert feed.n_frames == 0
+
+
+def test_spool_holds_the_steps_for_a_reader_that_starts_later(tmp_path: Path) -> None:
+    """A spool file (written with nobody reading) read back afterwards: the same frames and names as a feed's; an
+    unwritable spool says so in one line and drops the frames; a spool cut short is an error for its reader."""
+    frames = _frames(3)
+    spool = FrameSpool(tmp_path / "frames.stream")
+    for t, a, b in frames:
+        spool.send(t, a, b)
+    spool.close()
+    assert spool.failed is None and spool.n_frames == 3
+    got = list(read_stream(tmp_path / "frames.stream"))
+    assert [g[0] for g in got] == [t for t, _a, _b in frames]
+    for (_t, a, b), (_g, ga, gb) in zip(frames, got, strict=True):
+        assert np.array_equal(ga, a) and np.array_equal(gb, b)
+    bad = FrameSpool(tmp_path / "no-such-folder" / "frames.stream")
+    bad.send(*frames[0])
+    bad.close()
+    assert bad.failed is not None and bad.failed.startswith("cannot write the frame spool") and "\n" not in bad.failed
+    assert bad.n_frames == 0
+    cut = tmp_path / "cut.stream"
+    cut.write_bytes((tmp_path / "frames.stream").read_bytes()[:-40])
+    with pytest.raises(StreamError, match="ended after"):
+        list(read_stream(cut))
