@@ -9,7 +9,7 @@ files, without the encode/decode round trip. PNGs are written only when asked (`
 SLAM child processes (:func:`~bracketry_emulator.slam.orbslam3.start_child`, ORB-SLAM3 or the built-in VO: a crash
 stays one failed run), forked by this process's SLAM fork server (:mod:`~bracketry_emulator.slam.launcher`: Python
 and the child's imports paid once per benchmark, not once per run) or, without one, started as ``python -m``, at
-most ``slam_workers`` at a time (:class:`SlamRuns`, on a thread: the next trajectory's closed loops run
+most :func:`slam_at_once` at a time (:class:`SlamRuns`, on a thread: the next trajectory's closed loops run
 meanwhile): each reads its spool (deleted when the run ends). In lockstep (each frame once
 ORB-SLAM3's threads are idle) a run keeps about three quarters of a core busy, so one run more than cores fills the
 machine; seven side by side on two cores cost about a quarter more CPU for the same runs (their idle threads poll,
@@ -80,13 +80,12 @@ def _backend_request(task: BenchmarkTask, stream: Path, fps: float) -> dict:
 
 def stream_trajectory(spec: TrajectorySpec, tasks: list[BenchmarkTask], out: Path, loop: LoopConfig, *,
                       workers: int, progress: bool, stages: StageTimes,
-                      on_done: Callable[[RunResult], None] | None = None,
-                      slam_workers: int | None = None) -> list[RunResult]:
+                      on_done: Callable[[RunResult], None] | None = None) -> list[RunResult]:
     """Closed loops (settings ``loop``, its ``write_images`` included) + SLAM + metrics of ``tasks`` (all of
     trajectory ``spec``, none cached, none with an existing run); returns their results in task order, each also
-    to ``on_done`` as it ends. ``workers``: the closed loop's processes (0: one per CPU); ``slam_workers``: SLAM
-    runs at a time (default :func:`slam_at_once`). See the module docstring."""
-    with SlamRuns(slam_workers or slam_at_once(workers), on_done) as runs:
+    to ``on_done`` as it ends. ``workers``: the closed loop's processes (0: one per CPU); the SLAM runs go
+    :func:`slam_at_once` at a time. See the module docstring."""
+    with SlamRuns(slam_at_once(workers), on_done) as runs:
         runs.submit(*spool_trajectory(spec, tasks, out, loop, workers=workers, progress=progress, stages=stages))
         return runs.results(tasks)
 
