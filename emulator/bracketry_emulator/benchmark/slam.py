@@ -60,13 +60,15 @@ class SlamOptions:
 
     def key_json(self) -> dict[str, Any]:
         """The options that decide a run's result (cache key): not the vocabulary's path but its content, and how
-        ORB-SLAM3's extractor is sized (:data:`~bracketry_emulator.slam.settings.ORB_SIZING`); the built-in VO has
+        ORB-SLAM3's extractor is sized (:data:`~bracketry_emulator.slam.settings.ORB_SIZING`) and what its settings file
+        holds (:data:`~bracketry_emulator.slam.settings.SETTINGS_FORMAT`); the built-in VO has
         none of its own."""
-        from bracketry_emulator.slam.settings import ORB_SIZING
+        from bracketry_emulator.slam.settings import ORB_SIZING, SETTINGS_FORMAT
 
         if self.backend == "builtin":
             return {"backend": "builtin"}
-        doc: dict[str, Any] = {"vocabulary_id": self.vocabulary_id, "orb_sizing": ORB_SIZING}
+        doc: dict[str, Any] = {"vocabulary_id": self.vocabulary_id, "orb_sizing": ORB_SIZING,
+                               "settings_format": SETTINGS_FORMAT}
         for s in rows("slam"):  # the table's SLAM rows that decide results (key: always, or changed from default)
             v = getattr(self, s.target)
             if s.key == "always" or (s.key == "changed" and v != s.default_value):

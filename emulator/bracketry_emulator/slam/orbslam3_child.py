@@ -80,7 +80,7 @@ def _track(request: dict) -> dict:
     from bracketry_emulator.features.coverage import grid_coverage
     from bracketry_emulator.features.orb import OrbExtractor
     from bracketry_emulator.slam.orbslam3 import map_states
-    from bracketry_emulator.slam.settings import OrbSlamCamera, settings_yaml
+    from bracketry_emulator.slam.settings import OrbSlamCamera, camera_fps, settings_yaml
     from bracketry_emulator.trajectory_io import FRAME_FIELDS, write_tum
     from bracketry_emulator.vo.calibration import StereoRectifier
     from bracketry_emulator.vo.runner import estimate_row_offset
@@ -172,7 +172,7 @@ def _track(request: dict) -> dict:
     summary = {"backend": "orbslam3", "pyorbslam3": _version(), "vocabulary": opts["vocabulary"],
                "pace_s": pace, "lockstep": lockstep, "loop_closing": opts["loop_closing"],
                "settings": str(settings_file),
-               "fps_settings": max(1, round(fps)), "n_frames": len(times_ns), "vocabulary_load_s": load_s,
+               "fps_settings": camera_fps(fps), "n_frames": len(times_ns), "vocabulary_load_s": load_s,
                "track_s_median": float(np.median(track_s)) if track_s else float("nan"),
                "track_s_mean": float(np.mean(track_s)) if track_s else float("nan"),
                "raw_states": {s: raw_states.count(s) for s in sorted(set(raw_states))},

@@ -4,9 +4,11 @@ What ORB-SLAM3's ``Settings`` parser demands, learnt the hard way:
 
 * every real-valued entry is written with a decimal point (``Stereo.ThDepth: 35.0``): it reads them with
   ``FileNode::isReal`` and an integer ``35`` makes the constructor fail with "unknown exception";
-* integer entries (``Camera.fps``, ``Camera.width``, ``ORBextractor.nFeatures``...) must be integers, so the bracket
-  cycle rate is rounded to the nearest whole frame per second (at least 1; ORB-SLAM uses it only as the maximum
-  number of frames between keyframes);
+* integer entries (``Camera.fps``, ``Camera.width``, ``ORBextractor.nFeatures``...) must be integers. The bracket
+  cycle rate is written as its integer part (at least 1): 3 for 3.67 Hz, what the authors' ORB-SLAM2 keeps of
+  their ``Camera.fps: 3.6666666666666667`` (it reads a float into the integer ``mMaxFrames``). ORB-SLAM uses it as
+  the most frames between keyframes and as the frames after a relocalisation (and after the start) that must track
+  50 map points rather than 30 (:data:`SETTINGS_FORMAT`);
 * ``Camera.type: "Rectified"`` segfaults in this build; ``"PinHole"`` with identical ``Camera1.*`` / ``Camera2.*``
   intrinsics and ``Stereo.T_c1_c2`` (the right camera ``baseline_m`` along the left camera's x axis) works; ORB-SLAM
   then computes its own (identity) rectification of our already rectified pairs;
@@ -48,6 +50,9 @@ MIN_TOP_LEVEL_PX = 64
 #: :func:`field_orb_settings`) or "paper" (its 3000 features and 13 levels whatever the image size); part of the
 #: benchmark's cache key
 ORB_SIZING = "field"
+#: what a settings file holds beyond the options (part of the benchmark's cache key): 2 = ``Camera.fps`` is the
+#: bracket-cycle rate's integer part (the authors' ``mMaxFrames``)
+SETTINGS_FORMAT = 2
 #: the paper's image width (px) and ORB extractor (ORB-SLAM2 on 1920x1200)
 PAPER_WIDTH_PX = 1920
 PAPER_ORB = OrbSettings(n_features=3000, scale_factor=1.2, n_levels=13, ini_th_fast=15, min_th_fast=5)
@@ -112,6 +117,12 @@ def _mat(name: str, m: np.ndarray) -> list[str]:
             f"   data: [{data}]"]
 
 
+def camera_fps(fps: float) -> int:
+    """``Camera.fps`` for a stream of ``fps`` frames per second: its integer part, at least 1 (3 for the bracket
+    cycle's 3.67 Hz, as the authors' ORB-SLAM2 reads their 3.67)."""
+    return max(1, int(fps))
+
+
 def settings_yaml(cam: OrbSlamCamera, fps: float, loop_closing: bool = True, th_depth: float = 35.0,
                   orb: OrbSettings | None = None) -> str:
     """The settings file text for ORB-SLAM3 stereo on images of ``cam``.
@@ -128,7 +139,7 @@ def settings_yaml(cam: OrbSlamCamera, fps: float, loop_closing: bool = True, th_
         lines += [f"{c}.fx: {_real(cam.fx_px)}", f"{c}.fy: {_real(cam.fy_px)}", f"{c}.cx: {_real(cam.cx_px)}",
                   f"{c}.cy: {_real(cam.cy_px)}", f"{c}.k1: 0.0", f"{c}.k2: 0.0", f"{c}.p1: 0.0", f"{c}.p2: 0.0"]
     lines += [f"Camera.width: {int(cam.width_px)}", f"Camera.height: {int(cam.height_px)}",
-              f"Camera.fps: {max(1, round(fps))}", "Camera.RGB: 0", "",
+              f"Camera.fps: {camera_fps(fps)}", "Camera.RGB: 0", "",
               *_mat("Stereo.T_c1_c2", T), f"Stereo.ThDepth: {_real(th_depth)}", "",
               f"ORBextractor.nFeatures: {int(o.n_features)}", f"ORBextractor.scaleFactor: {_real(o.scale_factor)}",
               f"ORBextractor.nLevels: {n_levels}", f"ORBextractor.iniThFAST: {int(o.ini_th_fast)}",

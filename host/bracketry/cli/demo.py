@@ -24,7 +24,7 @@ from bracketry_emulator.option_table import DEMO, options_for, pop_settings, rec
               show_default=True, help="Output folder, new or empty (recording, dataset, benchmark report).")
 @overwrite_option("Run again into a non-empty --out (the earlier demo's files are replaced).")
 @option("--duration-s", "seconds", aliases=("--seconds",), type=Duration(600.0, min_s=3.0), default=None,
-        help="How long to record: seconds or e.g. 30s, 2m; 3 s to 10 min (default 20 s, or 10 s with --quick).")
+        help="How long to record: seconds or e.g. 30s, 2m; 3 s to 10 min (default 12 s, or 10 s with --quick).")
 @click.option("--quick", is_flag=True, help="Small and short (320x200, 10 s of recording): the version CI runs.")
 @options_for(DEMO)
 @method_options_options()

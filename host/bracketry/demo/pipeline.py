@@ -73,9 +73,10 @@ class DemoPlan:
 DEMO_PNG_COMPRESSION = "stored"
 
 
-#: 20 s: with the demo-size suite beside it the demo stays within its 4 minutes here (measured under load: the suite's
-#: 98 ORB-SLAM3 runs 265 CPU-s, the 40 s recording's seven ~250 CPU-s; on 2 cores 40 s + suite did not fit)
-DEFAULT_SECONDS = 20.0
+#: 12 s: longer than the suite's 10-s walks, and with the demo-size suite beside it the demo stays within its 4
+#: minutes on 2 cores (a 640x400 recording's seven lockstep ORB-SLAM3 runs cost about 4.5 times a suite walk's at
+#: 20 s: 30 % of the demo's SLAM; docs/RESULTS.md)
+DEFAULT_SECONDS = 12.0
 #: 10 s: the simulated walk (~0.58 m/s) covers ~5.8 m, safely more than the shortest RTE window (5 m, pairs from
 #: 4.5 m); 8 s (~4.7 m) left RTE/RRE to chance.
 QUICK_SECONDS = 10.0
