@@ -98,7 +98,7 @@ def plan(out_dir: Path, seconds: float | None, quick: bool, drl_weights: str | N
 
     SLAM: ORB-SLAM3 by default; the quick plan uses the built-in VO unless ``slam`` says otherwise (its 320x200
     images leave ORB-SLAM3 a 7-level pyramid, and the first ORB-SLAM3 run on a machine builds the vocabulary,
-    ~1-2 minutes, which alone would break the quick plan's budget).
+    about half a minute of a 2-minute budget).
     ``methods``, ``stats_methods``, ``method_options``: as ``bracketry benchmark``'s options.
     """
     chosen: dict[str, Any] = {"methods": methods, "stats_methods": stats_methods,
