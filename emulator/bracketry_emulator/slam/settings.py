@@ -119,8 +119,9 @@ def _mat(name: str, m: np.ndarray) -> list[str]:
 
 def camera_fps(fps: float) -> int:
     """``Camera.fps`` for a stream of ``fps`` frames per second: its integer part, at least 1 (3 for the bracket
-    cycle's 3.67 Hz, as the authors' ORB-SLAM2 reads their 3.67)."""
-    return max(1, int(fps))
+    cycle's 3.67 Hz, as the authors' ORB-SLAM2 reads their 3.67). A rate measured a hair under a whole number
+    (3.9999999 from timestamps) counts as that number."""
+    return max(1, int(fps + 1e-6))
 
 
 def settings_yaml(cam: OrbSlamCamera, fps: float, loop_closing: bool = True, th_depth: float = 35.0,

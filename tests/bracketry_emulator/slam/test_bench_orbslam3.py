@@ -24,6 +24,7 @@ from bracketry_emulator.slam.settings import (
     MIN_FIELD_FEATURES,
     PAPER_ORB,
     OrbSlamCamera,
+    camera_fps,
     field_orb_settings,
     pyramid_levels,
     settings_yaml,
@@ -115,6 +116,7 @@ def test_bench_settings_reals_and_levels() -> None:
     assert fs.getNode("Stereo.ThDepth").isReal() and fs.getNode("Stereo.ThDepth").real() == 35.0
     assert fs.getNode("Camera1.fx").isReal() and fs.getNode("Camera.fps").isInt()
     assert int(fs.getNode("Camera.fps").real()) == 3 and int(fs.getNode("loopClosing").real()) == 0
+    assert [camera_fps(f) for f in (11 / 3, 3.9999999, 4.0, 0.5, 20.0)] == [3, 4, 4, 1, 20]
     assert np.allclose(fs.getNode("Stereo.T_c1_c2").mat()[:3, 3], [0.18, 0, 0])
     assert int(fs.getNode("ORBextractor.nLevels").real()) == pyramid_levels(320, 240, 13, 1.2) == 8
     assert pyramid_levels(960, 600, 13, 1.2) == 13
