@@ -18,6 +18,9 @@ on RTE (worst-rank imputation; the Mann-Whitney table leaves it out, as the pape
 
 - **power**: the share of seeds in which a bad control is flagged *worse* than AE50 on RTE or on time before failure;
 - **false positives**: the share of seeds in which the copy is flagged (better or worse) on any metric;
+- **unstable**: apart from both, the share of seeds in which a row's verdict is shown as ``?`` (fewer than 90 % of
+  bootstrap resamples of the walks give the test's verdict, which may be "equal": the report claims no difference
+  either way there, so a ``?`` counts neither as a flag nor as a clearance);
 
 each for Mann-Whitney (the report's main table) and for the paired Wilcoxon (its paired table). Per seed a line is
 appended to ``--out``/seeds.jsonl as it is measured.
@@ -68,6 +71,9 @@ COPY_MODULE = textwrap.dedent('''
 ''')
 #: metrics on which a bad control counts as flagged (worse than AE50)
 POWER_METRICS = ("rte_pct", "time_before_failure_s")
+#: a verdict the report marks ``?`` (fewer than 90 % of bootstrap resamples of the walks give it): counted apart,
+#: neither flagged nor cleared
+UNSTABLE = "unstable"
 BIN = Path(sys.executable).parent / "bracketry"
 
 
@@ -112,7 +118,7 @@ def flags(report_dir: Path) -> dict[str, dict[str, dict[str, str]]]:
 
     key_of = {label: key for key, (label, _higher) in METRICS.items()}
 
-    word = {"▲": "better", "▼": "worse", "≡": "equal", "–": "n/a", "?": "unstable"}
+    word = {"▲": "better", "▼": "worse", "≡": "equal", "–": "n/a", "?": UNSTABLE}
     out: dict[str, dict[str, dict[str, str]]] = {}
     for test, name in (("mann-whitney", "verdicts.csv"), ("wilcoxon", "verdicts_paired.csv")):
         with open(report_dir / name, newline="") as fh:
@@ -136,12 +142,13 @@ def seed_row(seed: int, bench_dir: Path, render_s: float, bench_s: float) -> dic
                  "benchmark_s": round(bench_s, 1)}
     for test, v in f.items():
         row[test] = {}
-        if SHORT in v:
-            row[test]["short"] = any(v[SHORT].get(k) == "worse" for k in POWER_METRICS)
-        if LONG in v:
-            row[test]["long"] = any(v[LONG].get(k) == "worse" for k in POWER_METRICS)
+        for key, method in (("short", SHORT), ("long", LONG)):
+            if method in v:
+                row[test][key] = any(v[method].get(k) == "worse" for k in POWER_METRICS)
+                row[test][f"{key}_unstable"] = any(v[method].get(k) == UNSTABLE for k in POWER_METRICS)
         if COPY in v:
-            row[test]["copy"] = any(x not in ("equal", "n/a") for x in v[COPY].values())
+            row[test]["copy"] = any(x in ("better", "worse") for x in v[COPY].values())
+            row[test]["copy_unstable"] = any(x == UNSTABLE for x in v[COPY].values())
     return row
 
 
@@ -216,8 +223,11 @@ def main() -> None:
     table = []
     for test in ("mann-whitney", "wilcoxon"):
         for what, key, goal in (("far-too-short constant flagged worse (power)", "short", ">= 0.9"),
+                                ("far-too-short constant: ? on RTE or failure time", "short_unstable", ""),
                                 ("far-too-long constant flagged worse (power)", "long", ">= 0.9"),
-                                ("AE50 plug-in copy flagged at all (false positive)", "copy", "<= 1 of 10")):
+                                ("far-too-long constant: ? on RTE or failure time", "long_unstable", ""),
+                                ("AE50 plug-in copy flagged at all (false positive)", "copy", "<= 1 of 10"),
+                                ("AE50 plug-in copy: ? on any metric", "copy_unstable", "")):
             if not per_seed or any(key not in r[test] for r in per_seed):
                 continue
             k = sum(bool(r[test][key]) for r in per_seed)
