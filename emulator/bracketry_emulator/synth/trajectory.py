@@ -113,8 +113,10 @@ class LoopTrajectory:
         pitch_deg: downward pitch of the optical axis.
         step_hz: step frequency (vertical bounce at step_hz, roll/sway/yaw at step_hz / 2).
         bounce_m, roll_deg, sway_m, yaw_deg, nod_deg: gait amplitudes of the trunk that carries the backpack
-            (walking: the trunk bobs 2-3 cm per step, sways 2-3 cm and rolls about 2 degrees per stride; the upper
-            trunk, where the rig rides, turns less than the pelvis: about 2 degrees; it pitches about 1 degree).
+            (walking: the trunk bobs 2 cm per step, sways 2 cm and rolls 1.6 degrees per stride; the upper trunk,
+            where the rig rides, turns 1.6 degrees; it pitches 0.8 degree). The rotations are set so that the
+            camera's turn over a bracket cycle (0.27 s) and its change from one cycle to the next, what a
+            constant-velocity prediction gets wrong, match the real sample's IMU (emulator/DATASET.md, "Motion").
         phase_rad: start position on the loop.
         turn_deg, turn_period_s: the walker looking around: a yaw of ``turn_deg`` amplitude with that period, on
             top of the gait (0: none). A 15-degree look every 7 s turns at up to 13 degrees/s.
@@ -126,11 +128,11 @@ class LoopTrajectory:
     height_m: float = 1.55
     pitch_deg: float = 6.0
     step_hz: float = 1.7
-    bounce_m: float = 0.025
-    roll_deg: float = 2.0
-    sway_m: float = 0.025
-    yaw_deg: float = 2.0
-    nod_deg: float = 1.0
+    bounce_m: float = 0.02
+    roll_deg: float = 1.6
+    sway_m: float = 0.02
+    yaw_deg: float = 1.6
+    nod_deg: float = 0.8
     phase_rad: float = 0.0
     turn_deg: float = 0.0
     turn_period_s: float = 7.0
