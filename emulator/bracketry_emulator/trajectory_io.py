@@ -19,9 +19,12 @@ from scipy.spatial.transform import Rotation
 
 from bracketry_base.errors import BracketryError
 
-#: the columns of ``frames.csv``, one row per frame fed to the localisation
+#: the columns of ``frames.csv``, one row per frame fed to the localisation. ``n_keypoints`` and ``coverage``: ORB
+#: keypoints at the paper's settings (the same extractor whatever the localisation); ``n_slam_keypoints``: the
+#: localisation's own keypoints in the frame (ORB-SLAM3's, whose stereo start needs more than 500; the built-in VO's
+#: are its ``n_keypoints``; NaN when unknown)
 FRAME_FIELDS = ("t_ns", "state", "segment", "n_keypoints", "coverage", "n_stereo", "n_ref_matches", "n_map_matches",
-                "reason")
+                "n_slam_keypoints", "reason")
 
 
 def write_tum(path: str | Path, times_s: np.ndarray | list[float], poses_wc: np.ndarray | list[np.ndarray]) -> None:
@@ -68,7 +71,7 @@ def write_frames_csv(path: Path, frames: Iterable[Any]) -> None:
         w.writerow(FRAME_FIELDS)
         for f in frames:
             w.writerow([f.t_ns, f.state, f.segment, f.n_keypoints, f"{f.coverage:.6f}", f.n_stereo, f.n_ref_matches,
-                        f.n_map_matches, f.reason])
+                        f.n_map_matches, f.n_keypoints, f.reason])
 
 
 def _count(text: str) -> int | float:
@@ -78,12 +81,15 @@ def _count(text: str) -> int | float:
 
 
 def read_frames_csv(path: str | Path) -> list[dict]:
-    """Rows of a ``frames.csv`` with numeric fields converted (unknown counts are NaN)."""
+    """Rows of a ``frames.csv`` with numeric fields converted (unknown counts are NaN, a file without the
+    ``n_slam_keypoints`` column too)."""
     rows = []
     with Path(path).open(newline="") as fh:
         for r in csv.DictReader(fh):
             rows.append({"t_ns": int(r["t_ns"]), "state": r["state"], "segment": int(r["segment"]),
                          "n_keypoints": _count(r["n_keypoints"]), "coverage": float(r["coverage"]),
                          "n_stereo": _count(r["n_stereo"]), "n_ref_matches": _count(r["n_ref_matches"]),
-                         "n_map_matches": _count(r["n_map_matches"]), "reason": r.get("reason") or ""})
+                         "n_map_matches": _count(r["n_map_matches"]),
+                         "n_slam_keypoints": _count(r.get("n_slam_keypoints") or "nan"),
+                         "reason": r.get("reason") or ""})
     return rows

@@ -4,7 +4,9 @@ Per frame (one per closed-loop step) the classifier gets: the saturated and dark
 SLAM got (the closed loop's ``ae.csv``, :func:`~bracketry_emulator.ae.loop.image_shares`), the rotation blur length
 in pixels over the camera's exposure (from the reference trajectory, :func:`rotation_blur_px`), the exposure ratio
 to the previous frame (target exposure x gain, i.e. the image's brightness ratio), and the keypoints and map matches
-of the localisation (``frames.csv``). It looks at the lost frame and the :data:`LOOKBACK` frames before it (a
+of the localisation (``frames.csv``; the keypoints are the localisation's own, ``n_slam_keypoints``: ORB-SLAM3's
+stereo start and its tracking count those, not the paper-setting extractor's ``n_keypoints``, which stand in only
+where the localisation's are unknown). It looks at the lost frame and the :data:`LOOKBACK` frames before it (a
 tracker often reports the loss a frame after the image that broke it) and names the first cause that holds, in this
 order:
 
@@ -151,6 +153,12 @@ def _floats(rows: list[dict], key: str, n: int) -> np.ndarray:
     return out
 
 
+def _own_keypoints(frame: dict) -> float:
+    """The localisation's own keypoint count of a ``frames.csv`` row (``n_slam_keypoints``), else ``n_keypoints``."""
+    own = float(frame.get("n_slam_keypoints", math.nan))
+    return own if math.isfinite(own) else float(frame["n_keypoints"])
+
+
 def frame_log(frames: list[dict], ae_csv: Path | None) -> FrameLog:
     """The frame log of a run: ``frames`` (rows of its ``frames.csv``, one per closed-loop step) joined by position
     with its closed loop's ``ae.csv`` rows (exposure_ms, gain_db, saturated_share, dark_share; missing file or
@@ -170,7 +178,7 @@ def frame_log(frames: list[dict], ae_csv: Path | None) -> FrameLog:
         times_s=np.array([f["t_ns"] for f in frames], np.float64) * 1e-9,
         saturated_share=_floats(rows, "saturated_share", n), dark_share=_floats(rows, "dark_share", n),
         camera_exposure_s=exposure_ms * 1e-3 / 10.0 ** (gain_db / 20.0), exposure_ratio=ratio,
-        keypoints=np.array([f["n_keypoints"] for f in frames], np.float64),
+        keypoints=np.array([_own_keypoints(f) for f in frames], np.float64),
         map_matches=np.array([f["n_map_matches"] for f in frames], np.float64))
 
 

@@ -17,7 +17,8 @@ Per-frame states come from the tracking state ORB-SLAM3 returns for every frame,
 * ``NO_IMAGES_YET`` / ``NOT_INITIALIZED`` (a new map starts: ORB-SLAM3 restarts at identity) -> LOST.
 
 So segments split at every loss or new map. ``n_map_matches`` = map points tracked in the frame; ``n_keypoints`` and
-``coverage`` come from our ORB extractor at the paper's settings (same as the built-in VO), ``n_stereo`` and
+``coverage`` come from our ORB extractor at the paper's settings (same as the built-in VO); ``n_slam_keypoints`` is
+ORB-SLAM3's own keypoint count in the frame (its stereo start needs more than 500); ``n_stereo`` and
 ``n_ref_matches`` are unknown (NaN).
 """
 

@@ -118,6 +118,7 @@ def _track(request: dict) -> dict:
     raw_states: list[str] = []
     poses: list[np.ndarray | None] = []
     kp: list[int] = []
+    slam_kp: list[int] = []
     cov: list[float] = []
     matches: list[int] = []
     track_s: list[float] = []
@@ -149,6 +150,7 @@ def _track(request: dict) -> dict:
         track_s.append(time.perf_counter() - t0)
         name = res.state.name if hasattr(res.state, "name") else str(res.state).rsplit(".", 1)[-1]
         raw_states.append(name)
+        slam_kp.append(len(slam.tracked_keypoints()))  # ORB-SLAM3's own keypoints in this frame (all, tracked or not)
         ok = name in ("OK", "OK_KLT") and bool(res.pose_valid)
         poses.append(np.asarray(res.pose_wc, np.float64).reshape(4, 4) if ok else None)
         # The tracked points still in the map: read while local mapping works on this frame's keyframe (it starts
@@ -164,7 +166,7 @@ def _track(request: dict) -> dict:
         fh.write(",".join(FRAME_FIELDS) + "\n")
         for i, t_ns in enumerate(times_ns):
             reason = "" if states[i] != "LOST" else f"ORB-SLAM3 {raw_states[i]}"
-            fh.write(f"{t_ns},{states[i]},{segments[i]},{kp[i]},{cov[i]:.6f},nan,nan,{matches[i]},{reason}\n")
+            fh.write(f"{t_ns},{states[i]},{segments[i]},{kp[i]},{cov[i]:.6f},nan,nan,{matches[i]},{slam_kp[i]},{reason}\n")
     for seg in sorted({s for s in segments if s >= 0}):
         idx = [i for i, s in enumerate(segments) if s == seg]
         write_tum(out / f"CameraTrajectory{seg}.txt", [times_ns[i] * 1e-9 for i in idx],

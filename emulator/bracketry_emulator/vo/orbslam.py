@@ -127,6 +127,6 @@ def import_orbslam(trajectory_dir: str | Path, times_file: str | Path, out_dir: 
         for t in times_ns:
             s, seg = state[t]
             reason = "" if s != "LOST" else "no pose in the ORB-SLAM trajectories"
-            fh.write(f"{t},{s},{seg},nan,nan,nan,nan,nan,{reason}\n")
+            fh.write(f"{t},{s},{seg},nan,nan,nan,nan,nan,nan,{reason}\n")
     return out
 

@@ -103,6 +103,22 @@ def test_frame_log_joins_the_closed_loop_by_step(tmp_path) -> None:
     assert np.isnan(frame_log(frames, tmp_path / "missing.csv").saturated_share).all()
 
 
+def test_texture_is_judged_on_the_localisations_own_keypoints(tmp_path) -> None:
+    """A stereo start that fails with 900 keypoints at the paper's settings but 420 of ORB-SLAM3's own is a view short
+    of texture for ORB-SLAM3; a frames.csv without the localisation's count falls back to ``n_keypoints``."""
+    ae = tmp_path / "ae.csv"
+    ae.write_text("step,timestamp_ns,exposure_ms,next_exposure_ms,source_exposure_ms,ae_ms,gain_db,saturated_share,"
+                  "dark_share\n0,0,8,8,8,0,0,0.05,0.05\n1,1,8,8,8,0,0,0.05,0.05\n")
+    own = [{"t_ns": k, "state": "LOST", "n_keypoints": 900, "n_slam_keypoints": 420, "n_map_matches": 0}
+           for k in range(2)]
+    assert loss_cause(frame_log(own, ae), np.zeros(2)) == "texture"
+    np.testing.assert_array_equal(frame_log(own, ae).keypoints, [420, 420])
+    unknown = [{**f, "n_slam_keypoints": float("nan")} for f in own]
+    assert loss_cause(frame_log(unknown, ae), np.zeros(2)) == "other"
+    missing = [{k: v for k, v in f.items() if k != "n_slam_keypoints"} for f in own]
+    np.testing.assert_array_equal(frame_log(missing, ae).keypoints, [900, 900])
+
+
 def test_failure_rows_of_single_and_repeated_results() -> None:
     single = {"trajectory": "t", "method": "m", "repeat": 0, "time_before_failure_s": 2.5,
               "failure_cause": "blur"}

@@ -196,6 +196,9 @@ def test_bench_orbslam3_black_frames_lost_then_new_segment(toy: Path, vocabulary
     states = [f["state"] for f in frames]
     assert states[:10] == ["INIT"] + ["OK"] * 9
     assert all(s == "LOST" for s in states[10:15]) and all(f["reason"].startswith("ORB-SLAM3") for f in frames[10:15])
+    # ORB-SLAM3's own keypoints: more than its stereo start's 500 on the first frame, none left on black ones
+    assert frames[0]["n_slam_keypoints"] > 500
+    assert all(f["n_slam_keypoints"] < 500 for f in frames[10:15]), [f["n_slam_keypoints"] for f in frames[10:15]]
     assert "INIT" in states[15:] and states[-1] == "OK"
     segs = sorted({f["segment"] for f in frames if f["state"] != "LOST"})
     assert segs[0] == 0 and len(segs) >= 2
