@@ -16,7 +16,7 @@ order:
 ``blur``           a frame of the window is blurred over at least :data:`BLUR_PX` pixels
 ``exposure_jump``  the exposure changed by a factor of at least 2 ** :data:`JUMP_STOPS` between two frames of the
                    window (or into its first frame)
-``texture``        none of the above, and the lost frame has fewer than :data:`TEXTURE_KEYPOINTS` keypoints
+``texture``        none of the above, and the lost frame has at most :data:`TEXTURE_KEYPOINTS` keypoints
 ``other``          none of the above (e.g. too few map matches in a view with enough keypoints: parallax, a turn)
 =================  ===================================================================================================
 
@@ -50,7 +50,7 @@ DARK_SHARE = 0.5
 BLUR_PX = 3.0
 #: an exposure change of at least this many stops between consecutive frames is a jump (a factor of 2)
 JUMP_STOPS = 1.0
-#: keypoints below which a view lacks texture: ORB-SLAM's stereo initialisation needs more than 500
+#: keypoints up to which a view lacks texture: ORB-SLAM's stereo initialisation needs more than 500
 TEXTURE_KEYPOINTS = 500
 
 
@@ -95,7 +95,7 @@ def classify_loss(saturated_share: np.ndarray, dark_share: np.ndarray, blur_px: 
     if ratio.size and float(np.max(np.abs(np.log2(ratio)))) >= JUMP_STOPS - 1e-9:
         return "exposure_jump"
     kp = float(np.asarray(keypoints, np.float64)[loss_index])
-    if math.isfinite(kp) and kp < TEXTURE_KEYPOINTS:
+    if math.isfinite(kp) and kp <= TEXTURE_KEYPOINTS:
         return "texture"
     return "other"
 

@@ -44,6 +44,8 @@ def _log(**change: tuple[int, float]) -> dict[str, np.ndarray]:
     ({"exposure_ratio": (LOSS, 2.0 ** (JUMP_STOPS + 0.5))}, "exposure_jump"),
     ({"exposure_ratio": (LOSS, 2.0 ** -(JUMP_STOPS + 0.5))}, "exposure_jump"),  # a jump down too
     ({"keypoints": (LOSS, TEXTURE_KEYPOINTS - 100)}, "texture"),
+    ({"keypoints": (LOSS, TEXTURE_KEYPOINTS)}, "texture"),  # ORB-SLAM's stereo start needs more than 500
+    ({"keypoints": (LOSS, TEXTURE_KEYPOINTS + 1)}, "other"),
     ({"map_matches": (LOSS, 3.0)}, "other"),
 ])
 def test_one_log_per_cause(change: dict, cause: str) -> None:
