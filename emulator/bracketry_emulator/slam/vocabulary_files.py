@@ -7,8 +7,10 @@ ever downloaded.
 The default vocabulary is trained once on images that are not any benchmark's: the synthetic worlds of both presets
 with seeds no command uses by default (:data:`DEFAULT_TRAINING`), left camera at 8 ms, every 3 s along the walk,
 at 960x600, ORB features at the paper's settings, k = 10, L = 4, seed 0. It is written to the user cache
-(``$XDG_CACHE_HOME/bracketry`` or ``~/.cache/bracketry``) under a name that carries the recipe's hash, so a changed
-recipe builds a new file and a finished file is never rebuilt.
+(``$XDG_CACHE_HOME/bracketry`` or ``~/.cache/bracketry``) under a name that carries a hash of the recipe and of the
+synthetic world's code (:func:`~bracketry_emulator.synth.suite.code_digest`: the training images are that code's
+renders), so a changed recipe or world builds a new file, two machines with the same code train the same words,
+and a finished file is never rebuilt.
 
 Why L = 4 (10^4 words): ORB-SLAM groups a frame's features by the vocabulary node 4 levels above the leaves and
 matches two frames' features only within a group. At L = 4 that node is the root: every feature pair is compared
@@ -78,8 +80,12 @@ def recipe_hash(recipe: dict) -> str:
 
 
 def default_vocabulary_path(recipe: dict | None = None) -> Path:
+    """Where the vocabulary of ``recipe`` (default :data:`DEFAULT_TRAINING`) trained on this code's renders lives."""
+    from bracketry_emulator.synth.suite import code_digest
+
     r = recipe or DEFAULT_TRAINING
-    return user_cache_dir() / "orbslam3" / f"vocabulary-k{r['k']}L{r['levels']}-{recipe_hash(r)}.txt"
+    key = recipe_hash({**r, "synth_code": code_digest()})
+    return user_cache_dir() / "orbslam3" / f"vocabulary-k{r['k']}L{r['levels']}-{key}.txt"
 
 
 def training_descriptors(recipe: dict) -> list[np.ndarray]:
