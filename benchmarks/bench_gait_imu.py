@@ -67,15 +67,17 @@ def main() -> None:
         imu = found[0]
     if not imu.is_file():
         sys.exit(f"--imu {imu}: no such file")
-    print("| source | cycles | turn over one cycle, deg: median (90th pct) | change from the previous cycle |")
-    print("|---|---|---|---|")
-    print(row(f"real IMU {imu.parent.parent.name}", imu_turns(imu)))
-    for arg in args.walks:
+    walks = []
+    for arg in args.walks:  # every argument checked before anything is printed
         files = groundtruth_files(arg)
         if not files:
             sys.exit(f"{arg}: no groundtruth.txt there")
-        for f in files:
-            print(row(f"{f.parent.parent.name}/{f.parent.name}", groundtruth_turns(f)))
+        walks.extend(files)
+    print("| source | cycles | turn over one cycle, deg: median (90th pct) | change from the previous cycle |")
+    print("|---|---|---|---|")
+    print(row(f"real IMU {imu.parent.parent.name}", imu_turns(imu)))
+    for f in walks:
+        print(row(f"{f.parent.parent.name}/{f.parent.name}", groundtruth_turns(f)))
 
 
 if __name__ == "__main__":
