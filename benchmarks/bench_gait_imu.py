@@ -73,11 +73,15 @@ def main() -> None:
         if not files:
             sys.exit(f"{arg}: no groundtruth.txt there")
         walks.extend(files)
+    try:
+        lines = [row(f"real IMU {imu.parent.parent.name}", imu_turns(imu))]
+        for f in walks:
+            lines.append(row(f"{f.parent.parent.name}/{f.parent.name}", groundtruth_turns(f)))
+    except (OSError, ValueError, IndexError) as exc:
+        sys.exit(f"cannot read the motion: {exc}")
     print("| source | cycles | turn over one cycle, deg: median (90th pct) | change from the previous cycle |")
     print("|---|---|---|---|")
-    print(row(f"real IMU {imu.parent.parent.name}", imu_turns(imu)))
-    for f in walks:
-        print(row(f"{f.parent.parent.name}/{f.parent.name}", groundtruth_turns(f)))
+    print("\n".join(lines))
 
 
 if __name__ == "__main__":
