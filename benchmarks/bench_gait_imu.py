@@ -20,11 +20,13 @@ from pathlib import Path
 import numpy as np
 
 from bracketry_base import paths
+from bracketry_base.errors import BracketryError
 from bracketry_emulator.metrics.cycle_rotation import (
     cycle_turns_from_gyro,
     cycle_turns_from_poses,
     turn_and_change_deg,
 )
+from bracketry_emulator.trajectory_io import read_tum
 
 
 def imu_turns(path: Path) -> np.ndarray:
@@ -34,9 +36,8 @@ def imu_turns(path: Path) -> np.ndarray:
 
 
 def groundtruth_turns(path: Path) -> np.ndarray:
-    """Cycle rotation vectors (rad) of a TUM ``groundtruth.txt`` (t_s tx ty tz qx qy qz qw)."""
-    x = np.loadtxt(path)
-    return cycle_turns_from_poses(x[:, 0], x[:, 4:8])
+    """Cycle rotation vectors (rad) of a TUM ``groundtruth.txt``."""
+    return cycle_turns_from_poses(*read_tum(path))
 
 
 def row(name: str, turns: np.ndarray) -> str:
@@ -77,7 +78,7 @@ def main() -> None:
         lines = [row(f"real IMU {imu.parent.parent.name}", imu_turns(imu))]
         for f in walks:
             lines.append(row(f"{f.parent.parent.name}/{f.parent.name}", groundtruth_turns(f)))
-    except (OSError, ValueError, IndexError) as exc:
+    except (BracketryError, OSError, ValueError, IndexError) as exc:
         sys.exit(f"cannot read the motion: {exc}")
     print("| source | cycles | turn over one cycle, deg: median (90th pct) | change from the previous cycle |")
     print("|---|---|---|---|")

@@ -41,13 +41,14 @@ def cycle_turns_from_gyro(times_s: np.ndarray, gyro_rad_s: np.ndarray,
     return np.diff(at_edges, axis=0)
 
 
-def cycle_turns_from_poses(times_s: np.ndarray, quaternions_xyzw: np.ndarray,
+def cycle_turns_from_poses(times_s: np.ndarray, poses_wc: np.ndarray,
                            cycle_s: float = BRACKET_CYCLE_S) -> np.ndarray:
-    """Rotation vectors (rad, in the body frame at each cycle's start) of each whole cycle from orientations.
+    """Rotation vectors (rad, in the body frame at each cycle's start) of each whole cycle from poses.
 
     Args:
         times_s: float (M,) pose times, increasing, seconds (M >= 2).
-        quaternions_xyzw: float (M, 4) body-to-world orientations (x, y, z, w), as TUM files hold them.
+        poses_wc: float (M, 4, 4) body-to-world poses (as :func:`~bracketry_emulator.trajectory_io.read_tum` reads
+            them); only their rotations are used.
         cycle_s: the cycle's length, s.
     Returns:
         float64 (K, 3): the rotation from each cycle's start to its end, orientations interpolated (slerp).
@@ -56,7 +57,7 @@ def cycle_turns_from_poses(times_s: np.ndarray, quaternions_xyzw: np.ndarray,
     if t.ndim != 1 or len(t) < 2:
         raise ValueError("times_s (M,) with M >= 2 required")
     t = t - t[0]
-    slerp = Slerp(t, Rotation.from_quat(np.asarray(quaternions_xyzw, np.float64)))
+    slerp = Slerp(t, Rotation.from_matrix(np.asarray(poses_wc, np.float64)[:, :3, :3]))
     r = slerp(np.arange(0.0, t[-1] + 1e-12, cycle_s))
     return np.asarray((r[:-1].inv() * r[1:]).as_rotvec(), np.float64)
 

@@ -17,21 +17,27 @@ RATE_HZ = 1000.0
 DURATION_S = 6.0
 
 
+def _poses(rotations: Rotation) -> np.ndarray:
+    """float64 (M, 4, 4) poses of those orientations (at the origin)."""
+    poses = np.tile(np.eye(4), (len(rotations), 1, 1))
+    poses[:, :3, :3] = rotations.as_matrix()
+    return poses
+
+
 def _yaw_motion(amplitude_rad: float, freq_hz: float, steady_rad_s: float) -> tuple[np.ndarray, ...]:
     """A turn about the body's z axis: yaw(t) = steady t - A cos(2 pi f t) (rate steady + A 2 pi f sin(2 pi f t)).
-    Returns (t (N,), gyro (N, 3), quaternions (N, 4), yaw (N,))."""
+    Returns (t (N,), gyro (N, 3), poses (N, 4, 4), yaw (N,))."""
     t = np.arange(0.0, DURATION_S, 1.0 / RATE_HZ)
     w = 2 * np.pi * freq_hz
     yaw = steady_rad_s * t - amplitude_rad * np.cos(w * t)
     rate = steady_rad_s + amplitude_rad * w * np.sin(w * t)
     gyro = np.stack([np.zeros_like(t), np.zeros_like(t), rate], axis=1)
-    quats = Rotation.from_euler("z", yaw[:, None]).as_quat()
-    return t, gyro, quats, yaw
+    return t, gyro, _poses(Rotation.from_euler("z", yaw[:, None])), yaw
 
 
 def test_a_steady_turn_has_no_change() -> None:
-    t, gyro, quats, _ = _yaw_motion(0.0, 1.0, np.radians(10.0))
-    for turns in (cycle_turns_from_gyro(t, gyro), cycle_turns_from_poses(t, quats)):
+    t, gyro, poses, _ = _yaw_motion(0.0, 1.0, np.radians(10.0))
+    for turns in (cycle_turns_from_gyro(t, gyro), cycle_turns_from_poses(t, poses)):
         turn, change = turn_and_change_deg(turns)
         assert len(turn) == int((DURATION_S - 1.0 / RATE_HZ) / BRACKET_CYCLE_S)  # whole cycles within the samples
         np.testing.assert_allclose(turn, 10.0 * BRACKET_CYCLE_S, rtol=2e-3)
@@ -42,11 +48,11 @@ def test_a_gait_near_half_the_cycle_rate_changes_more_than_it_turns() -> None:
     """A 1.7-Hz oscillation sampled every 0.27 s: the cycle's turn is the yaw's difference over the cycle and the
     change its second difference, which at 0.46 oscillations a cycle is nearly twice the turn."""
     amp = np.radians(1.0)
-    t, gyro, quats, yaw = _yaw_motion(amp, 1.7, 0.0)
+    t, gyro, poses, yaw = _yaw_motion(amp, 1.7, 0.0)
     edges = np.round(np.arange(0.0, t[-1], BRACKET_CYCLE_S) * RATE_HZ).astype(int)
     expected_turn = np.diff(yaw[edges])
     expected = np.degrees(np.abs(expected_turn)), np.degrees(np.abs(np.diff(expected_turn)))
-    for turns in (cycle_turns_from_gyro(t, gyro), cycle_turns_from_poses(t, quats)):
+    for turns in (cycle_turns_from_gyro(t, gyro), cycle_turns_from_poses(t, poses)):
         turn, change = turn_and_change_deg(turns)
         n = min(len(turn), len(expected[0]))
         np.testing.assert_allclose(turn[:n], expected[0][:n], atol=0.02)
@@ -59,9 +65,9 @@ def test_gyro_and_poses_agree_on_a_tilted_axis() -> None:
     axis = np.array([0.3, -0.5, 0.8]) / np.linalg.norm([0.3, -0.5, 0.8])
     rate = np.radians(12.0) * (1.0 + 0.5 * np.sin(2 * np.pi * 0.9 * t))
     angle = np.concatenate([[0.0], np.cumsum(rate[:-1] / RATE_HZ)])
-    quats = Rotation.from_rotvec(angle[:, None] * axis).as_quat()
+    poses = _poses(Rotation.from_rotvec(angle[:, None] * axis))
     a = cycle_turns_from_gyro(t, rate[:, None] * axis)
-    b = cycle_turns_from_poses(t, quats)
+    b = cycle_turns_from_poses(t, poses)
     n = min(len(a), len(b))
     np.testing.assert_allclose(a[:n], b[:n], atol=np.radians(0.01))
 
@@ -70,4 +76,4 @@ def test_bad_shapes_are_refused() -> None:
     with pytest.raises(ValueError):
         cycle_turns_from_gyro(np.zeros(5), np.zeros((5, 2)))
     with pytest.raises(ValueError):
-        cycle_turns_from_poses(np.zeros(1), np.zeros((1, 4)))
+        cycle_turns_from_poses(np.zeros(1), np.tile(np.eye(4), (1, 1, 1)))
