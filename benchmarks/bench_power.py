@@ -1,13 +1,14 @@
 """Statistical power of the benchmark: how often its statistics flag known-bad controls, and a copy of AE50.
 
 Usage: .venv/bin/python benchmarks/bench_power.py [--seeds 10] [--slam builtin|orbslam3] [--repeats 1]
-                                                  [--controls short,long,copy] [--out DIR] [--quick] [--tally]
+                                                  [--suites-per-seed 3] [--controls short,long,copy] [--out DIR]
+                                                  [--quick] [--tally]
 
 For each seed, a suite is rendered and benchmarked with four methods: ``ae50`` (the reference), a far-too-short
 constant (``constant-0.0625``: four stops under the shortest bracket, 1 ms), a far-too-long one (``constant-512``:
 four stops over the longest, 32 ms, emulated as 32 ms with 24 dB of gain; the loops' upper bound is raised to 1 s)
 and ``ae50copy``, a plug-in (an import path, as a researcher ships one) whose rule is AE50's. The suite's manifest
-declares a warm-up (every method first settles on each walk's first view), so the 3 s walks compare how methods
+declares a warm-up (every method first settles on each walk's first view), so the walks compare how methods
 follow the light, not how fast they leave the 4 ms start. The far-too-long constant is far too long for the
 daylight walks only: under the canopy and at dusk AE50 itself asks for 0.2-1 s here (as gain), so 512 ms is no
 worse there, and a test over the whole suite must find it from the daylight walks. (``constant-64``, one stop over
@@ -28,12 +29,16 @@ appended to ``--out``/seeds.jsonl as it is measured.
 Each with its count and a 95 % Clopper-Pearson interval. Goal (issue 28): power >= 0.9; the copy flagged in at most
 1 of 10 seeds.
 
-The suite: ``bracketry synth suite --size demo --seed S`` when that command exists, else (said in the output) six
+The suite of seed S: the demo-size suites (``bracketry synth suite --size demo``) of seeds S, 1000 + S, 2000 + S
+(``--suites-per-seed``, default 3), benchmarked together: 30 walks of 10 s, half the paper's 59 trajectories. One
+suite of 10 walks holds three (the canopy, dusk and sunset walks) on which the far-too-long constant asks what AE50
+asks, so only 6-7 walks can tell the two apart, too few for a test at Bonferroni's 0.0167 whose verdict also holds in
+90 % of bootstrap resamples of the walks. Where ``synth suite`` does not exist (said in the output): six
 snowy-forest walks of 4 s at 320x200 (``bracketry synth trajectory``, seeds 100 S + k). Localisation: the built-in
-VO by default (deterministic: its results do not move between runs, so the copy's results are AE50's, bit for bit;
-ORB-SLAM3 over 10 seeds did not fit a session on this 2-core machine), ``--slam orbslam3 --repeats N`` for
-ORB-SLAM3 with N runs per (trajectory, method) (statistics on the medians: its run-to-run spread is what makes a
-copy differ from its original). Prints the table, the time per stage, and writes ``power.json`` into ``--out``.
+VO by default (deterministic: its results do not move between runs, so the copy's results are AE50's, bit for bit),
+``--slam orbslam3 --repeats N`` for ORB-SLAM3 with N runs per (trajectory, method) (statistics on the medians: its
+run-to-run spread is what makes a copy differ from its original). Prints the table, the time per stage, and writes
+``power.json`` into ``--out``.
 """
 
 from __future__ import annotations
@@ -52,6 +57,7 @@ import tempfile  # noqa: E402
 import textwrap  # noqa: E402
 import time  # noqa: E402
 from pathlib import Path  # noqa: E402
+from typing import Any  # noqa: E402
 
 from bracketry_emulator.runtime_policy import apply_profile  # noqa: E402
 
@@ -75,6 +81,10 @@ POWER_METRICS = ("rte_pct", "time_before_failure_s")
 #: neither flagged nor cleared
 UNSTABLE = "unstable"
 BIN = Path(sys.executable).parent / "bracketry"
+#: the demo-size suites pooled into one power seed (``--suites-per-seed``): 30 walks, half the paper's 59
+SUITES_PER_SEED = 3
+#: power seed S pools the suites of seeds S, S + 1000, S + 2000, ...
+SUITE_SEED_STRIDE = 1000
 
 
 def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
@@ -92,12 +102,21 @@ def has_suite_command() -> bool:
     return subprocess.run([str(BIN), "synth", "suite", "--help"], capture_output=True).returncode == 0
 
 
-def make_suite(root: Path, seed: int, use_suite: bool) -> Path:
-    """The seed's suite under ``root``; returns its manifest."""
+def suite_seeds(seed: int, suites: int) -> list[int]:
+    """The demo-size suite seeds pooled into power seed ``seed``: ``seed``, ``SUITE_SEED_STRIDE + seed``, ... (the
+    first is the demo-size suite of the same seed, so a one-suite run is the suite a user renders)."""
+    return [seed + SUITE_SEED_STRIDE * j for j in range(suites)]
+
+
+def make_suite(root: Path, seed: int, use_suite: bool, suites: int = 1) -> list[Path]:
+    """The seed's suites under ``root`` (``suites`` demo-size suites, see :func:`suite_seeds`); returns their
+    manifests, benchmarked together (as ``bracketry benchmark M1 M2 ...``: a walk met again is named ``NAME_2``)."""
     if use_suite:
-        subprocess.run([str(BIN), "synth", "suite", "--out", str(root), "--size", "demo", "--seed", str(seed), "-q"],
-                       check=True, capture_output=True)
-        return root / "manifest.yaml"
+        root.mkdir(parents=True, exist_ok=True)
+        for s in suite_seeds(seed, suites):
+            subprocess.run([str(BIN), "synth", "suite", "--out", str(root / f"s{s}"), "--size", "demo", "--seed",
+                            str(s), "-q"], check=True, capture_output=True)
+        return [root / f"s{s}" / "manifest.yaml" for s in suite_seeds(seed, suites)]
     entries = []
     for k in range(6):
         name = f"walk{k}"
@@ -105,7 +124,7 @@ def make_suite(root: Path, seed: int, use_suite: bool) -> Path:
                         "--duration-s", "4", "--resolution", "320x200", "-q"], check=True, capture_output=True)
         entries.append(f"  - {{path: {name}, subset: forest}}")
     (root / "manifest.yaml").write_text("trajectories:\n" + "\n".join(entries) + "\n")
-    return root / "manifest.yaml"
+    return [root / "manifest.yaml"]
 
 
 def flags(report_dir: Path) -> dict[str, dict[str, dict[str, str]]]:
@@ -158,6 +177,9 @@ def main() -> None:
     ap.add_argument("--slam", choices=("builtin", "orbslam3"), default="builtin")
     ap.add_argument("--repeats", type=int, default=1, help="SLAM runs per (trajectory, method)")
     ap.add_argument("--out", type=Path, default=None, help="keep the suites, benchmarks and power.json here")
+    ap.add_argument("--suites-per-seed", type=int, default=SUITES_PER_SEED,
+                    help=f"demo-size suites pooled into each seed's benchmark (10 walks each; default "
+                         f"{SUITES_PER_SEED})")
     ap.add_argument("--quick", action="store_true", help="3 seeds")
     ap.add_argument("--controls", default="short,long,copy",
                     help="the rows benchmarked beside AE50 (a subset of short,long,copy; e.g. copy alone for the "
@@ -165,6 +187,8 @@ def main() -> None:
     ap.add_argument("--tally", action="store_true",
                     help="run nothing: tally the reports already in --out (bench<seed>/report) into power.json")
     args = ap.parse_args()
+    if not 1 <= args.suites_per_seed <= 10 or not 1 <= args.seeds <= SUITE_SEED_STRIDE:
+        sys.exit(f"--suites-per-seed: 1 to 10, --seeds: 1 to {SUITE_SEED_STRIDE}")
     ids = {"short": SHORT, "long": LONG, "copy": "ae50copy_mod:AE50Copy"}
     wanted = [c.strip() for c in args.controls.split(",") if c.strip()]
     if not wanted or any(c not in ids for c in wanted):
@@ -181,7 +205,7 @@ def main() -> None:
     (plugin_dir / "ae50copy_mod.py").write_text(COPY_MODULE)
     sys.path.insert(0, str(plugin_dir))
     use_suite = has_suite_command()
-    suite_text = ("bracketry synth suite --size demo" if use_suite
+    suite_text = (f"bracketry synth suite --size demo, {args.suites_per_seed} suite(s) a seed" if use_suite
                   else "6 snowy-forest walks of 4 s at 320x200 (no `synth suite` in this checkout)")
     slam = slam_options(args.slam, None, "0" if args.slam == "orbslam3" else None, True, args.repeats, resolve=False)
     print(f"suite: {suite_text}; SLAM: {args.slam}, {args.repeats} run(s) per (trajectory, method); "
@@ -202,9 +226,9 @@ def main() -> None:
                 bench_s += t.get("benchmark_s", 0.0)
     for seed in range(0 if not args.tally else n_seeds, n_seeds):
         t0 = time.perf_counter()
-        manifest = make_suite(work / f"suite{seed}", seed, use_suite)
+        manifests = make_suite(work / f"suite{seed}", seed, use_suite, args.suites_per_seed)
         t1 = time.perf_counter()
-        res = run_benchmark(BenchmarkConfig([manifest], ["ae50", *(ids[c] for c in wanted)],
+        res = run_benchmark(BenchmarkConfig(manifests, ["ae50", *(ids[c] for c in wanted)],
                                             work / f"bench{seed}", workers=os.cpu_count() or 1,
                                             stats_methods="all", slam=slam,
                                             setup_check=False, loop=LoopConfig(max_exposure_us=MAX_EXPOSURE_US)))
@@ -220,7 +244,7 @@ def main() -> None:
         print(f"seed {seed}: {row['trajectories']} trajectories, flagged (Mann-Whitney / Wilcoxon): {said} "
               f"(render {t1 - t0:.0f} s, benchmark {t2 - t1:.0f} s)", flush=True)
     n = len(per_seed)
-    table = []
+    table: list[dict[str, Any]] = []
     for test in ("mann-whitney", "wilcoxon"):
         for what, key, goal in (("far-too-short constant flagged worse (power)", "short", ">= 0.9"),
                                 ("far-too-short constant: ? on RTE or failure time", "short_unstable", ""),
