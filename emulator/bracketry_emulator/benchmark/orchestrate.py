@@ -179,6 +179,7 @@ def _streamed(specs: list[TrajectorySpec], tasks: list[BenchmarkTask], out: Path
         for spec in specs:
             todo = _todo(tasks, spec.name)
             if todo:
+                runs.wait_for_room()
                 runs.submit(*spool_trajectory(spec, todo, out, _spec_loop(todo, loop), workers=workers,
                                               progress=progress and not done,  # then the SLAM runs' bar only
                                               stages=stages))

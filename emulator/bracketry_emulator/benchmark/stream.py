@@ -10,7 +10,8 @@ SLAM child processes (:func:`~bracketry_emulator.slam.orbslam3.start_child`, ORB
 stays one failed run), forked by this process's SLAM fork server (:mod:`~bracketry_emulator.slam.launcher`: Python
 and the child's imports paid once per benchmark, not once per run) or, without one, started as ``python -m``, at
 most :func:`slam_at_once` at a time (:class:`SlamRuns`, on a thread: the next trajectory's closed loops run
-meanwhile): each reads its spool (deleted when the run ends). In lockstep (each frame once
+meanwhile, once every earlier run has started: :meth:`SlamRuns.wait_for_room`, so spools wait on disk for one
+trajectory at most): each reads its spool (deleted when the run ends). In lockstep (each frame once
 ORB-SLAM3's threads are idle) a run keeps about three quarters of a core busy, so one run more than cores fills the
 machine; seven side by side on two cores cost about a quarter more CPU for the same runs (their idle threads poll,
 their caches thrash: ``docs/RESULTS.md``). Each run's exit is collected as it ends, then its metrics (timed, cached
@@ -144,6 +145,8 @@ class SlamRuns:
         self.at_once = max(1, at_once)
         self.on_done = on_done
         self._waiting: list[tuple[BenchmarkTask, Path, dict]] = []
+        #: runs taken from ``_waiting`` and not yet started (their request.json not yet written)
+        self._starting = 0
         self._done: dict[str, RunResult] = {}
         self._cond = threading.Condition()
         self._closed = False
@@ -169,6 +172,16 @@ class SlamRuns:
             self._waiting += [(t, run_dirs[t.method], _request(t, t.vo_path / SPOOL_NAME, fps, n_steps))
                               for t in tasks]
             self._cond.notify_all()
+
+    def wait_for_room(self) -> None:
+        """Return once every submitted run has started (or the runs stopped on an error, raised here). The next
+        trajectory's closed loops spool only then, so the disk holds the running runs' spools and one trajectory's
+        more, not every trajectory's: the closed loops go far faster than SLAM (a full-size walk's seven runs spool
+        about 2 GB)."""
+        with self._cond:
+            while (self._waiting or self._starting) and self._error is None and not self._stop:
+                self._cond.wait()
+            self._raise()
 
     def results(self, tasks: list[BenchmarkTask]) -> list[RunResult]:
         """Wait for every submitted run; the results of ``tasks`` in their order."""
@@ -206,6 +219,7 @@ class SlamRuns:
                     starts: list[tuple[BenchmarkTask, Path, dict]] = []
                     while self._waiting and len(running) + len(starts) < self.at_once:
                         starts.append(self._waiting.pop(0))
+                    self._starting = len(starts)
                     if not running and not starts:
                         if self._closed and not self._waiting:
                             return
@@ -217,6 +231,10 @@ class SlamRuns:
                             running[t.key] = (t, run_dir, start_child(request, t.vo_path, launcher=launcher))
                         except SlamRunError as exc:  # e.g. a vocabulary gone missing: this run fails, the rest go on
                             self._finish(t, run_dir, None, str(exc))
+                    if starts:
+                        with self._cond:
+                            self._starting = 0
+                            self._cond.notify_all()  # wait_for_room
                     ended = [key for key, (_t, _r, child) in running.items() if child_ended(child)]
                     for key in ended:
                         t, run_dir, child = running.pop(key)
@@ -241,6 +259,7 @@ class SlamRuns:
                 for t, _r, _q in self._waiting:
                     (t.vo_path / SPOOL_NAME).unlink(missing_ok=True)
                 self._waiting.clear()
+                self._cond.notify_all()
 
 
 def emulate_feeding(dataset_path: Path, methods: Sequence[str | MethodSpec], runs_dir: Path,

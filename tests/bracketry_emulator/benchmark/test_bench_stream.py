@@ -4,6 +4,7 @@ as many at a time as the workers."""
 
 from __future__ import annotations
 
+import itertools
 import json
 import threading
 from pathlib import Path
@@ -112,3 +113,27 @@ def test_slam_runs_go_one_more_at_a_time_than_workers(world: Path, tmp_path: Pat
     assert len(lives) == len(methods)
     for start, _end in lives:  # runs alive when this one started (itself included)
         assert sum(1 for s, e in lives if s <= start < e) <= workers + 1
+
+
+def test_a_trajectory_spools_once_every_earlier_run_has_started(world: Path, tmp_path: Path) -> None:
+    """The closed loops run far faster than SLAM: a trajectory's pass (which writes its runs' spools) waits until
+    every SLAM run of the trajectories before it has started, so the spools on disk are the running runs' and one
+    trajectory's more, not the whole suite's (a full-size walk's seven spools are about 2 GB). Three trajectories of
+    three methods each, one worker: two runs at a time, so each trajectory's third run waits for one to end."""
+    walks = [world]
+    for seed in (1, 2):
+        walks.append(tmp_path / f"walk_{seed + 1}")
+        assert cli_main(["synth", "trajectory", "--out", str(walks[-1]), "--seconds", "3", "--resolution", "320x200",
+                         "--seed", str(seed), "-q"]) == 0
+    res = run_benchmark(BenchmarkConfig(walks, ["ae50", "fix", "shim"], tmp_path / "b", reference="ae50",
+                                        windows_m=(1.0,), workers=1))
+    started: dict[str, list[int]] = {}
+    for r in res.results:
+        assert not r.get("error")
+        started.setdefault(r["trajectory"], []).append((Path(r["vo_dir"]) / "request.json").stat().st_mtime_ns)
+    names = ["walk", "walk_2", "walk_3"]
+    assert sorted(started) == names and all(len(v) == 3 for v in started.values())
+    for earlier, later in itertools.pairwise(names):
+        pass_written = [(tmp_path / "b" / "runs" / later / m / "ae.csv").stat().st_mtime_ns
+                        for m in ("ae50", "fix", "shim")]
+        assert min(pass_written) >= max(started[earlier]), (earlier, later)
