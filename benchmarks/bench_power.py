@@ -113,10 +113,12 @@ def make_suite(root: Path, seed: int, use_suite: bool, suites: int = 1) -> list[
     manifests, benchmarked together (as ``bracketry benchmark M1 M2 ...``: a walk met again is named ``NAME_2``)."""
     if use_suite:
         root.mkdir(parents=True, exist_ok=True)
+        folders = []
         for s in suite_seeds(seed, suites):
-            subprocess.run([str(BIN), "synth", "suite", "--out", str(root / f"s{s}"), "--size", "demo", "--seed",
+            folders.append(root / f"s{s}")
+            subprocess.run([str(BIN), "synth", "suite", "--out", str(folders[-1]), "--size", "demo", "--seed",
                             str(s), "-q"], check=True, capture_output=True)
-        return [root / f"s{s}" / "manifest.yaml" for s in suite_seeds(seed, suites)]
+        return [f / "manifest.yaml" for f in folders]
     entries = []
     for k in range(6):
         name = f"walk{k}"
