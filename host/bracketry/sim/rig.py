@@ -334,9 +334,14 @@ class SimulatedRig:
         try:
             return proc.wait(timeout=timeout_s)
         except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(timeout=10)
-            raise BracketryError(f"the daemon did not exit within {timeout_s:g} s of signal {sig}") from None
+            proc.send_signal(signal.SIGUSR1)  # its threads' stacks into daemon.log: where it waits
+            try:
+                proc.wait(timeout=2.0)
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                proc.wait(timeout=10)
+            raise BracketryError(f"the daemon did not exit within {timeout_s:g} s of signal {sig} (its threads' "
+                                 f"stacks: {self.out / 'daemon.log'})") from None
 
     def recordings(self) -> list[Path]:
         """Segment folders (``<rec>/segNN``) holding MCAP files recorded by this rig, oldest first."""

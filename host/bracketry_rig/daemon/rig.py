@@ -62,6 +62,8 @@ log = logging.getLogger("bracketry_rig.daemon")
 
 #: the supervisor's step period (shorter when systemd's watchdog asks for it), seconds
 SUPERVISOR_PERIOD_S = 1.0
+#: the main thread's longest sleep in RigDaemon.wait, seconds: how late a signal's handler may run
+WAKE_S = 0.5
 
 
 @dataclass
@@ -190,8 +192,18 @@ class RigDaemon:
         log.info("daemon stopped")
 
     def wait(self, timeout_s: float | None = None) -> bool:
-        """Block until :meth:`request_stop` (or ``timeout_s``); True if stop was requested."""
-        return self._stop.wait(timeout_s)
+        """Block until :meth:`request_stop` (or ``timeout_s``); True if stop was requested.
+
+        The wait wakes every ``WAKE_S`` seconds: Python runs a signal's handler in the main thread only, and a signal
+        the kernel hands to another of the daemon's threads (the cameras', the monitor's) is handled when the main
+        thread next runs, which a wait on an event alone would put off until the event is set."""
+        deadline = None if timeout_s is None else time.monotonic() + timeout_s
+        while True:
+            left = WAKE_S if deadline is None else min(WAKE_S, deadline - time.monotonic())
+            if left <= 0.0:
+                return self._stop.is_set()
+            if self._stop.wait(left):
+                return True
 
     def request_stop(self) -> None:
         """Ask :meth:`wait` to return (e.g. from a SIGTERM handler); :meth:`close` does the work."""
@@ -343,9 +355,13 @@ class RigDaemon:
 
 
 def install_signal_handlers(daemon: RigDaemon) -> Callable[[], None]:
-    """SIGTERM/SIGINT -> :meth:`RigDaemon.request_stop`; returns a function restoring the old handlers."""
+    """SIGTERM/SIGINT -> :meth:`RigDaemon.request_stop`; SIGUSR1 writes every thread's Python stack to stderr (the
+    daemon's log), so a daemon that does not stop can say where it waits. Returns a function restoring the old
+    handlers."""
+    import faulthandler
     import signal
 
+    faulthandler.register(signal.SIGUSR1, all_threads=True)
     old = {s: signal.getsignal(s) for s in (signal.SIGTERM, signal.SIGINT)}
 
     def handler(signum: int, _frame: Any) -> None:
@@ -356,6 +372,7 @@ def install_signal_handlers(daemon: RigDaemon) -> Callable[[], None]:
         signal.signal(s, handler)
 
     def restore() -> None:
+        faulthandler.unregister(signal.SIGUSR1)
         for s, h in old.items():
             signal.signal(s, h)
 

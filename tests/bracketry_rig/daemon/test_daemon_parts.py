@@ -339,3 +339,46 @@ def test_daemon_buttons_without_devices_show_errors(tmp_path: Path, button: str)
         assert daemon.recording == (button == "record") and daemon.segment_index == 0
     finally:
         daemon.close()
+
+
+def test_a_sigterm_handed_to_another_thread_stops_the_daemons_wait(tmp_path: Path) -> None:
+    """The kernel may hand a process's SIGTERM to any of its threads; Python runs the handler in the main thread
+    only. The signal goes to a helper thread once the main thread sleeps in ``RigDaemon.wait``: the wait must
+    return True (stop requested), not sleep out its timeout."""
+    import linecache
+    import signal
+    import sys
+
+    from bracketry_rig.daemon.rig import install_signal_handlers
+
+    dev = MemDevices()
+    daemon = RigDaemon(rig_config(tmp_path), DaemonOptions(open_camera=dev.open_camera, open_trigger=dev.open_trigger))
+    main = threading.get_ident()
+
+    def blocked_at() -> tuple[int, int] | None:
+        """Where the main thread is, if at the lock acquire of threading's Condition.wait: (frame id, last op)."""
+        frame = sys._current_frames().get(main)
+        if frame is None or frame.f_code.co_name != "wait" or not frame.f_code.co_filename.endswith("threading.py"):
+            return None
+        line = linecache.getline(frame.f_code.co_filename, frame.f_lineno)
+        return (id(frame), frame.f_lasti) if "waiter.acquire(" in line else None
+
+    def signal_from_a_helper_thread() -> None:
+        seen = None
+        while True:  # until the main thread sleeps in the lock: at the acquire twice, with the GIL let go between
+            now = blocked_at()
+            if now is not None and now == seen:
+                break
+            seen = now
+            time.sleep(0.001)
+        signal.pthread_kill(threading.get_ident(), signal.SIGTERM)
+
+    restore = install_signal_handlers(daemon)
+    helper = threading.Thread(target=signal_from_a_helper_thread, daemon=True)
+    try:
+        helper.start()
+        assert daemon.wait(timeout_s=30.0) is True
+    finally:
+        helper.join(timeout=5.0)
+        restore()
+        daemon.close()
