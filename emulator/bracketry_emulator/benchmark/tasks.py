@@ -42,10 +42,10 @@ if TYPE_CHECKING:
 #: 5: the step period is the dataset's bracket cycle, the same for every method; 6: Kim's metric gives clipped
 #: pixels no weight, the oracle scores against its last 3 frames; 7: Kim's metric gives pixels beside clipped ones no
 #: weight and its search converges only on a measured peak; 8: ORB-SLAM3's own keypoint count per frame in
-#: ``frames.csv``, which the failure causes read), so no older result is reused. A cache file holds one
+#: ``frames.csv``, which the failure causes read; 9: an exposure jump from half a stop), so no older result is reused. A cache file holds one
 #: task's own run (the oracle's: its step search's); the oracle row is chosen from the runs after they are loaded
 #: (:mod:`~bracketry_emulator.benchmark.oracle_rows`), so no cache file holds an oracle row
-CACHE_VERSION = 8
+CACHE_VERSION = 9
 
 
 def _default_loop() -> LoopConfig:

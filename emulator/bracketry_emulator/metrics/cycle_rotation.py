@@ -71,3 +71,29 @@ def turn_and_change_deg(turns_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     v = np.asarray(turns_rad, np.float64)
     return np.degrees(np.linalg.norm(v, axis=1)), np.degrees(np.linalg.norm(np.diff(v, axis=0), axis=1))
+
+
+def frame_turn_change_deg(gt_times_s: np.ndarray, gt_poses_wc: np.ndarray, frame_times_s: np.ndarray) -> np.ndarray:
+    """Per frame of a localisation fed once per cycle, what its constant-velocity prediction misses: the angle between
+    the camera's rotation from the frame before to this one and its rotation over the step before that, degrees.
+
+    Args:
+        gt_times_s: float (M,) reference times, increasing, seconds (M >= 2); gt_poses_wc: float (M, 4, 4)
+            camera-to-world poses.
+        frame_times_s: float (N,) the frames' stamps, seconds.
+    Returns:
+        float (N,) degrees; NaN for the first two frames and where a frame of the three lies outside the reference.
+    """
+    t = np.asarray(frame_times_s, np.float64)
+    out = np.full(t.shape, np.nan)
+    gt_t = np.asarray(gt_times_s, np.float64)
+    inside = (t >= gt_t[0]) & (t <= gt_t[-1]) if len(gt_t) >= 2 else np.zeros(t.shape, bool)
+    if not np.any(inside):
+        return out
+    slerp = Slerp(gt_t, Rotation.from_matrix(np.asarray(gt_poses_wc, np.float64)[:, :3, :3]))
+    r = slerp(np.where(inside, t, gt_t[0]))
+    step = r[:-1].inv() * r[1:]  # step k: from frame k to frame k + 1
+    miss = np.degrees((step[:-1].inv() * step[1:]).magnitude())
+    ok = inside[:-2] & inside[1:-1] & inside[2:]
+    out[2:][ok] = miss[ok]
+    return out

@@ -15,7 +15,7 @@ order:
 ``underexposure``  a frame of the window has at least :data:`DARK_SHARE` of its pixels dark
 ``blur``           a frame of the window is blurred over at least :data:`BLUR_PX` pixels
 ``exposure_jump``  the exposure changed by a factor of at least 2 ** :data:`JUMP_STOPS` between two frames of the
-                   window (or into its first frame)
+                   window (or into its first frame): :func:`window_change_stops`
 ``texture``        none of the above, and the lost frame has at most :data:`TEXTURE_KEYPOINTS` keypoints
 ``other``          none of the above (e.g. too few map matches in a view with enough keypoints: parallax, a turn)
 =================  ===================================================================================================
@@ -48,8 +48,10 @@ DARK_SHARE = 0.5
 #: blur length (px) from which a frame counts as blurred: FAST's test circle has radius 3 px, a corner smeared
 #: over more than that no longer passes it
 BLUR_PX = 3.0
-#: an exposure change of at least this many stops between consecutive frames is a jump (a factor of 2)
-JUMP_STOPS = 1.0
+#: an exposure change of at least this many stops between consecutive frames is a jump (a factor of sqrt 2): on the
+#: full-size suite a tracked frame after such a change loses track several times as often as one at a steady
+#: exposure under the same turn (docs/RESULTS.md, "What loses track"; benchmarks/bench_loss_hazard.py)
+JUMP_STOPS = 0.5
 #: keypoints up to which a view lacks texture: ORB-SLAM's stereo initialisation needs more than 500
 TEXTURE_KEYPOINTS = 500
 
@@ -90,14 +92,34 @@ def classify_loss(saturated_share: np.ndarray, dark_share: np.ndarray, blur_px: 
         return "underexposure"
     if peak(blur_px) >= BLUR_PX:
         return "blur"
-    ratio = np.asarray(exposure_ratio, np.float64)[window]
-    ratio = ratio[np.isfinite(ratio) & (ratio > 0)]
-    if ratio.size and float(np.max(np.abs(np.log2(ratio)))) >= JUMP_STOPS - 1e-9:
+    if window_change_stops(exposure_ratio)[loss_index] >= JUMP_STOPS - 1e-9:
         return "exposure_jump"
     kp = float(np.asarray(keypoints, np.float64)[loss_index])
     if math.isfinite(kp) and kp <= TEXTURE_KEYPOINTS:
         return "texture"
     return "other"
+
+
+def window_change_stops(exposure_ratio: np.ndarray) -> np.ndarray:
+    """Per frame, the largest exposure change (stops, up or down) into it or into one of the :data:`LOOKBACK` frames
+    before it: what :func:`classify_loss` compares with :data:`JUMP_STOPS`.
+
+    Args:
+        exposure_ratio: float (N,) each frame's exposure over the previous frame's (NaN or <= 0: unknown).
+    Returns:
+        float (N,) stops >= 0; NaN where every ratio of the window is unknown.
+    """
+    r = np.asarray(exposure_ratio, np.float64)
+    stops = np.full(r.shape, np.nan)
+    known = np.isfinite(r) & (r > 0)
+    stops[known] = np.abs(np.log2(r[known]))
+    out = np.full(r.shape, np.nan)
+    for k in range(len(r)):
+        v = stops[max(0, k - LOOKBACK):k + 1]
+        v = v[np.isfinite(v)]
+        if v.size:
+            out[k] = float(v.max())
+    return out
 
 
 def rotation_blur_px(gt_times_s: np.ndarray, gt_poses_wc: np.ndarray, frame_times_s: np.ndarray,

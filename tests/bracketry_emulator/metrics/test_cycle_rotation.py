@@ -77,3 +77,21 @@ def test_bad_shapes_are_refused() -> None:
         cycle_turns_from_gyro(np.zeros(5), np.zeros((5, 2)))
     with pytest.raises(ValueError):
         cycle_turns_from_poses(np.zeros(1), np.tile(np.eye(4), (1, 1, 1)))
+
+
+def test_a_frames_turn_change_is_what_a_constant_rate_turn_does_not_have() -> None:
+    """Frames every 0.25 s: a steady yaw at 0.4 rad/s misses nothing; a yaw rate stepping from 0.4 to 0.8 rad/s at
+    t = 1 s misses 0.1 rad (5.73 degrees) once; frames outside the reference and the first two are NaN."""
+    from bracketry_emulator.metrics.cycle_rotation import frame_turn_change_deg
+
+    t = np.linspace(0.0, 2.0, 401)
+    poses = np.tile(np.eye(4), (len(t), 1, 1))
+    poses[:, :3, :3] = Rotation.from_euler("z", 0.4 * t[:, None]).as_matrix()
+    frames = np.array([0.0, 0.25, 0.5, 0.75, 1.0, 1.25, 2.5])
+    steady = frame_turn_change_deg(t, poses, frames)
+    assert np.isnan(steady[:2]).all() and np.isnan(steady[-1])
+    np.testing.assert_allclose(steady[2:-1], 0.0, atol=1e-9)
+    yaw = np.where(t <= 1.0, 0.4 * t, 0.4 + 0.8 * (t - 1.0))
+    poses[:, :3, :3] = Rotation.from_euler("z", yaw[:, None]).as_matrix()
+    stepped = frame_turn_change_deg(t, poses, frames[:-1])
+    np.testing.assert_allclose(stepped[2:], [0.0, 0.0, 0.0, np.degrees(0.1)], atol=1e-6)

@@ -20,6 +20,7 @@ from bracketry_emulator.metrics.failure_causes import (
     frame_log,
     loss_cause,
     rotation_blur_px,
+    window_change_stops,
 )
 
 N = 8
@@ -128,3 +129,15 @@ def test_failure_rows_of_single_and_repeated_results() -> None:
     assert failure_rows({**single, "failure_cause": None}) == []
     combined = {**single, "failure_runs": [{"repeat": 1, "time_s": 1.0, "cause": "texture"}]}
     assert failure_rows(combined) == [{"repeat": 1, "time_s": 1.0, "cause": "texture"}]
+
+
+def test_a_jump_is_half_a_stop_up_or_down_into_the_window() -> None:
+    """0.6 stops into the lost frame or the one before it is a jump, 0.4 is not; the window's change is the largest
+    of its frames' (unknown ratios ignored)."""
+    assert JUMP_STOPS == 0.5
+    for stops, cause in [(0.6, "exposure_jump"), (-0.6, "exposure_jump"), (0.4, "other"), (-0.4, "other")]:
+        assert classify_loss(**_log(exposure_ratio=(LOSS, 2.0 ** stops)), loss_index=LOSS) == cause
+        assert classify_loss(**_log(exposure_ratio=(LOSS - 1, 2.0 ** stops)), loss_index=LOSS) == cause
+    change = window_change_stops(np.array([np.nan, 2.0, 1.0, 0.5, np.nan, 0.0, np.nan]))
+    np.testing.assert_allclose(change[1:5], [1.0, 1.0, 1.0, 1.0])
+    assert np.isnan(change[[0, 5, 6]]).all()  # a ratio of 0 is unknown, as a missing one
