@@ -37,14 +37,14 @@ if TYPE_CHECKING:
     from bracketry_emulator.ae.registry import MethodSpec
     from bracketry_emulator.ae.runner import LoopConfig
 
-#: bumped when the code's results change under the same settings (4: Kim's default mode, fusion's default
-#: bracket set 'longer', targets beyond the longest bracket recorded as gain, time before failure counted in steps;
-#: 5: the step period is the dataset's bracket cycle, the same for every method; 6: Kim's metric gives clipped
-#: pixels no weight, the oracle scores against its last 3 frames; 7: Kim's metric gives pixels beside clipped ones no
-#: weight and its search converges only on a measured peak; 8: ORB-SLAM3's own keypoint count per frame in
-#: ``frames.csv``, which the failure causes read; 9: an exposure jump from half a stop), so no older result is reused. A cache file holds one
-#: task's own run (the oracle's: its step search's); the oracle row is chosen from the runs after they are loaded
-#: (:mod:`~bracketry_emulator.benchmark.oracle_rows`), so no cache file holds an oracle row
+#: bumped when the code's results change under the same settings (4: Kim's default mode, fusion's default bracket
+#: set 'longer', targets beyond the longest bracket recorded as gain, time before failure counted in steps; 5: the
+#: step period is the dataset's bracket cycle, the same for every method; 6: Kim's metric gives clipped pixels no
+#: weight, the oracle scores against its last 3 frames; 7: Kim's metric gives pixels beside clipped ones no weight
+#: and its search converges only on a measured peak; 8: ORB-SLAM3's own keypoint count per frame in ``frames.csv``,
+#: which the failure causes read; 9: an exposure jump from half a stop), so no older result is reused. A cache file
+#: holds one task's own run (the oracle's: its step search's); the oracle row is chosen from the runs after they are
+#: loaded (:mod:`~bracketry_emulator.benchmark.oracle_rows`), so no cache file holds an oracle row
 CACHE_VERSION = 9
 
 
