@@ -14,8 +14,9 @@ when the frame before it was tracked (``OK``); it is a *loss* when it is not tra
   (:func:`~bracketry_emulator.metrics.cycle_rotation.frame_turn_change_deg`, from the reference).
 
 Prints a Markdown table of at-risk frames, losses and losses per 1000 frames for each turn band and exposure band,
-with the rate over the same turn band's steady frames (below a quarter stop), then the first losses' causes per
-method by the classifier of this checkout (:mod:`~bracketry_emulator.metrics.failure_causes`), so a benchmark run
+with the rate over the same turn band's steady frames (below a quarter stop); the same ratio pooled over the turn
+bands; then the first losses' causes per method (the oracle's: its step search's own run) by the classifier of this
+checkout (:mod:`~bracketry_emulator.metrics.failure_causes`), so a benchmark run
 under another rule is read again without running SLAM. docs/RESULTS.md ("What loses track") quotes its output.
 """
 
@@ -52,6 +53,14 @@ def at_risk_frames(states: list[str], change_stops: np.ndarray,
         if states[k - 1] == "OK" and math.isfinite(change_stops[k]) and math.isfinite(turn_deg[k]):
             out.append((float(change_stops[k]), float(turn_deg[k]), states[k] not in ("OK", "INIT")))
     return out
+
+
+def pooled_ratio(counts: np.ndarray, stop_band: int) -> tuple[int, float]:
+    """(losses, losses expected) of an exposure band over all turn bands, each turn band's frames at its steady rate
+    (exposure band 0). ``counts``: int (turn bands, exposure bands, 2) frames kept / lost."""
+    observed = int(counts[:, stop_band, 1].sum())
+    steady = counts[:, 0, 1] / np.maximum(counts[:, 0].sum(axis=1), 1)
+    return observed, float((counts[:, stop_band].sum(axis=1) * steady).sum())
 
 
 def band(value: float, edges: tuple[float, ...]) -> int:
@@ -112,6 +121,12 @@ def main(argv: list[str] | None = None) -> int:
             ratio = rate / steady if steady > 0 else math.nan
             print(f"| {_label(TURN_EDGES, t, 'deg')} | {_label(STOP_EDGES, s, 'stops')} | {n} | {n_lost} | "
                   f"{1000 * rate:.2f} | {ratio:.1f} |")
+    print("\nPooled over the turn bands (losses over those the bands' steady rates expect):\n")
+    print("| exposure change | losses | expected at a steady exposure | ratio |")
+    print("|---|---|---|---|")
+    for s in range(1, counts.shape[1]):
+        observed, expected = pooled_ratio(counts, s)
+        print(f"| {_label(STOP_EDGES, s, 'stops')} | {observed} | {expected:.1f} | {observed / expected:.1f} |")
     print("\n| method | " + " | ".join(CAUSES) + " | kept |")
     print("|---|" + "---|" * (len(CAUSES) + 1))
     for method in sorted(causes):

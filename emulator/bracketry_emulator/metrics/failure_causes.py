@@ -49,8 +49,9 @@ DARK_SHARE = 0.5
 #: over more than that no longer passes it
 BLUR_PX = 3.0
 #: an exposure change of at least this many stops between consecutive frames is a jump (a factor of sqrt 2): on the
-#: full-size suite a tracked frame after such a change loses track several times as often as one at a steady
-#: exposure under the same turn (docs/RESULTS.md, "What loses track"; benchmarks/bench_loss_hazard.py)
+#: full-size suite a tracked frame after such a change is lost about twice as often as one at a steady exposure
+#: under the same turn (from a quarter stop 1.5 times, from one stop 3.8 times), so such a change more likely than
+#: not took part in the loss (docs/RESULTS.md, "What loses track"; benchmarks/bench_loss_hazard.py)
 JUMP_STOPS = 0.5
 #: keypoints up to which a view lacks texture: ORB-SLAM's stereo initialisation needs more than 500
 TEXTURE_KEYPOINTS = 500
