@@ -32,11 +32,11 @@ from pathlib import Path
 import numpy as np
 
 from bracketry_base.errors import BracketryError
-from bracketry_emulator.benchmark.failure_analysis import blur_of
+from bracketry_emulator.benchmark.failure_analysis import blur_of, run_frame_log
 from bracketry_emulator.metrics.cycle_rotation import frame_turn_change_deg
-from bracketry_emulator.metrics.failure_causes import CAUSES, frame_log, loss_cause, window_change_stops
+from bracketry_emulator.metrics.failure_causes import CAUSES, loss_cause, window_change_stops
 from bracketry_emulator.metrics.manifest import expand_datasets
-from bracketry_emulator.trajectory_io import read_frames_csv, read_tum
+from bracketry_emulator.trajectory_io import read_tum
 
 #: exposure bands, stops (the first is "steady")
 STOP_EDGES = (0.0, 0.25, 0.5, 1.0, math.inf)
@@ -45,14 +45,17 @@ STOP_EDGES = (0.0, 0.25, 0.5, 1.0, math.inf)
 TURN_EDGES = (0.0, 3.0, 4.5, math.inf)
 
 
-def at_risk_frames(states: list[str], change_stops: np.ndarray,
-                   turn_deg: np.ndarray) -> list[tuple[float, float, bool]]:
-    """(exposure change, turn change, lost) of every frame after a tracked one, with both changes known."""
-    out = []
-    for k in range(1, len(states)):
-        if states[k - 1] == "OK" and math.isfinite(change_stops[k]) and math.isfinite(turn_deg[k]):
-            out.append((float(change_stops[k]), float(turn_deg[k]), states[k] not in ("OK", "INIT")))
-    return out
+def band_counts(states: list[str], change_stops: np.ndarray, turn_deg: np.ndarray) -> np.ndarray:
+    """Frames after a tracked one (both changes known), kept and lost, per turn band and exposure band: int
+    (len(TURN_EDGES) - 1, len(STOP_EDGES) - 1, 2)."""
+    ok = np.array([s == "OK" for s in states], bool)
+    lost = ~np.array([s in ("OK", "INIT") for s in states], bool)
+    at_risk = np.r_[False, ok[:-1]] & np.isfinite(change_stops) & np.isfinite(turn_deg)
+    t = np.searchsorted(np.asarray(TURN_EDGES[1:-1]), turn_deg[at_risk], side="right")
+    s = np.searchsorted(np.asarray(STOP_EDGES[1:-1]), change_stops[at_risk], side="right")
+    counts = np.zeros((len(TURN_EDGES) - 1, len(STOP_EDGES) - 1, 2), int)
+    np.add.at(counts, (t, s, lost[at_risk].astype(int)), 1)
+    return counts
 
 
 def pooled_ratio(counts: np.ndarray, stop_band: int) -> tuple[int, float]:
@@ -61,10 +64,6 @@ def pooled_ratio(counts: np.ndarray, stop_band: int) -> tuple[int, float]:
     observed = int(counts[:, stop_band, 1].sum())
     steady = counts[:, 0, 1] / np.maximum(counts[:, 0].sum(axis=1), 1)
     return observed, float((counts[:, stop_band].sum(axis=1) * steady).sum())
-
-
-def band(value: float, edges: tuple[float, ...]) -> int:
-    return int(np.searchsorted(np.asarray(edges[1:-1]), value, side="right"))
 
 
 def _label(edges: tuple[float, ...], i: int, unit: str) -> str:
@@ -86,30 +85,26 @@ def main(argv: list[str] | None = None) -> int:
     if not cached:
         print(f"error: no cached runs in {args.out / 'cache'} (a bracketry benchmark --out folder?)", file=sys.stderr)
         return 1
-    frames: list[tuple[float, float, bool]] = []
+    counts = np.zeros((len(TURN_EDGES) - 1, len(STOP_EDGES) - 1, 2), int)
     causes: dict[str, Counter] = defaultdict(Counter)
     n_runs = 0
     for path in cached:
         doc = json.loads(path.read_text())
         spec = specs.get(doc.get("trajectory", ""))
-        frames_csv = Path(doc.get("vo_dir", "")) / "frames.csv"
-        if spec is None or not frames_csv.is_file():
+        log = run_frame_log(Path(doc.get("vo_dir", "")), Path(doc.get("run_dir", ""))) if spec else None
+        if spec is None or log is None:
             continue
         gt, cal = spec.groundtruth_path(), spec.calibration_dir()
-        log = frame_log(read_frames_csv(frames_csv), Path(doc["run_dir"]) / "ae.csv")
         turn = (frame_turn_change_deg(*read_tum(gt), log.times_s) if gt else np.full(len(log.states), np.nan))
-        frames += at_risk_frames(log.states, window_change_stops(log.exposure_ratio), turn)
+        counts += band_counts(log.states, window_change_stops(log.exposure_ratio), turn)
         cause = loss_cause(log, blur_of(log, str(gt) if gt else None, str(cal) if cal else None))
         causes[doc["method"]][cause or "kept"] += 1
         n_runs += 1
-    if not frames:
+    if not counts.any():
         print(f"error: none of the {len(cached)} cached runs in {args.out} has a frame log of a manifest's walk",
               file=sys.stderr)
         return 1
-    counts = np.zeros((len(TURN_EDGES) - 1, len(STOP_EDGES) - 1, 2), int)
-    for stops, turn_deg, lost in frames:
-        counts[band(turn_deg, TURN_EDGES), band(stops, STOP_EDGES), int(lost)] += 1
-    print(f"{n_runs} runs, {len(frames)} frames after a tracked one, {sum(f[2] for f in frames)} losses\n")
+    print(f"{n_runs} runs, {counts.sum()} frames after a tracked one, {counts[..., 1].sum()} losses\n")
     print("| turn change | exposure change | frames | losses | per 1000 frames | over steady |")
     print("|---|---|---|---|---|---|")
     for t in range(counts.shape[0]):
@@ -126,7 +121,8 @@ def main(argv: list[str] | None = None) -> int:
     print("|---|---|---|---|")
     for s in range(1, counts.shape[1]):
         observed, expected = pooled_ratio(counts, s)
-        print(f"| {_label(STOP_EDGES, s, 'stops')} | {observed} | {expected:.1f} | {observed / expected:.1f} |")
+        ratio = observed / expected if expected > 0 else math.nan
+        print(f"| {_label(STOP_EDGES, s, 'stops')} | {observed} | {expected:.1f} | {ratio:.1f} |")
     print("\n| method | " + " | ".join(CAUSES) + " | kept |")
     print("|---|" + "---|" * (len(CAUSES) + 1))
     for method in sorted(causes):

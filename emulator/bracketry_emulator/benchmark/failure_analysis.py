@@ -33,11 +33,17 @@ def blur_of(log: FrameLog, groundtruth: str | None, calibration: str | None) -> 
     return rotation_blur_px(gt_t, gt_p, log.times_s, log.camera_exposure_s, fx)
 
 
-def run_failure_cause(vo_dir: Path, run_dir: Path, groundtruth: str | None, calibration: str | None) -> str | None:
-    """The cause of the first loss of the run localised in ``vo_dir`` from the closed loop in ``run_dir``; None
-    when it never lost track (or has no ``frames.csv``)."""
+def run_frame_log(vo_dir: Path, run_dir: Path) -> FrameLog | None:
+    """The frame log of the run localised in ``vo_dir`` from the closed loop in ``run_dir`` (its ``frames.csv`` and
+    ``ae.csv``); None without a ``frames.csv``."""
     frames_csv = Path(vo_dir) / "frames.csv"
     if not frames_csv.is_file():
         return None
-    log = frame_log(read_frames_csv(frames_csv), Path(run_dir) / "ae.csv")
-    return loss_cause(log, blur_of(log, groundtruth, calibration))
+    return frame_log(read_frames_csv(frames_csv), Path(run_dir) / "ae.csv")
+
+
+def run_failure_cause(vo_dir: Path, run_dir: Path, groundtruth: str | None, calibration: str | None) -> str | None:
+    """The cause of the first loss of the run localised in ``vo_dir`` from the closed loop in ``run_dir``; None
+    when it never lost track (or has no ``frames.csv``)."""
+    log = run_frame_log(vo_dir, run_dir)
+    return None if log is None else loss_cause(log, blur_of(log, groundtruth, calibration))

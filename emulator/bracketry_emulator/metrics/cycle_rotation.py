@@ -57,8 +57,20 @@ def cycle_turns_from_poses(times_s: np.ndarray, poses_wc: np.ndarray,
     if t.ndim != 1 or len(t) < 2:
         raise ValueError("times_s (M,) with M >= 2 required")
     t = t - t[0]
-    slerp = Slerp(t, Rotation.from_matrix(np.asarray(poses_wc, np.float64)[:, :3, :3]))
-    r = slerp(np.arange(0.0, t[-1] + 1e-12, cycle_s))
+    return turns_between(t, poses_wc, np.arange(0.0, t[-1] + 1e-12, cycle_s))
+
+
+def turns_between(times_s: np.ndarray, poses_wc: np.ndarray, sample_times_s: np.ndarray) -> np.ndarray:
+    """Rotation vectors (rad, in the body frame at each step's start) from each sample time to the next.
+
+    Args:
+        times_s: float (M,) pose times, increasing, seconds (M >= 2); poses_wc: float (M, 4, 4) body-to-world poses.
+        sample_times_s: float (K,) times within ``times_s``'s span, seconds.
+    Returns:
+        float64 (K - 1, 3), orientations interpolated (slerp).
+    """
+    slerp = Slerp(np.asarray(times_s, np.float64), Rotation.from_matrix(np.asarray(poses_wc, np.float64)[:, :3, :3]))
+    r = slerp(np.asarray(sample_times_s, np.float64))
     return np.asarray((r[:-1].inv() * r[1:]).as_rotvec(), np.float64)
 
 
@@ -74,8 +86,9 @@ def turn_and_change_deg(turns_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def frame_turn_change_deg(gt_times_s: np.ndarray, gt_poses_wc: np.ndarray, frame_times_s: np.ndarray) -> np.ndarray:
-    """Per frame of a localisation fed once per cycle, what its constant-velocity prediction misses: the angle between
-    the camera's rotation from the frame before to this one and its rotation over the step before that, degrees.
+    """Per frame of a localisation fed once per cycle, what its constant-velocity prediction misses: the change from
+    the camera's turn over the step before to its turn into this frame (:func:`turn_and_change_deg`'s change, over
+    the frames' own steps), degrees.
 
     Args:
         gt_times_s: float (M,) reference times, increasing, seconds (M >= 2); gt_poses_wc: float (M, 4, 4)
@@ -88,12 +101,10 @@ def frame_turn_change_deg(gt_times_s: np.ndarray, gt_poses_wc: np.ndarray, frame
     out = np.full(t.shape, np.nan)
     gt_t = np.asarray(gt_times_s, np.float64)
     inside = (t >= gt_t[0]) & (t <= gt_t[-1]) if len(gt_t) >= 2 else np.zeros(t.shape, bool)
-    if not np.any(inside):
+    if np.count_nonzero(inside) < 3:
         return out
-    slerp = Slerp(gt_t, Rotation.from_matrix(np.asarray(gt_poses_wc, np.float64)[:, :3, :3]))
-    r = slerp(np.where(inside, t, gt_t[0]))
-    step = r[:-1].inv() * r[1:]  # step k: from frame k to frame k + 1
-    miss = np.degrees((step[:-1].inv() * step[1:]).magnitude())
+    samples = np.where(inside, t, gt_t[0]) - gt_t[0]  # times from the reference's start: stamps in ns keep digits
+    _, change = turn_and_change_deg(turns_between(gt_t - gt_t[0], gt_poses_wc, samples))
     ok = inside[:-2] & inside[1:-1] & inside[2:]
-    out[2:][ok] = miss[ok]
+    out[2:][ok] = change[ok]
     return out

@@ -114,12 +114,9 @@ def window_change_stops(exposure_ratio: np.ndarray) -> np.ndarray:
     stops = np.full(r.shape, np.nan)
     known = np.isfinite(r) & (r > 0)
     stops[known] = np.abs(np.log2(r[known]))
-    out = np.full(r.shape, np.nan)
-    for k in range(len(r)):
-        v = stops[max(0, k - LOOKBACK):k + 1]
-        v = v[np.isfinite(v)]
-        if v.size:
-            out[k] = float(v.max())
+    out = stops.copy()
+    for lag in range(1, LOOKBACK + 1):  # fmax: the larger of two, the known one when the other is NaN
+        out[lag:] = np.fmax(out[lag:], stops[:-lag])
     return out
 
 
