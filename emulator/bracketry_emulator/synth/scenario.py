@@ -39,8 +39,10 @@ How each part acts (all of it deterministic, from the world seed):
   while the camera is in a cloud's shadow. **dimming**: one factor on all light over time (log-linear between the
   keys). These are applied to each render at the frame's instant ``t_s`` from the world position of every pixel's
   hit.
-- **glare**: a veil ``glare * 0.01 * E_sun / (angle^2 + 0.01^2)`` around a visible sun within 70 degrees of the
-  optical axis (E_sun: the disk's radiance x its solid angle).
+- **glare**: a veil ``glare * 0.01 * E_v / (angle^2 + 0.01^2)`` around a visible sun within 70 degrees of the
+  optical axis (E_v: 2e4 x the atmosphere's transmission x the disk's solid angle, 0.092 of the sun's irradiance
+  ``pi * sun_rgb``). The solar disk itself has the radiance that casts the direct light (``sun_rgb / disk_rad^2``):
+  in view, it feeds the camera's veiling glare and blooming (:mod:`~bracketry_emulator.synth.camera_model`).
 - **fresh_snow**: the ground of the sector becomes smooth, nearly textureless snow; ``contrast`` gives it a natural
   1/f texture of that RMS contrast (wind ripples, sastrugi, tracks: a few per cent), ``open: true`` takes the trees
   out of the sector (an open field or a frozen lake).
@@ -71,7 +73,7 @@ from bracketry_base.errors import BracketryError
 from bracketry_base.options import parse_resolution
 from bracketry_emulator.synth.calibration import SIDES, CameraIntrinsics, StereoCalibration
 from bracketry_emulator.synth.render import RenderResult, SideRenderer, pseudo_angle
-from bracketry_emulator.synth.scene import PRESETS, Lighting, Scene, SceneOptions, build_scene
+from bracketry_emulator.synth.scene import DISK_RAD, PRESETS, Lighting, Scene, SceneOptions, build_scene
 from bracketry_emulator.synth.trajectory import RIG_PITCH_DEG, LoopTrajectory, mat_mul
 
 FORMAT_VERSION = 1
@@ -429,10 +431,15 @@ def sky_lighting(elev_deg: float, az_world_deg: float, overcast: float = 0.0) ->
     zenith = tuple(float(c * sky_k) for c in (1.2, 2.1, 4.2))
     horizon = tuple(float(c * sky_k) for c in (4.0, 4.5, 5.2))
     halo = tuple(float(c * t * clear) for c, t in zip((75.0, 68.0, 56.0), trans))
-    # no sun (below the horizon, overcast): the disk's pixels are sky
-    disk = max(float(2.0e4 * trans[1] / math.exp(-0.16) * clear), horizon[1])
+    # the disk casts the direct light: an albedo-1 surface facing it has radiance sun_rgb, so its irradiance
+    # pi * sun_rgb comes from a disk of radiance sun_rgb / DISK_RAD**2 over the solid angle pi * DISK_RAD**2; no sun
+    # (below the horizon, overcast): the disk's pixels are sky
+    disk = max(float(sun_rgb[1]) / DISK_RAD ** 2, horizon[1])
+    # the glare veil's scale: 2e4 x the transmission (the module docstring's E_v)
+    veil = max(float(2.0e4 * trans[1] / math.exp(-0.16) * clear), horizon[1])
     return Lighting(sun_dir=sun_dir, sun_rgb=sun_rgb, sky_rgb=sky_rgb, zenith_rgb=zenith,  # type: ignore[arg-type]
-                    horizon_rgb=horizon, halo_rgb=halo, disk_radiance=disk)  # type: ignore[arg-type]
+                    horizon_rgb=horizon, halo_rgb=halo, disk_radiance=disk,  # type: ignore[arg-type]
+                    veil_radiance=veil)
 
 
 # ---------------------------------------------------------------------------------------------------- route sectors
@@ -542,7 +549,7 @@ class LightField:
         self.has_canopy = bool(np.any(self.canopy < 1.0))
         self.spatial = self.has_canopy or bool(self.clouds)
         self.sun_up = lt.sun_rgb[1] > 0
-        e_sun = lt.disk_radiance * math.pi * lt.disk_rad ** 2
+        e_sun = (lt.disk_radiance if lt.veil_radiance is None else lt.veil_radiance) * math.pi * lt.disk_rad ** 2
         self.veil_k = float(scenario.weather.glare * 0.01 * e_sun) if self.sun_up else 0.0
 
     def global_factor(self, t_s: float) -> float:

@@ -20,6 +20,10 @@ from bracketry_emulator.synth.trajectory import LoopTrajectory
 PRESETS = ("forest-winter", "campus-summer")
 
 
+#: angular radius of the solar disk (rad)
+DISK_RAD = 0.00465
+
+
 @dataclass(frozen=True)
 class Lighting:
     """Sun and sky.
@@ -32,6 +36,8 @@ class Lighting:
         halo_rgb: extra sky radiance next to the sun (decays as exp(-angle / halo_rad)).
         disk_radiance: radiance of the solar disk (all channels).
         disk_rad: angular radius of the solar disk.
+        veil_radiance: the disk radiance the scenario's glare veil is scaled on
+            (:class:`~bracketry_emulator.synth.scenario.LightField`; None: ``disk_radiance``).
     """
 
     sun_dir: np.ndarray
@@ -42,7 +48,8 @@ class Lighting:
     halo_rgb: tuple[float, float, float]
     halo_rad: float = 0.12
     disk_radiance: float = 2.0e4
-    disk_rad: float = 0.00465
+    disk_rad: float = DISK_RAD
+    veil_radiance: float | None = None
 
 
 @dataclass

@@ -37,7 +37,7 @@ from bracketry_emulator.synth.scenario import (
 )
 
 #: the suite's version: part of its cache key and of its manifest
-SUITE_VERSION = "6"
+SUITE_VERSION = "7"
 SUBSETS = ("forest", "sun-shadow", "glare", "day-cycle")
 DAY_CYCLE_HOURS = (6.0, 9.0, 12.0, 15.0, 18.0, 19.8)
 #: the hours of the day-cycle walks in the demo-size suite (morning and sunset: the sun 0.3 degrees above the

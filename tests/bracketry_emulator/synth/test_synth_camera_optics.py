@@ -10,7 +10,7 @@ import pytest
 
 from bracketry_emulator.synth import CameraModel, World
 from bracketry_emulator.synth.realism import dark_noise_floor, model_noise_dn, shares
-from bracketry_emulator.synth.scenario import load_scenario, shipped_scenarios
+from bracketry_emulator.synth.scenario import load_scenario, shipped_scenarios, sky_lighting
 from bracketry_emulator.synth.trajectory import LoopTrajectory
 from bracketry_emulator.synth.world import world_from_scenario
 
@@ -85,6 +85,20 @@ def test_synth_glare_raises_the_dark_level_around_a_sun_in_view() -> None:
     assert float(np.median(a[dark] / b[dark])) > 1.2
     # the dynamic range of the view shrinks (contrast flattens)
     assert np.percentile(a, 99) / np.percentile(a, 5) < np.percentile(b, 99) / np.percentile(b, 5)
+
+
+def test_synth_the_sun_disk_casts_the_direct_light() -> None:
+    # an albedo-1 surface facing the sun has radiance sun_rgb: irradiance pi * sun_rgb, which the disk of radiance L
+    # delivers over its solid angle pi * r^2; the glare veil keeps its own scale, 0.092 of that irradiance
+    for elev_deg, overcast in ((1.0, 0.0), (3.0, 0.0), (8.0, 0.3), (30.0, 0.0), (60.0, 0.0)):
+        lt = sky_lighting(elev_deg, 200.0, overcast)
+        e_sun = lt.disk_radiance * math.pi * lt.disk_rad ** 2
+        assert e_sun == pytest.approx(math.pi * lt.sun_rgb[1], rel=1e-9)
+        assert lt.veil_radiance is not None
+        assert lt.veil_radiance * math.pi * lt.disk_rad ** 2 == pytest.approx(0.0923 * e_sun, rel=1e-3)
+    # no sun below the horizon: the disk's pixels are sky
+    night = sky_lighting(-4.0, 200.0)
+    assert night.sun_rgb[1] == 0.0 and night.disk_radiance == night.horizon_rgb[1]
 
 
 def test_synth_blooming_grows_saturated_areas_with_the_overexposure() -> None:
