@@ -174,7 +174,8 @@ class SceneOptions:
         """A hashable summary (for scene caches)."""
         lt = self.lighting
         lkey = None if lt is None else (tuple(lt.sun_dir.tolist()), lt.sun_rgb, lt.sky_rgb, lt.zenith_rgb,
-                                        lt.horizon_rgb, lt.halo_rgb, lt.halo_rad, lt.disk_radiance, lt.disk_rad)
+                                        lt.horizon_rgb, lt.halo_rgb, lt.halo_rad, lt.disk_radiance, lt.disk_rad,
+                                        lt.veil_radiance)
         def raw(a: np.ndarray | None) -> bytes | None:
             return None if a is None else np.asarray(a, np.float32).tobytes()
 
