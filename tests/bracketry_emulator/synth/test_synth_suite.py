@@ -21,6 +21,7 @@ from bracketry_emulator.synth.suite import (
     entries,
     entry_scenario_doc,
     scene_brightness,
+    sun_in_view_share,
     view_dynamic_range_stops,
 )
 from bracketry_emulator.synth.world import world_from_scenario
@@ -52,6 +53,19 @@ def test_canopy_and_open_snow_span_11_stops_in_one_view() -> None:
     plain = world_from_scenario(scenario_from_dict({"preset": "forest-winter", "sun": {"hour": 11.5}}),
                                 resolution=(160, 100), detail=0.25)
     assert view_dynamic_range_stops(plain.radiance("left", 6.0).radiance) < 8.0
+
+
+def test_every_full_size_glare_walk_holds_the_sun_in_its_view() -> None:
+    # the glare subset is the paper's Campus1: a low sun in the field of view along part of the loop
+    shares = {e.name: sun_in_view_share(entry_scenario_doc(e, "full", 0)) for e in entries("full")
+              if e.subset == "glare"}
+    assert len(shares) == 6 and min(shares.values()) >= 0.1, shares
+    # a sun 12 degrees high at azimuth 300 stays above the view of a camera pitched down; one behind it, never in it
+    doc = entry_scenario_doc(next(e for e in entries("full") if e.name == "glare_d"), "full", 0)
+    assert sun_in_view_share({**doc, "sun": {"elevation_deg": 12.0, "azimuth_deg": 300.0}}) == 0.0
+    assert sun_in_view_share({**doc, "sun": {"elevation_deg": 6.0, "azimuth_deg": 60.0}}) == 0.0
+    # below the horizon there is no sun to see
+    assert sun_in_view_share({**doc, "sun": {"elevation_deg": -2.0, "azimuth_deg": 300.0}}) == 0.0
 
 
 def test_sun_and_shadow_change_the_brightness_8x_within_2_s() -> None:
