@@ -404,5 +404,27 @@ def world_from_dataset(path: str | Path) -> World:
                             ("slice_us", "blur_slice_us", float), ("max_slices", "blur_max", int)):
         if key in blur and name in params:
             kwargs[name] = kind(blur[key])
-    return World(wd["preset"], int(wd["seed"]), tuple(wd["resolution"]), calibration=calib, camera=camera,
-                 trajectory=trajectory, detail=float(wd.get("detail", 1.0)), scenario=scenario, **kwargs)
+    world = World(wd["preset"], int(wd["seed"]), tuple(wd["resolution"]), calibration=calib, camera=camera,
+                  trajectory=trajectory, detail=float(wd.get("detail", 1.0)), scenario=scenario, **kwargs)
+    differ = sun_differences(wd.get("sun") or {}, world.describe()["sun"])
+    if differ:
+        raise BracketryError(f"{p} was rendered with another sun than this code builds ({'; '.join(differ)}): "
+                             "render it again (bracketry synth suite, or synth trajectory)")
+    return world
+
+
+def sun_differences(recorded: dict, rebuilt: dict, rel_tol: float = 1e-9) -> list[str]:
+    """The entries of a ``camera_model.json`` world's ``sun`` (``recorded``; those it holds) that differ from
+    ``rebuilt`` (:meth:`World.describe`'s): ``"key recorded -> rebuilt"`` each, numbers compared within ``rel_tol``."""
+    out = []
+    for key, was in recorded.items():
+        now = rebuilt.get(key)
+        try:
+            a = np.atleast_1d(np.asarray(was, np.float64))
+            b = np.atleast_1d(np.asarray(now, np.float64))
+            same = a.shape == b.shape and bool(np.allclose(a, b, rtol=rel_tol, atol=0.0))
+        except (TypeError, ValueError):  # not numbers (or None): the same only if equal
+            same = was == now
+        if not same:
+            out.append(f"{key} {was} -> {now}")
+    return out

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +14,7 @@ from bracketry_emulator.synth.scenario import (
     scenario_from_dict,
     sun_position,
 )
+from bracketry_emulator.synth.world import sun_differences
 
 
 def _doc(**kw: object) -> dict:
@@ -128,3 +130,24 @@ def test_scenario_frames_are_the_same_under_every_openblas_kernel_and_numpy_disp
         assert proc.returncode == 0, (name, stderr[-2000:])
         digests[name] = stdout.strip()
     assert len(set(digests.values())) == 1, digests
+
+
+def test_world_from_dataset_refuses_a_folder_rendered_with_another_sun(tmp_path: Path) -> None:
+    # a folder whose camera_model.json records another solar disk (as code with a dimmer disk wrote it) would be
+    # rebuilt with this code's disk: its truth renders would not match its images
+    sc = scenario_from_dict(_doc(sun={"elevation_deg": 5.0, "azimuth_deg": 200.0}))
+    out = tmp_path / "w"
+    write_trajectory(world_from_scenario(sc, seed=1, resolution=(64, 40), detail=0.25), out, seconds=0.1)
+    world_from_dataset(out)  # as written: rebuilt
+    info_path = out / "camera_model.json"
+    info = json.loads(info_path.read_text())
+    disk = info["world"]["sun"]["disk_radiance"]
+    info["world"]["sun"]["disk_radiance"] = disk / 10.8
+    info_path.write_text(json.dumps(info))
+    with pytest.raises(BracketryError, match=r"another sun than this code builds \(disk_radiance"):
+        world_from_dataset(out)
+    # the same check, on the parts: numbers within a relative 1e-9, other values equal, a missing entry differs
+    assert sun_differences({"disk_radiance": disk * (1 + 1e-12), "elevation_deg": 5.0},
+                           {"disk_radiance": disk, "elevation_deg": 5.0, "direction_world": [0.0, 1.0, 0.0]}) == []
+    assert sun_differences({"direction_world": [0.0, 1.0, 0.0]}, {"direction_world": [0.0, 0.99, 0.0]})
+    assert sun_differences({"note": "x"}, {"note": "y"}) and sun_differences({"disk_radiance": 1.0}, {})
