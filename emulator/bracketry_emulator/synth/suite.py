@@ -308,8 +308,8 @@ def view_dynamic_range_stops(radiance: np.ndarray, lo_pct: float = 1.0, hi_pct: 
 
 def sun_in_view_share(doc: dict, step_s: float = 0.25) -> float:
     """Share of a scenario's instants (every ``step_s`` over its duration, in seconds) at which the sun's centre
-    projects into the left image (the pinhole of the rig's left camera matrix at the scenario's resolution; trees
-    and terrain are not traced). 0 for a sun below the horizon."""
+    projects into the left image (the rig's left lens at the scenario's resolution, its distortion included, as the
+    renderer places the sun; trees and terrain are not traced). 0 for a sun below the horizon."""
     from bracketry_emulator.synth.calibration import default_calibration
 
     sc = scenario_from_dict(doc)
@@ -326,8 +326,8 @@ def sun_in_view_share(doc: dict, step_s: float = 0.25) -> float:
         x, y, z = R_wc.T @ sun_w
         if z <= 0.0:
             continue
-        u, v = cam.fx * x / z + cam.cx, cam.fy * y / z + cam.cy
-        inside += int(0.0 <= u <= cam.width - 1 and 0.0 <= v <= cam.height - 1)
+        u, v = cam.distort(np.array([x / z]), np.array([y / z]))
+        inside += int(0.0 <= float(u[0]) <= cam.width - 1 and 0.0 <= float(v[0]) <= cam.height - 1)
     return inside / max(len(times), 1)
 
 

@@ -406,7 +406,10 @@ def world_from_dataset(path: str | Path) -> World:
             kwargs[name] = kind(blur[key])
     world = World(wd["preset"], int(wd["seed"]), tuple(wd["resolution"]), calibration=calib, camera=camera,
                   trajectory=trajectory, detail=float(wd.get("detail", 1.0)), scenario=scenario, **kwargs)
-    differ = sun_differences(wd.get("sun") or {}, world.describe()["sun"])
+    recorded_sun = wd.get("sun") or {}
+    if not isinstance(recorded_sun, dict):
+        raise BracketryError(f"{info_path}: world.sun is not a mapping")
+    differ = sun_differences(recorded_sun, world.describe()["sun"])
     if differ:
         raise BracketryError(f"{p} was rendered with another sun than this code builds ({'; '.join(differ)}): "
                              "render it again (bracketry synth suite, or synth trajectory)")

@@ -146,6 +146,10 @@ def test_world_from_dataset_refuses_a_folder_rendered_with_another_sun(tmp_path:
     info_path.write_text(json.dumps(info))
     with pytest.raises(BracketryError, match=r"another sun than this code builds \(disk_radiance"):
         world_from_dataset(out)
+    info["world"]["sun"] = [disk]  # not a mapping: refused in one line too
+    info_path.write_text(json.dumps(info))
+    with pytest.raises(BracketryError, match=r"world\.sun is not a mapping"):
+        world_from_dataset(out)
     # the same check, on the parts: numbers within a relative 1e-9, other values equal, a missing entry differs
     assert sun_differences({"disk_radiance": disk * (1 + 1e-12), "elevation_deg": 5.0},
                            {"disk_radiance": disk, "elevation_deg": 5.0, "direction_world": [0.0, 1.0, 0.0]}) == []
