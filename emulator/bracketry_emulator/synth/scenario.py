@@ -442,6 +442,17 @@ def sky_lighting(elev_deg: float, az_world_deg: float, overcast: float = 0.0) ->
                     veil_radiance=veil)
 
 
+def sun_pixel(intr: CameraIntrinsics, s_c: np.ndarray) -> tuple[int, int] | None:
+    """The pixel (column, row) where the sun's centre lands in the image of ``intr`` (its lens distortion included),
+    the sun's direction ``s_c`` in that camera's frame (float64 (3,): x right, y down, z forward); None when it lands
+    outside the image or behind the camera."""
+    if s_c[2] <= 0.0:
+        return None
+    u, v = intr.distort(np.array([s_c[0] / s_c[2]]), np.array([s_c[1] / s_c[2]]))
+    col, row = round(float(u[0])), round(float(v[0]))
+    return (col, row) if 0 <= col < intr.width and 0 <= row < intr.height else None
+
+
 # ---------------------------------------------------------------------------------------------------- route sectors
 def _base_loop(trajectory: LoopTrajectory) -> LoopTrajectory:
     """The same loop with its arc length counted from polar angle 0 (route fractions of events refer to it)."""
@@ -655,10 +666,9 @@ class LightField:
 
     def _sun_unoccluded(self, renderer: SideRenderer, s_c: np.ndarray, p_w: np.ndarray, res: RenderResult) -> float:
         """1 if the sun is seen: in the image, its pixel shows sky; outside, it stands above the far treeline."""
-        intr = renderer.intr
-        u, v = intr.distort(np.array([s_c[0] / s_c[2]]), np.array([s_c[1] / s_c[2]]))
-        col, row = round(float(u[0])), round(float(v[0]))
-        if 0 <= col < intr.width and 0 <= row < intr.height:
+        pixel = sun_pixel(renderer.intr, s_c)
+        if pixel is not None:
+            col, row = pixel
             return 1.0 if not np.isfinite(res.range_m[row, col]) else 0.0
         sc = self.scene
         lt = sc.lighting

@@ -28,11 +28,13 @@ import yaml
 
 from bracketry_base.errors import BracketryError
 from bracketry_base.paths import user_cache_dir
+from bracketry_emulator.synth.calibration import default_calibration
 from bracketry_emulator.synth.scenario import (
     merge,
     read_scenario_doc,
     scenario_from_dict,
     shipped_scenarios,
+    sun_pixel,
     sun_position,
 )
 
@@ -306,29 +308,26 @@ def view_dynamic_range_stops(radiance: np.ndarray, lo_pct: float = 1.0, hi_pct: 
     return float(np.log2(hi / max(lo, 1e-12)))
 
 
-def sun_in_view_share(doc: dict, step_s: float = 0.25) -> float:
-    """Share of a scenario's instants (every ``step_s`` over its duration, in seconds) at which the sun's centre
-    projects into the left image (the rig's left lens at the scenario's resolution, its distortion included, as the
-    renderer places the sun; trees and terrain are not traced). 0 for a sun below the horizon."""
-    from bracketry_emulator.synth.calibration import default_calibration
-
+def sun_in_view(doc: dict, times_s: np.ndarray) -> np.ndarray:
+    """Whether the sun's centre lands in the left image at each instant of ``times_s`` (float (N,), seconds; clipped
+    to the walk's start) of a scenario document: bool (N,). The rig's left lens at the scenario's resolution, as the
+    renderer places the sun (:func:`~bracketry_emulator.synth.scenario.sun_pixel`); trees and terrain are not traced;
+    all False for a sun below the horizon."""
     sc = scenario_from_dict(doc)
-    light = sc.lighting()
+    times = np.asarray(times_s, np.float64)
     if sun_position(sc.sun)[0] <= 0.0:
-        return 0.0
+        return np.zeros(times.shape, bool)
     traj = sc.trajectory()
     cam = default_calibration(*sc.resolution).left
-    sun_w = np.asarray(light.sun_dir, np.float64)
-    times = np.arange(0.0, sc.duration_s, step_s)
-    inside = 0
-    for t in times:
-        R_wc, _p = traj.pose(float(t))
-        x, y, z = R_wc.T @ sun_w
-        if z <= 0.0:
-            continue
-        u, v = cam.distort(np.array([x / z]), np.array([y / z]))
-        inside += int(0.0 <= float(u[0]) <= cam.width - 1 and 0.0 <= float(v[0]) <= cam.height - 1)
-    return inside / max(len(times), 1)
+    sun_w = np.asarray(sc.lighting().sun_dir, np.float64)
+    return np.array([sun_pixel(cam, traj.pose(max(float(t), 0.0))[0].T @ sun_w) is not None for t in times], bool)
+
+
+def sun_in_view_share(doc: dict, step_s: float = 0.25) -> float:
+    """Share of a scenario's instants (every ``step_s`` over its duration, in seconds) at which the sun's centre lands
+    in the left image (:func:`sun_in_view`)."""
+    seen = sun_in_view(doc, np.arange(0.0, float(scenario_from_dict(doc).duration_s), step_s))
+    return float(seen.mean()) if seen.size else 0.0
 
 
 def scene_brightness(radiance: np.ndarray) -> float:

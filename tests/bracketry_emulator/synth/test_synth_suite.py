@@ -21,6 +21,7 @@ from bracketry_emulator.synth.suite import (
     entries,
     entry_scenario_doc,
     scene_brightness,
+    sun_in_view,
     sun_in_view_share,
     view_dynamic_range_stops,
 )
@@ -64,6 +65,12 @@ def test_every_full_size_glare_walk_holds_the_sun_in_its_view() -> None:
     doc = entry_scenario_doc(next(e for e in entries("full") if e.name == "glare_d"), "full", 0)
     assert sun_in_view_share({**doc, "sun": {"elevation_deg": 12.0, "azimuth_deg": 300.0}}) == 0.0
     assert sun_in_view_share({**doc, "sun": {"elevation_deg": 6.0, "azimuth_deg": 60.0}}) == 0.0
+    # the share is that of the instants at which the sun lands in the image, and the instants come back in order
+    times = np.arange(0.0, 60.0, 0.25)
+    seen = sun_in_view(doc, times)
+    assert seen.dtype == bool and seen.shape == times.shape and 0 < seen.sum() < seen.size
+    assert seen.mean() == pytest.approx(shares["glare_d"])
+    assert np.array_equal(sun_in_view(doc, times[::-1]), seen[::-1])
     # below the horizon there is no sun to see
     assert sun_in_view_share({**doc, "sun": {"elevation_deg": -2.0, "azimuth_deg": 300.0}}) == 0.0
 
